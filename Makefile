@@ -1,0 +1,42 @@
+# fwdlook: strict make.  `make help` lists the targets.
+SHELL := bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DEFAULT_GOAL := help
+MAKEFLAGS += --warn-undefined-variables --no-builtin-rules
+
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+SCENARIO ?= scenarios/paper_fig6_a50.yaml
+RUN_DIR ?= runs/default
+
+.PHONY: help install run test test-slow bench clean
+
+help: ## list the targets
+	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP) ## create .venv and install fwdlook (editable) with its test extra
+
+run: $(STAMP) ## simulate the default scenario (SCENARIO=...) and describe the cube
+	mkdir -p $(RUN_DIR)
+	$(BIN)/fwdlook simulate $(SCENARIO) -o $(RUN_DIR)/raw.h5
+	$(BIN)/fwdlook info $(RUN_DIR)/raw.h5
+
+test: $(STAMP) ## run the test suite (fast tests; a few minutes on 2 cores)
+	$(BIN)/python -m pytest -q
+
+test-slow: $(STAMP) ## also the full paper-size runs
+	$(BIN)/python -m pytest -q -m slow
+
+bench: $(STAMP) ## timings in one process on the paper cube
+	$(BIN)/fwdlook bench
+
+clean: ## remove generated outputs (keeps .venv)
+	rm -rf runs reports .pytest_cache .hypothesis

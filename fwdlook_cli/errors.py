@@ -1,0 +1,13 @@
+"""The one exception the CLI turns into exit code 2.
+
+Everything that is the user's fault (a bad scenario key, a malformed cube, a missing file) raises
+:class:`BadInput` with a one-line message naming the file, the key path or dataset, the bad value and
+what is allowed.  Anything else that escapes a command is an internal fault (exit 1, traceback kept).
+"""
+
+
+class BadInput(Exception):
+    """Bad input: exit code 2, one plain line, no traceback."""
+
+    def __init__(self, message: str):
+        super().__init__(" ".join(str(message).split()))  # always one line
