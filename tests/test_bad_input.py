@@ -1,0 +1,373 @@
+"""The bad-input corpus: every way a user can hand fwdlook a broken scenario or cube.
+
+CONTRACT.md section 1: bad input exits 2 with ONE plain line on stderr naming the file, the key path
+or dataset, the bad value and what is allowed, no traceback; and a failed command never leaves a file
+that looks complete (no output, no ``*.partial``).  Each case builds its bad input in tmp_path and
+runs ``fwdlook_cli.cli.main`` in-process.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+from fwdlook_cli.cli import main
+from fwdlook_cli.config import load_scenario, scenario_hash
+from fwdlook_cli.io import write_raw
+from fwdlook_cli.simulate import simulate_scenario
+
+TINY = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
+TINY_TEXT = TINY.read_text(encoding="utf-8")
+
+
+def run_cli(argv, capsys):
+    """Run ``fwdlook ARGV`` in-process; return (exit code, stdout, stderr)."""
+    with pytest.raises(SystemExit) as exc_info:
+        main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return exc_info.value.code, out, err
+
+
+def assert_bad_input(code, out, err, path, fragments):
+    """Exit 2, one 'fwdlook: error:' line on stderr naming the file and every fragment."""
+    assert code == 2, f"exit {code}, stderr: {err!r}"
+    assert "Traceback" not in err and "Traceback" not in out
+    lines = err.splitlines()
+    assert len(lines) == 1, f"expected one stderr line, got {lines!r}"
+    line = lines[0]
+    assert line.strip(), "empty error line"
+    assert line.startswith("fwdlook: error:"), line
+    assert str(path) in line, f"file {path} not named in: {line}"
+    for fragment in fragments:
+        assert fragment in line, f"{fragment!r} not named in: {line}"
+    assert out == "", f"unexpected stdout on failure: {out!r}"
+
+
+def assert_nothing_written(tmp_path, output):
+    assert not Path(output).exists(), f"{output} was written by a failing command"
+    assert list(tmp_path.rglob("*.partial")) == []
+
+
+# ----------------------------------------------------------------------------------------------
+# Scenario cases: each builds a scenario file from tiny.yaml (text edit or dict edit)
+# ----------------------------------------------------------------------------------------------
+def _text_edit(old, new):
+    def build(tmp_path):
+        assert TINY_TEXT.count(old) == 1, old  # the edit must hit tiny.yaml exactly once
+        path = tmp_path / "scenario.yaml"
+        path.write_text(TINY_TEXT.replace(old, new), encoding="utf-8")
+        return path
+
+    return build
+
+
+def _dict_edit(fn):
+    def build(tmp_path):
+        raw = yaml.safe_load(TINY_TEXT)
+        fn(raw)
+        path = tmp_path / "scenario.yaml"
+        path.write_text(yaml.safe_dump(raw, sort_keys=False), encoding="utf-8")
+        return path
+
+    return build
+
+
+def _set(dotted, value):
+    def fn(raw):
+        *parents, leaf = dotted.split(".")
+        node = raw
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+
+    return _dict_edit(fn)
+
+
+def _delete(dotted):
+    def fn(raw):
+        *parents, leaf = dotted.split(".")
+        node = raw
+        for part in parents:
+            node = node[part]
+        del node[leaf]
+
+    return _dict_edit(fn)
+
+
+def _copy_tiny(tmp_path):
+    path = tmp_path / "scenario.yaml"
+    path.write_text(TINY_TEXT, encoding="utf-8")
+    return path
+
+
+def _missing_file(tmp_path):
+    return tmp_path / "no_such_scenario.yaml"
+
+
+def _raw(text):
+    def build(tmp_path):
+        path = tmp_path / "scenario.yaml"
+        path.write_text(text, encoding="utf-8")
+        return path
+
+    return build
+
+
+# (id, builder, extra argv, fragments the message must contain besides the file path)
+SCENARIO_CASES = [
+    ("malformed-yaml-unclosed-bracket",
+     _text_edit("points_m: [[-150.0, 1000.0], [0.0, 1030.0], [120.0, 990.0]]",
+                "points_m: [[-150.0, 1000.0], [0.0, 1030.0], [120.0, 990.0]"),
+     [], ["invalid YAML", "line "]),
+    ("duplicate-key",
+     _text_edit("  prf_hz: 2000\n", "  prf_hz: 2000\n  prf_hz: 3000\n"),
+     [], ["radar.prf_hz", "duplicate"]),
+    ("unknown-top-level-key", _set("colour", "red"), [], ["colour", "unknown key", "radar", "processing"]),
+    ("unknown-nested-key", _set("radar.prf", 2000), [],
+     ["radar.prf", "unknown key", "allowed:", "prf_hz", "fc_hz", "fs_hz"]),
+    ("section-not-a-mapping", _set("radar", 5), [], ["radar", "expected a mapping"]),
+    ("top-level-not-a-mapping", _raw("- 1\n- 2\n"), [], ["top level", "mapping"]),
+    ("wrong-type-string-for-prf", _set("radar.prf_hz", "fast"), [],
+     ["radar.prf_hz", "'fast'", "expected a number"]),
+    ("bool-for-number", _set("radar.prf_hz", True), [], ["radar.prf_hz", "true", "expected a number"]),
+    ("yaml11-yes-for-number", _text_edit("speed_mps: 150.0", "speed_mps: yes"), [],
+     ["platform.speed_mps", "expected a number"]),
+    ("float-for-integer", _set("noise.seed", 1.5), [], ["noise.seed", "1.5", "integer"]),
+    ("negative-prf", _set("radar.prf_hz", -2000), [], ["radar.prf_hz", "-2000", "> 0"]),
+    ("zero-prf", _set("radar.prf_hz", 0), [], ["radar.prf_hz", "= 0", "> 0"]),
+    ("nan-value", _text_edit("snr_db: 30.0", "snr_db: .nan"), [], ["noise.snr_db", "finite"]),
+    ("fs-below-bandwidth", _set("radar.fs_hz", 10.0e6), [],
+     ["radar.fs_hz", "1e+07", "radar.bandwidth_hz", "2e+07"]),
+    ("q-does-not-divide-pulses", _set("processing.q", 7), [], ["processing.q", "7", "400"]),
+    ("bad-choice-method", _set("processing.method", "foo"), [],
+     ["processing.method", "'foo'", "allowed:", "decimation", "tracking", "auto"]),
+    ("bad-choice-keystone", _set("processing.keystone", "fft"), [],
+     ["processing.keystone", "'fft'", "czt", "dft", "sinc"]),
+    ("points-without-points_m", _delete("scene.points_m"), [], ["scene.points_m", "points"]),
+    ("amplitude-list-wrong-length", _set("scene.amplitude", [1.0, 2.0]), [],
+     ["scene.amplitude", "2", "3"]),
+    ("amplitude-non-positive", _set("scene.amplitude", [1.0, 0.0, 1.0]), [], ["scene.amplitude", "> 0"]),
+    ("range-window-misses-targets", _set("radar.range_window_m", [1100.0, 1200.0]), [],
+     ["radar.range_window_m", "1100", "1200", "auto"]),
+    ("range-window-reversed", _set("radar.range_window_m", [1200.0, 1100.0]), [],
+     ["radar.range_window_m", "far > near"]),
+    ("scan-stop-equals-start", _set("antenna.scan_stop_deg", -10.0), [],
+     ["antenna.scan_stop_deg", "antenna.scan_start_deg"]),
+    ("scan-stop-below-start", _set("antenna.scan_stop_deg", -20.0), [],
+     ["antenna.scan_stop_deg", "-20", "antenna.scan_start_deg"]),
+    ("squint-too-large", _set("antenna.squint_deg", 3.0), [], ["antenna.squint_deg", "3", "allowed"]),
+    ("accel-wrong-length", _set("platform.accel_mps2", [0.0, 10.0]), [],
+     ["platform.accel_mps2", "list of 3"]),
+    ("missing-scenario-file", _missing_file, [], ["not found"]),
+    ("set-unknown-key", _copy_tiny, ["--set", "radar.foo=1"], ["radar.foo", "unknown key", "prf_hz"]),
+    ("set-without-equals", _copy_tiny, ["--set", "processing.q"], ["--set", "processing.q", "KEY.PATH=VALUE"]),
+    ("set-bad-value", _copy_tiny, ["--set", "processing.q=7"], ["processing.q", "7", "400"]),
+    ("set-invalid-yaml-value", _copy_tiny, ["--set", "platform.accel_mps2=[0, 30"],
+     ["platform.accel_mps2", "invalid YAML"]),
+    ("set-through-a-leaf", _copy_tiny, ["--set", "radar.prf_hz.x=1"], ["radar.prf_hz", "not a mapping"]),
+]
+
+
+@pytest.mark.parametrize("case_id, build, extra, fragments",
+                         [pytest.param(*c, id=c[0]) for c in SCENARIO_CASES])
+def test_bad_scenario_simulate(tmp_path, capsys, case_id, build, extra, fragments):
+    scenario = build(tmp_path)
+    output = tmp_path / "out" / "raw.h5"
+    code, out, err = run_cli(["simulate", scenario, "-o", output, *extra], capsys)
+    assert_bad_input(code, out, err, scenario, fragments)
+    assert_nothing_written(tmp_path, output)
+
+
+@pytest.mark.parametrize("case_id, build, extra, fragments",
+                         [pytest.param(*c, id=c[0]) for c in SCENARIO_CASES])
+def test_bad_scenario_validate(tmp_path, capsys, case_id, build, extra, fragments):
+    scenario = build(tmp_path)
+    code, out, err = run_cli(["validate", scenario, *extra], capsys)
+    assert_bad_input(code, out, err, scenario, fragments)
+    assert list(tmp_path.rglob("*.partial")) == []
+
+
+# ----------------------------------------------------------------------------------------------
+# Cube cases: each starts from a valid simulated tiny cube and breaks one thing
+# ----------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def good_cube(tmp_path_factory):
+    cube, _ = simulate_scenario(load_scenario(TINY))
+    path = tmp_path_factory.mktemp("good") / "good.h5"
+    write_raw(path, cube)
+    return path
+
+
+def _h5_edit(fn):
+    def build(good, tmp_path):
+        path = tmp_path / "cube.h5"
+        shutil.copyfile(good, path)
+        with h5py.File(path, "r+") as f:
+            fn(f)
+        return path
+
+    return build
+
+
+def _drop_diff(f):
+    del f["echo/diff"]
+
+
+def _float32_echo(f):
+    data = np.abs(f["echo/sum"][()]).astype(np.float32)
+    del f["echo/sum"]
+    f.create_dataset("echo/sum", data=data)
+
+
+def _diff_shape(f):
+    data = f["echo/diff"][:, :-1]
+    del f["echo/diff"]
+    f.create_dataset("echo/diff", data=data)
+
+
+def _nan_sum(f):
+    f["echo/sum"][3, 4] = np.complex64(complex(np.nan, 0.0))
+
+
+def _inf_position(f):
+    f["platform/position_m"][5, 1] = np.inf
+
+
+def _drop_prf(f):
+    del f["radar"].attrs["prf_hz"]
+
+
+def _bad_prf_attr(f):
+    f["radar"].attrs["prf_hz"] = "fast"
+
+
+def _wrong_format(f):
+    f.attrs["format"] = "netcdf-radar"
+
+
+def _bad_format_version(f):
+    f.attrs["format_version"] = "one"
+
+
+def _drop_position(f):
+    del f["platform/position_m"]
+
+
+def _truncated(good, tmp_path):
+    path = tmp_path / "cube.h5"
+    shutil.copyfile(good, path)
+    size = os.path.getsize(path)
+    os.truncate(path, size // 2)
+    return path
+
+
+def _text_file(good, tmp_path):
+    path = tmp_path / "cube.h5"
+    path.write_text("this is not an HDF5 file\n", encoding="utf-8")
+    return path
+
+
+def _missing_cube(good, tmp_path):
+    return tmp_path / "absent.h5"
+
+
+CUBE_CASES = [
+    ("missing-echo-diff", _h5_edit(_drop_diff), ["/echo/diff", "missing"]),
+    ("float32-echo", _h5_edit(_float32_echo), ["/echo/sum", "float32", "complex64"]),
+    ("diff-shape-differs", _h5_edit(_diff_shape), ["/echo/diff", "[400, 76]", "[400, 77]"]),
+    ("nan-in-echo-sum", _h5_edit(_nan_sum), ["/echo/sum", "NaN"]),
+    ("inf-in-position", _h5_edit(_inf_position), ["/platform/position_m", "Inf"]),
+    ("missing-position", _h5_edit(_drop_position), ["/platform/position_m", "missing"]),
+    ("missing-radar-prf", _h5_edit(_drop_prf), ["/radar", "prf_hz", "missing"]),
+    ("non-numeric-radar-prf", _h5_edit(_bad_prf_attr), ["/radar", "prf_hz", "'fast'"]),
+    ("wrong-format-attr", _h5_edit(_wrong_format), ["format", "'netcdf-radar'", "'fwdlook-raw'"]),
+    ("bad-format-version", _h5_edit(_bad_format_version), ["format_version", "'one'"]),
+    ("truncated-file", _truncated, ["truncated"]),
+    ("text-file-named-h5", _text_file, ["HDF5"]),
+    ("missing-cube-file", _missing_cube, ["not found"]),
+]
+
+
+# `info` lists ANY HDF5 file (stage files, images), so a foreign `format` attribute is not an
+# error there (see test_info_lists_foreign_hdf5); every other broken cube fails both commands.
+CUBE_PARAMS = [pytest.param(command, *case, id=f"{case[0]}-{command}")
+               for case in CUBE_CASES for command in ("validate", "info")
+               if not (command == "info" and case[0] == "wrong-format-attr")]
+
+
+@pytest.mark.parametrize("command, case_id, build, fragments", CUBE_PARAMS)
+def test_bad_cube(good_cube, tmp_path, capsys, command, case_id, build, fragments):
+    path = build(good_cube, tmp_path)
+    code, out, err = run_cli([command, path], capsys)
+    assert_bad_input(code, out, err, path, fragments)
+    assert list(tmp_path.rglob("*.partial")) == []
+
+
+def test_info_lists_foreign_hdf5(good_cube, tmp_path, capsys):
+    """A non-fwdlook-raw HDF5 file is described generically by `info` (exit 0), rejected by `validate`."""
+    path = _h5_edit(_wrong_format)(good_cube, tmp_path)
+    code, out, err = run_cli(["info", path], capsys)
+    assert code == 0, err
+    assert "format: netcdf-radar" in out and "/echo/sum" in out
+    assert "fwdlook raw cube" not in out
+
+
+# ----------------------------------------------------------------------------------------------
+# Positive controls
+# ----------------------------------------------------------------------------------------------
+def test_tiny_scenario_validates(tmp_path, capsys):
+    scenario = _copy_tiny(tmp_path)
+    code, out, err = run_cli(["validate", scenario], capsys)
+    assert code == 0, err
+    assert "valid" in out and "tiny" in out
+
+
+def test_tiny_scenario_simulates(tmp_path, capsys):
+    scenario = _copy_tiny(tmp_path)
+    output = tmp_path / "out" / "raw.h5"
+    code, _out, err = run_cli(["simulate", scenario, "-o", output, "-q"], capsys)
+    assert code == 0, err
+    assert output.exists()
+    assert list(tmp_path.rglob("*.partial")) == []
+    code, out, err = run_cli(["validate", output], capsys)
+    assert code == 0, err
+    assert "400 pulses" in out
+
+
+def test_good_cube_validates_and_describes(good_cube, capsys):
+    for command in ("validate", "info"):
+        code, out, err = run_cli([command, good_cube], capsys)
+        assert code == 0, err
+        assert str(good_cube) in out
+
+
+def test_yaml11_exponent_string_is_a_number(tmp_path, capsys):
+    """PyYAML reads '18e9' (no dot) as a string; the schema must still take it as 18 GHz."""
+    assert yaml.safe_load("fc_hz: 18e9")["fc_hz"] == "18e9"  # the YAML 1.1 premise
+    scenario = _text_edit("fc_hz: 10.0e9", "fc_hz: 18e9")(tmp_path)
+    scn = load_scenario(scenario)
+    assert isinstance(scn["radar"]["fc_hz"], float)
+    assert scn["radar"]["fc_hz"] == 18.0e9
+    code, out, err = run_cli(["validate", scenario], capsys)
+    assert code == 0, err
+
+
+def test_set_overrides_resolved_value(tmp_path, capsys):
+    base = load_scenario(TINY)
+    assert base["processing"]["q"] == 8
+    changed = load_scenario(TINY, overrides=["processing.q=20"])
+    assert changed["processing"]["q"] == 20
+    assert scenario_hash(changed) != scenario_hash(base)
+    # same through the command line: validate prints the hash prefix of the resolved scenario
+    scenario = _copy_tiny(tmp_path)
+    code, out_base, err = run_cli(["validate", scenario], capsys)
+    assert code == 0, err
+    code, out_set, err = run_cli(["validate", scenario, "--set", "processing.q=20"], capsys)
+    assert code == 0, err
+    assert scenario_hash(changed)[:16] in out_set
+    assert scenario_hash(base)[:16] in out_base

@@ -1,0 +1,311 @@
+"""Tests for fwdlook_cli.io: raw-cube round trip, on-disk layout, foreign writers, atomic writes.
+
+Facts checked here come from CONTRACT.md section 3 (the raw cube layout) and section 1 (outputs are
+written to a temporary name and renamed into place).  Everything runs on scenarios/tiny.yaml
+(400 pulses x 77 range samples, about 10 ms to simulate).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+from fwdlook_cli.cli import main
+from fwdlook_cli.config import load_scenario, resolve_scenario, scenario_hash
+from fwdlook_cli.io import atomic_h5, read_raw, write_raw
+from fwdlook_cli.simulate import simulate_scenario
+
+TINY = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
+RADAR_KEYS = ("fc_hz", "bandwidth_hz", "fs_hz", "prf_hz", "beamwidth_3db_deg")
+
+
+def run_cli(argv, capsys):
+    """Run ``fwdlook ARGV`` in-process; return (exit code, stdout, stderr)."""
+    with pytest.raises(SystemExit) as exc_info:
+        main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return exc_info.value.code, out, err
+
+
+def _same(a, b) -> bool:
+    """Equality that treats NaN as equal to NaN (noise.snr_db = null is stored as NaN)."""
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return a == b
+
+
+# ----------------------------------------------------------------------------------------------
+# Round trip: simulate -> write_raw -> read_raw
+# ----------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module", params=[(), ("noise.snr_db=null",)], ids=["noisy", "noiseless"])
+def simulated(request, tmp_path_factory):
+    """(resolved scenario, simulated cube, path of the written file, its directory)."""
+    scn = load_scenario(TINY, overrides=list(request.param))
+    cube, _stats = simulate_scenario(scn)
+    out_dir = tmp_path_factory.mktemp("raw")
+    path = out_dir / "raw.h5"
+    write_raw(path, cube)
+    return scn, cube, path, out_dir
+
+
+def test_round_trip_arrays_bit_identical(simulated):
+    _scn, cube, path, _ = simulated
+    back = read_raw(path)
+    assert back.sum.dtype == np.complex64 and back.diff.dtype == np.complex64
+    assert back.sum.shape == (400, 77) == back.diff.shape
+    # write_raw stores complex64; the simulator's arrays (whatever their dtype) round to exactly that.
+    np.testing.assert_array_equal(back.sum, cube.sum.astype(np.complex64))
+    np.testing.assert_array_equal(back.diff, cube.diff.astype(np.complex64))
+    assert back.sum.tobytes() == cube.sum.astype(np.complex64).tobytes()
+    for name in ("slow_time_s", "range_m", "scan_angle_deg", "position_m", "velocity_mps"):
+        got, want = getattr(back, name), np.asarray(getattr(cube, name), dtype=np.float64)
+        assert got.dtype == np.float64, name
+        assert got.tobytes() == want.tobytes(), name
+    assert back.position_m.shape == (400, 3) and back.velocity_mps.shape == (400, 3)
+
+
+def test_round_trip_radar_antenna_noise_truth(simulated):
+    _scn, cube, path, _ = simulated
+    back = read_raw(path)
+    assert back.radar == cube.radar
+    assert set(RADAR_KEYS) <= set(back.radar)
+    assert back.antenna == cube.antenna
+    assert set(back.noise) == set(cube.noise)
+    for key in cube.noise:
+        assert _same(float(back.noise[key]), float(cube.noise[key])), key
+    assert back.truth is not None
+    assert set(back.truth) == {"x_m", "y_m", "z_m", "amplitude"}
+    for key in back.truth:
+        np.testing.assert_array_equal(back.truth[key], np.asarray(cube.truth[key], dtype=np.float64))
+    assert len(back.truth["x_m"]) == 3  # tiny.yaml has three points
+
+
+def test_round_trip_scenario_text_reloads_to_same_hash(simulated):
+    scn, cube, path, _ = simulated
+    back = read_raw(path)
+    assert isinstance(back.scenario_yaml, str)
+    reloaded = resolve_scenario(yaml.safe_load(back.scenario_yaml), source=str(path))
+    assert reloaded == scn
+    assert scenario_hash(reloaded) == scenario_hash(scn)
+    assert back.attrs["scenario_sha256"] == scenario_hash(scn)
+
+
+def test_file_layout_root_attrs(simulated):
+    scn, _cube, path, _ = simulated
+    with h5py.File(path, "r") as f:
+        fmt = f.attrs["format"]
+        assert (fmt.decode() if isinstance(fmt, bytes) else fmt) == "fwdlook-raw"
+        assert int(f.attrs["format_version"]) == 1
+        assert "software_version" in f.attrs
+        from fwdlook_cli import __version__
+
+        assert str(f.attrs["software_version"]) == __version__
+        assert str(f.attrs["scenario_sha256"]) == scenario_hash(scn)
+        assert "scenario" in f.attrs or "scenario" in f
+
+
+def test_file_layout_every_dataset_has_units_and_long_name(simulated):
+    _scn, _cube, path, _ = simulated
+    seen = []
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset):
+            seen.append(name)
+            assert "units" in obj.attrs, f"/{name} has no units"
+            assert "long_name" in obj.attrs, f"/{name} has no long_name"
+
+    with h5py.File(path, "r") as f:
+        f.visititems(visit)
+    for required in ("echo/sum", "echo/diff", "axes/slow_time_s", "axes/range_m",
+                     "axes/scan_angle_deg", "platform/position_m", "platform/velocity_mps",
+                     "truth/targets/x_m", "truth/targets/y_m", "truth/targets/z_m",
+                     "truth/targets/amplitude"):
+        assert required in seen
+
+
+def test_file_layout_dtypes_shapes_and_units(simulated):
+    _scn, _cube, path, _ = simulated
+    with h5py.File(path, "r") as f:
+        n_p, n_r = f["echo/sum"].shape
+        assert f["echo/sum"].dtype == np.complex64 and f["echo/diff"].dtype == np.complex64
+        assert f["echo/diff"].shape == (n_p, n_r)
+        assert f["axes/slow_time_s"].dtype == np.float64 and f["axes/slow_time_s"].shape == (n_p,)
+        assert f["axes/range_m"].dtype == np.float64 and f["axes/range_m"].shape == (n_r,)
+        assert f["axes/scan_angle_deg"].shape == (n_p,)
+        assert f["platform/position_m"].shape == (n_p, 3)
+        assert f["platform/velocity_mps"].shape == (n_p, 3)
+        assert f["axes/slow_time_s"][0] == 0.0  # t = 0 at the first pulse
+        units = {name: f[name].attrs["units"] for name in
+                 ("axes/slow_time_s", "axes/range_m", "axes/scan_angle_deg", "platform/position_m",
+                  "platform/velocity_mps")}
+        units = {k: v.decode() if isinstance(v, bytes) else str(v) for k, v in units.items()}
+        assert units == {"axes/slow_time_s": "s", "axes/range_m": "m", "axes/scan_angle_deg": "deg",
+                         "platform/position_m": "m", "platform/velocity_mps": "m/s"}
+        for key in RADAR_KEYS:
+            assert key in f["radar"].attrs
+
+
+def test_file_layout_dimension_scales_on_echo(simulated):
+    _scn, _cube, path, _ = simulated
+    with h5py.File(path, "r") as f:
+        for name in ("echo/sum", "echo/diff"):
+            ds = f[name]
+            assert len(ds.dims[0]) >= 1 and len(ds.dims[1]) >= 1, name
+            assert ds.dims[0][0].name.endswith("slow_time_s"), ds.dims[0][0].name
+            assert ds.dims[1][0].name.endswith("range_m"), ds.dims[1][0].name
+
+
+def test_no_partial_file_left(simulated):
+    _scn, _cube, path, out_dir = simulated
+    assert path.exists()
+    assert list(out_dir.glob("*.partial")) == []
+    assert not path.with_name(path.name + ".partial").exists()
+
+
+# ----------------------------------------------------------------------------------------------
+# A cube written by plain h5py, not by fwdlook's writer (CONTRACT.md 3: "whoever wrote it")
+# ----------------------------------------------------------------------------------------------
+N_P, N_R, PRF = 64, 32, 1000.0
+
+
+def _plain_cube_arrays(echo_dtype=np.complex64):
+    rng = np.random.default_rng(3)
+    t = np.arange(N_P) / PRF
+    echo_sum = (rng.standard_normal((N_P, N_R)) + 1j * rng.standard_normal((N_P, N_R))).astype(echo_dtype)
+    echo_diff = (rng.standard_normal((N_P, N_R)) + 1j * rng.standard_normal((N_P, N_R))).astype(echo_dtype)
+    return {
+        "echo/sum": echo_sum,
+        "echo/diff": echo_diff,
+        "axes/slow_time_s": t,
+        "axes/range_m": 1000.0 + 6.25 * np.arange(N_R),
+        "axes/scan_angle_deg": np.linspace(-5.0, 5.0, N_P),
+        "platform/position_m": np.column_stack([np.zeros(N_P), 100.0 * t, np.full(N_P, 50.0)]),
+        "platform/velocity_mps": np.tile([0.0, 100.0, 0.0], (N_P, 1)),
+    }
+
+
+PLAIN_RADAR = {"fc_hz": 10.0e9, "bandwidth_hz": 20.0e6, "fs_hz": 24.0e6, "prf_hz": PRF,
+               "beamwidth_3db_deg": 6.0}
+
+
+def write_plain_cube(path: Path, *, echo_dtype=np.complex64, bytes_attrs=False, scenario=None):
+    """The minimal CONTRACT layout with plain h5py: no units, no /truth, no dimension scales."""
+    arrays = _plain_cube_arrays(echo_dtype)
+    with h5py.File(path, "w") as f:
+        if bytes_attrs:  # fixed-length byte strings, as e.g. MATLAB or C writers store them
+            f.attrs["format"] = np.bytes_(b"fwdlook-raw")
+            f.attrs["format_version"] = np.int32(1)
+        else:
+            f.attrs["format"] = "fwdlook-raw"
+            f.attrs["format_version"] = 1
+        for name, data in arrays.items():
+            f.create_dataset(name, data=data)
+        radar = f.create_group("radar")
+        for key, value in PLAIN_RADAR.items():
+            radar.attrs[key] = value
+        if scenario is not None:
+            f.create_dataset("scenario", data=scenario)
+    return arrays
+
+
+@pytest.mark.parametrize("bytes_attrs", [False, True], ids=["str-attrs", "bytes-attrs"])
+def test_plain_h5py_cube_is_read_with_correct_values(tmp_path, bytes_attrs):
+    path = tmp_path / "foreign.h5"
+    arrays = write_plain_cube(path, bytes_attrs=bytes_attrs)
+    cube = read_raw(path)
+    assert cube.n_pulses == N_P and cube.n_range == N_R
+    np.testing.assert_array_equal(cube.sum, arrays["echo/sum"])
+    np.testing.assert_array_equal(cube.diff, arrays["echo/diff"])
+    np.testing.assert_array_equal(cube.slow_time_s, arrays["axes/slow_time_s"])
+    np.testing.assert_array_equal(cube.range_m, arrays["axes/range_m"])
+    np.testing.assert_array_equal(cube.scan_angle_deg, arrays["axes/scan_angle_deg"])
+    np.testing.assert_array_equal(cube.position_m, arrays["platform/position_m"])
+    np.testing.assert_array_equal(cube.velocity_mps, arrays["platform/velocity_mps"])
+    assert cube.sum.dtype == np.complex64 and cube.diff.dtype == np.complex64
+    for key, value in PLAIN_RADAR.items():
+        assert cube.radar[key] == value
+    assert not cube.truth
+    assert cube.scenario_yaml is None
+    assert cube.range_spacing_m == pytest.approx(6.25)
+
+
+def test_plain_h5py_cube_passes_info_and_validate(tmp_path, capsys):
+    path = tmp_path / "foreign.h5"
+    write_plain_cube(path)
+    code, out, err = run_cli(["info", path], capsys)
+    assert code == 0, err
+    assert "Traceback" not in err
+    assert str(N_P) in out and str(N_R) in out
+    assert "truth" in out
+    code, out, err = run_cli(["validate", path], capsys)
+    assert code == 0, err
+    assert "valid" in out and f"{N_P} pulses" in out
+
+
+def test_plain_h5py_cube_complex128_is_converted_to_complex64(tmp_path, capsys):
+    path = tmp_path / "foreign128.h5"
+    arrays = write_plain_cube(path, echo_dtype=np.complex128)
+    with h5py.File(path, "r") as f:
+        assert f["echo/sum"].dtype == np.complex128  # the file really holds complex128
+    cube = read_raw(path)
+    assert cube.sum.dtype == np.complex64 and cube.diff.dtype == np.complex64
+    np.testing.assert_array_equal(cube.sum, arrays["echo/sum"].astype(np.complex64))
+    np.testing.assert_array_equal(cube.diff, arrays["echo/diff"].astype(np.complex64))
+    code, _out, err = run_cli(["validate", path], capsys)
+    assert code == 0, err
+
+
+def test_plain_h5py_cube_scenario_as_dataset(tmp_path):
+    """CONTRACT.md 3: /scenario may be a string dataset instead of a root attribute."""
+    path = tmp_path / "foreign_scn.h5"
+    text = TINY.read_text()
+    write_plain_cube(path, scenario=text)
+    cube = read_raw(path)
+    assert cube.scenario_yaml == text
+
+
+# ----------------------------------------------------------------------------------------------
+# Atomic writes
+# ----------------------------------------------------------------------------------------------
+class _Boom(RuntimeError):
+    pass
+
+
+def test_atomic_h5_exception_leaves_nothing(tmp_path):
+    path = tmp_path / "out.h5"
+    with pytest.raises(_Boom):
+        with atomic_h5(path) as f:
+            f.create_dataset("x", data=np.arange(10))
+            assert path.with_name("out.h5.partial").exists()  # written under the temporary name
+            assert not path.exists()
+            raise _Boom("interrupted")
+    assert not path.exists()
+    assert not path.with_name("out.h5.partial").exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_atomic_h5_exception_keeps_previous_file(tmp_path):
+    path = tmp_path / "out.h5"
+    with atomic_h5(path) as f:
+        f.create_dataset("x", data=np.arange(3))
+    before = path.read_bytes()
+    with pytest.raises(_Boom):
+        with atomic_h5(path) as f:
+            f.create_dataset("y", data=np.arange(5))
+            raise _Boom("interrupted")
+    assert path.read_bytes() == before
+    assert not path.with_name("out.h5.partial").exists()
+
+
+def test_atomic_h5_success_renames_into_place(tmp_path):
+    path = tmp_path / "sub" / "out.h5"
+    with atomic_h5(path) as f:
+        f.create_dataset("x", data=np.arange(4))
+    assert path.exists()
+    assert not path.with_name("out.h5.partial").exists()
+    with h5py.File(path, "r") as f:
+        np.testing.assert_array_equal(f["x"][()], np.arange(4))
