@@ -55,6 +55,112 @@ def simulate(scenario, output, overrides, quiet):
     _log(quiet, f"wrote {output}")
 
 
+def _scenario_and_cube(source, raw, config, overrides, quiet):
+    """(resolved scenario, cube): simulate a scenario, or load RAW (given, or as the source)."""
+    from .config import yaml_load
+    from .io import read_raw
+    from .process import resolve_with_config
+
+    src = Path(source)
+    if src.suffix.lower() in (".h5", ".hdf5", ".hdf"):
+        if raw:
+            raise BadInput(f"{source}: give either a raw cube or --raw, not both")
+        raw, raw_scn, name = source, {}, src.stem
+    else:
+        try:
+            text = src.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise BadInput(f"{source}: scenario file not found") from None
+        raw_scn, name = (yaml_load(text, source) or {}), None
+    if raw_scn is not None and not isinstance(raw_scn, dict):
+        raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
+    if name is not None:
+        raw_scn = {"name": name}
+    scn = resolve_with_config(raw_scn, source, config, overrides)
+    if raw:
+        cube = read_raw(raw)
+    else:
+        if scn["kind"] != "forward":
+            from .isar import simulate_isar_scenario
+
+            cube, _ = simulate_isar_scenario(scn)
+        else:
+            from .simulate import simulate_scenario
+
+            cube, stats = simulate_scenario(scn)
+            _log(quiet, f"simulate: {cube.n_pulses} x {cube.n_range}, {stats.n_pairs_kept}/{stats.n_pairs} "
+                        f"target-pulse pairs above the gain threshold")
+    return scn, cube
+
+
+def _default_run_dir(scn, output):
+    return Path(output) if output else Path("runs") / scn["name"]
+
+
+def _process(scn, cube, run_dir, force, from_stage, quiet):
+    if scn["kind"] == "isar":
+        from .isar import process_isar_cube
+
+        return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
+    from .process import process_cube
+
+    return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
+
+
+def _print_summary(metrics, run_dir, quiet):
+    s = metrics.get("summary", {})
+    if quiet:
+        return
+    parts = [f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in s.items() if v is not None]
+    click.echo(f"{run_dir}: {metrics['method']}: " + ", ".join(parts), err=True)
+
+
+config_option = click.option("-c", "--config", "config", default=None, metavar="CONFIG.yaml",
+                             help="Processing preset merged over the scenario's processing section.")
+raw_option = click.option("--raw", "raw", default=None, metavar="RAW.h5", help="Process this cube instead of simulating.")
+output_dir_option = click.option("-o", "--output", "output", default=None, metavar="RUN_DIR",
+                                 help="Run directory (default runs/<scenario name>).")
+
+
+@cli.command()
+@click.argument("source")
+@output_dir_option
+@config_option
+@raw_option
+@set_option
+@click.option("--from-stage", "from_stage", default=None, help="Recompute from this stage on.")
+@click.option("--force", is_flag=True, help="Recompute every stage.")
+@quiet_option
+def process(source, output, config, raw, overrides, from_stage, force, quiet):
+    """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
+    scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet)
+    run_dir = _default_run_dir(scn, output)
+    metrics = _process(scn, cube, run_dir, force, from_stage, quiet)
+    _print_summary(metrics, run_dir, quiet)
+
+
+@cli.command()
+@click.argument("scenario")
+@output_dir_option
+@config_option
+@raw_option
+@set_option
+@click.option("--force", is_flag=True, help="Recompute every stage.")
+@quiet_option
+def run(scenario, output, config, raw, overrides, force, quiet):
+    """The main job: simulate (or load --raw), process and report into RUN_DIR."""
+    from .io import write_raw
+
+    scn, cube = _scenario_and_cube(scenario, raw, config, overrides, quiet)
+    run_dir = _default_run_dir(scn, output)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if not raw:
+        write_raw(run_dir / "raw.h5", cube)
+    metrics = _process(scn, cube, run_dir, force, None, quiet)
+    _print_summary(metrics, run_dir, quiet)
+    click.echo(str(run_dir / "metrics.json"))
+
+
 @cli.command()
 @click.argument("path")
 def info(path):

@@ -305,6 +305,13 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "doppler_centroid": Field(boolean, True, "eq. (23)-(26) per-CPI Doppler-centroid compensation"),
         "cpi": Field(integer(2), 32, "pulses per CPI for monopulse imaging"),
         "t_ref": Field(choice("start", "centre"), "centre", "time the corrected image refers to"),
+        "n_doppler": Field(integer(4, 4096), 64, "zoomed Doppler cells per CPI over the main-beam band"),
+        "doppler_window": Field(choice("none", "hamming", "hann", "taylor"), "hamming",
+                                "slow-time window of each CPI before the Doppler zoom"),
+        "range_oversample": Field(integer(1, 16), 4, "band-limited range oversampling of the image"),
+        "angle_step_deg": Field(num(1e-4, 1.0), 0.05, "angle bin of the monopulse image"),
+        "threshold_db": Field(num(-50.0, 100.0), 12.0,
+                              "Doppler cells projected only above this many dB over the CPI noise floor"),
     },
 }
 
@@ -383,6 +390,8 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=()) -> dict
         raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
     raw = apply_overrides(raw, overrides, source)
     kind = raw.get("kind", "forward")
+    if kind == "isar" and "isar" not in SCHEMAS:
+        from . import isar  # noqa: F401  (registers the ISAR schema and its checks)
     if kind not in SCHEMAS:
         raise BadInput(f"{source}: kind = {_show(kind)}: allowed: {', '.join(SCHEMAS)}")
     resolved = _resolve(raw, SCHEMAS[kind], "", source)
