@@ -162,6 +162,25 @@ def run(scenario, output, config, raw, overrides, force, quiet):
 
 
 @cli.command()
+@click.argument("sweep_file")
+@click.option("-o", "--output", "output", default=None, metavar="DIR", help="Output folder (default runs/sweep-<name>).")
+@click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
+@click.option("--scheduler", default="local", show_default=True,
+              help="Where runs execute: only 'local' (a process pool) is available here.")
+@quiet_option
+def sweep(sweep_file, output, workers, scheduler, quiet):
+    """Grids of runs: summary table, speed-accuracy chart, stability map."""
+    from .sweep import load_sweep, run_sweep
+
+    if scheduler != "local":
+        raise BadInput(f"--scheduler {scheduler}: no distributed scheduler is installed; allowed: local")
+    spec = load_sweep(sweep_file)
+    out = Path(output) if output else Path("runs") / f"sweep-{spec['name']}"
+    run_sweep(sweep_file, out, workers=workers, quiet=quiet)
+    click.echo(str(out / "summary.md"))
+
+
+@cli.command()
 @click.argument("path")
 def info(path):
     """Describe a raw cube, a stage file or an image (FILE.h5)."""

@@ -12,7 +12,8 @@ inside the window (not on its edge) and at least 10 dB over the image's median n
 
 ISLR and PSLR (paper eq. 27) are measured on that range profile through the peak (power,
 already range-oversampled, treated as |profile|^2), main lobe between the first minima, window
-+-10 range resolution cells around the peak; the 3 dB widths in range and angle come from the cuts
++-5 range resolution cells (+-15 m for the paper: half the lattice spacing, so the next row stays
+out; an ideal sinc gives ISLR -10.7 dB in that window); the 3 dB widths in range and angle come from the cuts
 through the peak.  Peak loss compares the strongest zoomed-Doppler sample of the target (best CPI)
 with an ideally focused one: amplitude x two-way sum gain at that CPI's beam offset x the window's
 coherent gain.
@@ -85,7 +86,7 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
         fj, _ = interpolate_peak(angle_cut, j)
         meas_r = float(range_m[0] + fi * dr)
         meas_a = float(angle_deg[0] + fj * da)
-        lo, hi = max(0, i - int(10 * res_cells)), min(len(range_m), i + int(10 * res_cells) + 1)
+        lo, hi = max(0, i - int(5 * res_cells)), min(len(range_m), i + int(5 * res_cells) + 1)
         try:
             pm = profile_metrics(np.sqrt(range_cut[lo:hi]), spacing=dr, oversample=1)
             islr, pslr = pm.islr_db, pm.pslr_db
