@@ -212,11 +212,9 @@ def cpi_doppler_band_hz(speed_mps, beam_deg, depression_deg, fc_hz, beamwidth_de
 
 
 def _window(name: str, n: int) -> np.ndarray:
-    if name == "none":
-        return np.ones(n)
-    from scipy.signal import get_window
+    from .pulse import weighting
 
-    return get_window(("taylor", 4, 35) if name == "taylor" else name, n, fftbins=False)
+    return weighting(name, n)
 
 
 def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, fc_hz: float,
@@ -265,18 +263,18 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
 # ----------------------------------------------------------------------------------------------
 # 7. monopulse image
 # ----------------------------------------------------------------------------------------------
-def oversample_range(x, factor: int, axis: int = -1):
-    """Band-limited range oversampling by FFT zero-padding (amplitudes preserved)."""
+def oversample_range(x, factor: int):
+    """Band-limited oversampling of the last (range) axis by FFT zero-padding, amplitudes preserved."""
     if factor == 1:
         return x
-    n = x.shape[axis]
-    spec = scipy.fft.fft(x, axis=axis, workers=-1)
-    spec = np.moveaxis(spec, axis, -1)
+    n = x.shape[-1]
+    spec = scipy.fft.fft(x, axis=-1, workers=-1)
+    spec *= factor
     pad = np.zeros(spec.shape[:-1] + (n * factor,), dtype=spec.dtype)
     half = n // 2
     pad[..., : n - half] = spec[..., : n - half]
     pad[..., n * factor - half:] = spec[..., n - half:]
-    return np.moveaxis(scipy.fft.ifft(pad, axis=-1, workers=-1) * factor, -1, axis).astype(x.dtype, copy=False)
+    return scipy.fft.ifft(pad, axis=-1, workers=-1, overwrite_x=True)
 
 
 def azimuth_at_t_ref(range_m, azimuth_deg, position_at_measure_m, position_ref_m):

@@ -162,6 +162,22 @@ def run(scenario, output, config, raw, overrides, force, quiet):
 
 
 @cli.command()
+@click.argument("scenario")
+@set_option
+@json_option
+def plan(scenario, overrides, as_json):
+    """The migration budget of a scene: which corrections it needs and why."""
+    from .config import load_scenario
+    from .plan import format_plan, plan_for_scenario, plan_json
+
+    scn = load_scenario(scenario, overrides)
+    if scn["kind"] != "forward":
+        raise BadInput(f"{scenario}: kind = {scn['kind']}: plan covers forward-looking scenes; allowed: forward")
+    result = plan_for_scenario(scn)
+    click.echo(plan_json(result) if as_json else format_plan(result, scn["name"]))
+
+
+@cli.command()
 @click.argument("sweep_file")
 @click.option("-o", "--output", "output", default=None, metavar="DIR", help="Output folder (default runs/sweep-<name>).")
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")

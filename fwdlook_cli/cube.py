@@ -16,7 +16,8 @@ RADAR_KEYS = ("fc_hz", "bandwidth_hz", "fs_hz", "prf_hz", "beamwidth_3db_deg")
 @dataclass
 class RawCube:
     sum: np.ndarray              # complex64 [n_pulses, n_range]
-    diff: np.ndarray             # complex64 [n_pulses, n_range]
+    diff: np.ndarray | None      # complex64 [n_pulses, n_range]; None for a single-channel cube
+                                 # (ISAR): the file has no /echo/diff and root attr channels = "sum"
     slow_time_s: np.ndarray      # float64 [n_pulses], t = 0 at the first pulse
     range_m: np.ndarray          # float64 [n_range], slant range of each sample
     scan_angle_deg: np.ndarray   # float64 [n_pulses], beam pointing azimuth

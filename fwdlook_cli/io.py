@@ -90,7 +90,11 @@ def write_raw(path: str | Path, cube: RawCube) -> None:
         put(axes, "scan_angle_deg", cube.scan_angle_deg.astype(np.float64), "deg",
             "beam pointing azimuth atan2(dx, dy)", dims=(t,))
         echo = f.create_group("echo")
+        if cube.diff is None:  # single channel (ISAR): only /echo/sum, marked by the root attr
+            f.attrs["channels"] = "sum"
         for name, data, what in (("sum", cube.sum, "sum"), ("diff", cube.diff, "difference")):
+            if data is None:
+                continue
             put(echo, name, data.astype(np.complex64, copy=False), "1",
                 f"range-compressed baseband echo, {what} channel", dims=(t, r), chunks=True)
         for key, value in cube.noise.items():
@@ -111,6 +115,18 @@ def write_raw(path: str | Path, cube: RawCube) -> None:
             tg = f.create_group("truth/targets")
             for key, units in (("x_m", "m"), ("y_m", "m"), ("z_m", "m"), ("amplitude", "1")):
                 put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), units, f"target {key}")
+            for key in sorted(cube.truth.keys() - set(TRUTH_KEYS)):  # extra truth, e.g. vx_mps
+                put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), _truth_units(key),
+                    f"target {key}")
+
+
+TRUTH_KEYS = ("x_m", "y_m", "z_m", "amplitude")
+_UNIT_SUFFIXES = (("_mps", "m/s"), ("_deg", "deg"), ("_m", "m"), ("_s", "s"))
+
+
+def _truth_units(key: str) -> str:
+    """Units of an extra truth dataset from its name's suffix (``vx_mps`` -> m/s); else "1"."""
+    return next((units for suffix, units in _UNIT_SUFFIXES if key.endswith(suffix)), "1")
 
 
 def _need(f: h5py.File, path: str, source: str) -> h5py.Dataset:
@@ -177,7 +193,11 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
                        f"[n_pulses, n_range] with both >= 2")
     n_p, n_r = echo_sum_ds.shape
     echo_sum = _array(f, "echo/sum", source, kind=np.complex64, shape=(n_p, n_r), complex_ok=True)
-    echo_diff = _array(f, "echo/diff", source, kind=np.complex64, shape=(n_p, n_r), complex_ok=True)
+    channels = _plain(f.attrs.get("channels", "sum,diff"))
+    if channels == "sum" and "diff" not in f["echo"]:
+        echo_diff = None  # single-channel cube (ISAR): / attribute channels = "sum"
+    else:
+        echo_diff = _array(f, "echo/diff", source, kind=np.complex64, shape=(n_p, n_r), complex_ok=True)
     slow_time_s = _array(f, "axes/slow_time_s", source, kind=np.float64, shape=(n_p,))
     range_m = _array(f, "axes/range_m", source, kind=np.float64, shape=(n_r,))
     scan = _array(f, "axes/scan_angle_deg", source, kind=np.float64, shape=(n_p,))
@@ -224,6 +244,10 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
             ds = _need(f, f"truth/targets/{key}", source)
             n_t = ds.shape[0] if n_t is None else n_t
             truth[key] = _array(f, f"truth/targets/{key}", source, kind=np.float64, shape=(n_t,))
+        for key in sorted(set(tg) - set(TRUTH_KEYS)):  # extra per-target truth: 1-D, same length
+            ds = tg[key]
+            if isinstance(ds, h5py.Dataset) and ds.shape == (n_t,) and ds.dtype.kind == "f":
+                truth[key] = _array(f, f"truth/targets/{key}", source, kind=np.float64, shape=(n_t,))
     scenario = f.attrs.get("scenario")
     if scenario is None and isinstance(f.get("scenario"), h5py.Dataset):
         scenario = f["scenario"][()]

@@ -272,13 +272,15 @@ class KeystonePlan:
         # filter h_d = W^(-d^2/2), d = -(n-1)..(n-1), wrapped into length L
         d = np.arange(L, dtype=np.float64)
         d[d > L // 2] -= L  # circular lag; |d| <= n-1 is all that matters for L >= 2n-1
-        h = _cis(-(alpha / (2.0 * n)) * (d**2)[:, None])
-        self._filt = sfft.fft(h, axis=0, workers=-1).astype(self.dtype)
+        # the filter depends on alpha only: compute it once per distinct alpha (decimated layouts
+        # repeat the same range-frequency alphas for every sub-sequence and channel)
+        alpha_u, inverse = np.unique(alpha, return_inverse=True)
+        h = _cis(-(alpha_u / (2.0 * n)) * (d**2)[:, None])
+        self._filt = sfft.fft(h, axis=0, workers=-1).astype(self.dtype)[:, inverse]
         del h
 
-        # output chirp for F = 0: (1/n) W^(c_min m' + m'^2/2)
-        m = np.arange(n, dtype=np.float64)[:, None]
-        self._post_base_cycles = (alpha / n) * (c_min * m + 0.5 * m**2)
+        # output chirp for F = 0: (1/n) W^(c_min m' + m'^2/2), a function of alpha only
+        self._alpha_unique, self._alpha_inverse = alpha_u, inverse
         self._post_cache = {}  # ambiguity -> output chirp, a few most recent
 
     # ----------------------------------------------------------------------------
@@ -289,12 +291,18 @@ class KeystonePlan:
         post = self._post_cache.get(key)
         if post is None:
             m = np.arange(self.n_slow, dtype=np.float64)[:, None]
-            cycles = self._post_base_cycles
-            if np.any(F != 0):
-                # eq. (22) corrected: exp(j 2 pi F tau), tau = alpha m' + (1-alpha) t0
+            a_u, inv = self._alpha_unique, self._alpha_inverse
+            base = (a_u / self.n_slow) * (self._c_min * m + 0.5 * m**2)   # [n, n_unique]
+            if F.size == 1:
+                # eq. (22) corrected: exp(j 2 pi F tau), tau = alpha m' + (1-alpha) t0: the alpha m'
+                # part per distinct alpha, the constant (1-alpha) t0 part per column
+                f = float(F.reshape(-1)[0])
+                post = _cis(base + np.mod(f * a_u * m, 1.0))[:, inv]
+                if f != 0.0:
+                    post *= _cis(np.mod(f * (1.0 - self.alpha) * self.t0_index, 1.0))[None, :]
+            else:
                 tau = self.alpha * m + (1.0 - self.alpha) * self.t0_index
-                cycles = cycles + np.mod(F * tau, 1.0)
-            post = _cis(cycles)
+                post = _cis(base[:, inv] + np.mod(F * tau, 1.0))
             post *= 1.0 / self.n_slow
             post = post.astype(self.dtype)
             if len(self._post_cache) >= self._POST_CACHE_SIZE:

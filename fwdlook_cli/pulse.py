@@ -18,17 +18,23 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft
-from scipy.signal import get_window
 
 TABLE_OVERSAMPLE = 64  # table points per range sample
 
 
-def _weighting(name: str, n: int) -> np.ndarray:
+def weighting(name: str, n: int) -> np.ndarray:
+    """Symmetric amplitude weighting: none, hamming, hann, or taylor (nbar 4, -35 dB sidelobes)."""
     if name == "none":
         return np.ones(n)
+    if name == "hamming":
+        return np.hamming(n)
+    if name == "hann":
+        return np.hanning(n)
     if name == "taylor":
-        return get_window(("taylor", 4, 35), n, fftbins=False)
-    return get_window(name, n, fftbins=False)
+        from scipy.signal.windows import taylor  # heavy import, only when asked for
+
+        return taylor(n, nbar=4, sll=35, sym=True)
+    raise ValueError(f"weighting {name!r}; allowed: none, hamming, hann, taylor")
 
 
 @dataclass(frozen=True)
@@ -45,7 +51,7 @@ class CompressedPulse:
         n_chirp = int(np.ceil(self.pulse_width_s / dt)) | 1
         t = (np.arange(n_chirp) - (n_chirp - 1) / 2) * dt
         chirp = np.exp(1j * np.pi * (self.bandwidth_hz / self.pulse_width_s) * t**2)
-        reference = chirp * _weighting(self.weighting, n_chirp)
+        reference = chirp * weighting(self.weighting, n_chirp)
         n_fft = scipy.fft.next_fast_len(2 * n_chirp - 1)
         corr = scipy.fft.ifft(scipy.fft.fft(chirp, n_fft) * np.conj(scipy.fft.fft(reference, n_fft)))
         corr = np.concatenate([corr[-(n_chirp - 1):], corr[:n_chirp]])  # lags -(n-1)..(n-1)
