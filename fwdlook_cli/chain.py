@@ -26,7 +26,7 @@ import scipy.fft
 from .geometry import C_MPS
 from .keystone import KeystonePlan, keystone_dft, keystone_sinc
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion,
-                     unit_vector)
+                     keystone_residual_envelope_m, unit_vector)
 from .pipeline import Stage, StageData
 
 CONTEXT = ("slow_time_s", "scan_angle_deg", "position_m", "velocity_mps", "xyz")
@@ -171,20 +171,36 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
 # ----------------------------------------------------------------------------------------------
 # 5. range curvature (eq. 12), back to range time
 # ----------------------------------------------------------------------------------------------
-def range_curvature(data: StageData, *, enabled: bool, radial_accel_mps2: float, t_ref_s: float) -> StageData:
-    """Eq. (12): multiply by exp(j 2 pi f_r a_y cos(phi_0) (t - t_ref)^2 / c), then inverse range FFT."""
+def range_curvature(data: StageData, *, model: str, radial_accel_mps2: float, t_ref_s: float,
+                    prf_hz: float, depression_deg: float, reference_range_m: float) -> StageData:
+    """Range-curvature compensation about t_ref, then inverse range FFT back to range time.
+
+    ``model``: ``eq12`` multiplies by exp(j 2 pi f_r a_y cos(phi_0) (t - t_ref)^2 / c) (the paper's eq. 12);
+    ``beam`` by exp(j 4 pi f_r E(t) / c) with E the exact residual envelope a keystone leaves for the
+    beam-centre point of each pulse (:func:`motion.keystone_residual_envelope_m`); ``off`` does neither.
+    """
     out = _ctx(data)
     out.vars["range_m"] = data.vars["range_m"]
     t = data["slow_time_s"] - t_ref_s
     fr_hz = data["fr_hz"]
-    h = _cis(2.0 * np.pi * fr_hz[None, :] * radial_accel_mps2 * (t**2)[:, None] / C_MPS) if enabled else None
+    if model == "eq12":
+        h = _cis(2.0 * np.pi * fr_hz[None, :] * radial_accel_mps2 * (t**2)[:, None] / C_MPS)
+    elif model == "beam":
+        env_m = keystone_residual_envelope_m(data["slow_time_s"], data["position_m"], data["velocity_mps"],
+                                             t_ref_s, prf_hz, data["scan_angle_deg"], depression_deg,
+                                             reference_range_m)
+        h = _cis(4.0 * np.pi * fr_hz[None, :] * env_m[:, None] / C_MPS)
+    elif model == "off":
+        h = None
+    else:
+        raise ValueError(f"curvature model {model!r}; allowed: off, eq12, beam")
     for ch in ("sum", "diff"):
         x = data[f"{ch}_f"]
         if h is not None:
             x = x * h
         out.add(ch, scipy.fft.ifft(x, axis=1, workers=-1).astype(np.complex64, copy=False),
                 ("slow_time_s", "range_m"), "1", f"{ch} channel, motion compensated, range time")
-    out.attrs.update(range_curvature=bool(enabled), radial_accel_mps2=float(radial_accel_mps2))
+    out.attrs.update(range_curvature=model, radial_accel_mps2=float(radial_accel_mps2))
     return out
 
 
@@ -416,7 +432,11 @@ def build_forward_stages(cube, proc: dict):
     src.add("diff", cube.diff, ("slow_time_s", "range_m"), "1", "difference channel echo")
     src.attrs.update(t_ref_s=geo["t_ref_s"], method=method)
     fc = cube.radar["fc_hz"]
-    curvature = bool(proc["range_curvature"]) and method in KEYSTONE_METHODS
+    curvature = proc["curvature_model"]
+    if curvature == "auto":
+        curvature = "beam" if method == "tracking" else "eq12"
+    if not proc["range_curvature"] or method not in KEYSTONE_METHODS:
+        curvature = "off"       # bulk and beam already shift by the whole predicted range history
     stages = [
         Stage("range_fft", range_fft, {"fs_hz": cube.radar["fs_hz"]}),
         Stage("decimate", decimate, {"q": q}),
@@ -426,7 +446,9 @@ def build_forward_stages(cube, proc: dict):
             "depression_deg": geo["depression_deg"], "reference_range_m": geo["reference_range_m"]}),
         Stage("regroup", regroup, {}),
         Stage("range_curvature", range_curvature, {
-            "enabled": curvature, "radial_accel_mps2": geo["radial_accel_mps2"], "t_ref_s": geo["t_ref_s"]}),
+            "model": curvature, "radial_accel_mps2": geo["radial_accel_mps2"], "t_ref_s": geo["t_ref_s"],
+            "prf_hz": prf, "depression_deg": geo["depression_deg"],
+            "reference_range_m": geo["reference_range_m"]}),
         Stage("doppler_spectra", doppler_spectra, {
             "cpi": proc["cpi"], "n_doppler": proc["n_doppler"], "window": proc["doppler_window"], "fc_hz": fc,
             "beamwidth_deg": cube.radar["beamwidth_3db_deg"], "depression_deg": geo["depression_deg"],

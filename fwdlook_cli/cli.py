@@ -197,6 +197,22 @@ def sweep(sweep_file, output, workers, scheduler, quiet):
 
 
 @cli.command()
+@click.argument("run_dirs", nargs=-1, required=True, metavar="RUN_DIR...")
+@click.option("-o", "--output", "output", default=None, metavar="REPORT_DIR",
+              help="Report folder (default RUN_DIR/report for one run, reports/compare for several).")
+@click.option("--target", "target", nargs=2, type=float, default=None, metavar="X_M Y_M",
+              help="Ground (x, y) of the target whose range profile is drawn (default: nearest -300 1700).")
+@quiet_option
+def report(run_dirs, output, target, quiet):
+    """Figures and tables for one run or several side by side (report.md and PNGs)."""
+    from .report import DEFAULT_TARGET_XY_M, make_report
+
+    path = make_report(run_dirs, output, target_xy=tuple(target) if target else DEFAULT_TARGET_XY_M)
+    _log(quiet, f"wrote {path.parent}/ (report.md and figures)")
+    click.echo(str(path))
+
+
+@cli.command()
 @click.argument("path")
 def info(path):
     """Describe a raw cube, a stage file or an image (FILE.h5)."""

@@ -283,6 +283,8 @@ FORWARD_SCHEMA: dict[str, Any] = {
             "nx": Field(integer(1, 10_000), 21, "points across x"),
             "ny": Field(integer(1, 10_000), 3, "points along y"),
             "spacing_m": Field(num(0.0, lo_open=True), 30.0, "lattice spacing"),
+            "x_stride": Field(integer(1, 10_000), 1, "keep every x_stride-th column (isolation runs)"),
+            "x_offset": Field(integer(0, 10_000), 0, "first column kept (0 <= x_offset < x_stride)"),
         },
         "points_m": Field(optional(points_list), None, "kind: points, ground (x, y) list, z = 0"),
         "amplitude": Field(amplitude, 1.0, "common amplitude, or one per point"),
@@ -302,11 +304,15 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "q": Field(integer(1), 25, "decimation factor (must divide the pulse count)"),
         "keystone": Field(choice("czt", "dft", "sinc"), "czt", "keystone implementation"),
         "range_curvature": Field(boolean, True, "eq. (12) range-curvature compensation"),
+        "curvature_model": Field(choice("auto", "eq12", "beam"), "auto",
+                                 "eq12: the paper's a_y cos(phi_0) t^2 / 2; beam: the exact residual a keystone "
+                                 "leaves for each pulse's beam-centre point; auto: eq12 for the paper's methods "
+                                 "(traditional, decimation), beam for tracking"),
         "doppler_centroid": Field(boolean, True, "eq. (23)-(26) per-CPI Doppler-centroid compensation"),
         "cpi": Field(integer(2), 32, "pulses per CPI for monopulse imaging"),
         "t_ref": Field(choice("start", "centre"), "centre", "time the corrected image refers to"),
         "n_doppler": Field(integer(4, 4096), 64, "zoomed Doppler cells per CPI over the main-beam band"),
-        "doppler_window": Field(choice("none", "hamming", "hann", "taylor"), "hamming",
+        "doppler_window": Field(choice("none", "hamming", "hann", "taylor"), "none",
                                 "slow-time window of each CPI before the Doppler zoom"),
         "range_oversample": Field(integer(1, 16), 4, "band-limited range oversampling of the image"),
         "angle_step_deg": Field(num(1e-4, 1.0), 0.05, "angle bin of the monopulse image"),
@@ -445,7 +451,8 @@ def scene_points(scn: dict):
     if sc["kind"] == "lattice":
         lat = sc["lattice"]
         cx, cy = sc["center_m"]
-        xs = [cx + (i - (lat["nx"] - 1) / 2) * lat["spacing_m"] for i in range(lat["nx"])]
+        xs = [cx + (i - (lat["nx"] - 1) / 2) * lat["spacing_m"] for i in range(lat["nx"])
+              if i % lat["x_stride"] == lat["x_offset"]]
         ys = [cy + (j - (lat["ny"] - 1) / 2) * lat["spacing_m"] for j in range(lat["ny"])]
         pts = [[x, y] for y in ys for x in xs]
     else:
@@ -463,6 +470,10 @@ def _forward_checks(scn: dict, source: str) -> None:
     if ant["scan_stop_deg"] <= ant["scan_start_deg"]:
         raise BadInput(f"{source}: antenna.scan_stop_deg = {ant['scan_stop_deg']:g}: must be > "
                        f"antenna.scan_start_deg = {ant['scan_start_deg']:g}")
+    lat = sc["lattice"]
+    if sc["kind"] == "lattice" and (lat["x_offset"] >= lat["x_stride"] or lat["x_offset"] >= lat["nx"]):
+        raise BadInput(f"{source}: scene.lattice.x_offset = {lat['x_offset']}: must be below x_stride "
+                       f"({lat['x_stride']}) and nx ({lat['nx']})")
     if sc["kind"] == "points" and sc["points_m"] is None:
         raise BadInput(f"{source}: scene.points_m: required when scene.kind is points")
     try:

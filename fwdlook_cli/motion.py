@@ -54,22 +54,43 @@ def reference_depression_deg(height_m: float, reference_range_m: float) -> float
     return float(np.degrees(np.arcsin(np.clip(height_m / reference_range_m, -1.0, 1.0))))
 
 
-def beam_range_history_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m):
-    """Predicted slant-range change of the beam-centre point at each pulse, relative to t_ref.
-
-    For pulse n, P_n is the ground point on the beam axis (azimuth ``beam_deg[n]``, seen from the
-    antenna at t_ref) at ``reference_range_m`` slant range from it; returns |P_n - p(t_n)| - |P_n - p_ref|
-    (exact geometry, not the linear projection: the platform moves 130 m about t_ref).
-    """
+def beam_points_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m):
+    """For each pulse, the ground point on its beam axis (azimuth ``beam_deg[n]`` seen from the
+    antenna at t_ref) at ``reference_range_m`` slant range from it; and the antenna at t_ref."""
     p = np.asarray(position_m, dtype=np.float64)
     n = np.arange(len(p), dtype=np.float64)
     p_ref = np.array([np.interp(t_ref_index, n, p[:, i]) for i in range(3)])
-    los = unit_vector(beam_deg, depression_deg)                       # [n, 3]
+    az = np.radians(np.asarray(beam_deg, dtype=np.float64))
     ground = np.sqrt(max(reference_range_m**2 - p_ref[2] ** 2, 1.0))
-    horiz = los[:, :2] / np.linalg.norm(los[:, :2], axis=1, keepdims=True)
-    target = np.column_stack([p_ref[0] + ground * horiz[:, 0], p_ref[1] + ground * horiz[:, 1],
-                              np.zeros(len(p))])
-    return np.linalg.norm(target - p, axis=1) - np.linalg.norm(target - p_ref, axis=1)
+    target = np.column_stack([p_ref[0] + ground * np.sin(az), p_ref[1] + ground * np.cos(az), np.zeros(len(p))])
+    return target, p_ref
+
+
+def beam_range_history_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m):
+    """Predicted slant-range change of the beam-centre point at each pulse, relative to t_ref:
+    |P_n - p(t_n)| - |P_n - p_ref| (exact geometry, not the linear projection: the platform moves
+    130 m about t_ref)."""
+    target, p_ref = beam_points_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m)
+    return np.linalg.norm(target - position_m, axis=1) - np.linalg.norm(target - p_ref, axis=1)
+
+
+def keystone_residual_envelope_m(slow_time_s, position_m, velocity_mps, t_ref_s, prf_hz, beam_deg,
+                                 depression_deg, reference_range_m):
+    """Envelope position left by an exact keystone, relative to R(t_ref), for the beam-centre point.
+
+    Keystone (eq. 8) of exp(-j 4 pi (f_c + f_r) R(t)/c) about t_ref leaves, to first order in f_r/f_c,
+    the envelope at R(t') - t' dR/dt(t') (t' from t_ref): R0 for a linear history, R0 - R2 t'^2 for a
+    quadratic one (eq. 10, whose f_r t'^2 term eq. 12 compensates with the a_y cos(phi_0) model).  This
+    evaluates it exactly for the point each pulse's beam looks at, so the compensation also carries the
+    cos(theta) eq. 12 drops and the geometric v^2 (1 - cos^2 theta cos^2 phi)/(2 R) term of eq. (2).
+    """
+    t = np.asarray(slow_time_s, dtype=np.float64)
+    m_ref = (t_ref_s - t[0]) * prf_hz
+    target, p_ref = beam_points_m(position_m, m_ref, beam_deg, depression_deg, reference_range_m)
+    d = target - position_m
+    r = np.linalg.norm(d, axis=1)
+    r_dot = -np.einsum("ni,ni->n", d, velocity_mps) / r
+    return r - (t - t_ref_s) * r_dot - np.linalg.norm(target - p_ref, axis=1)
 
 
 def bulk_range_history_m(position_m, t_ref_index, depression_deg):

@@ -126,6 +126,18 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     if truth is not None:
         rows = target_metrics(final["image"], final["range_m"], final["angle_deg"], truth,
                               cube.truth["amplitude"], geo["p_ref"], bandwidth_hz=cube.radar["bandwidth_hz"])
+        from .antenna import MonopulseAntenna
+        from .evaluate import resolved_flags
+
+        bw = cube.radar["beamwidth_3db_deg"]
+        squint = float(cube.antenna.get("squint_deg", min(1.5, 0.24 * bw))) if cube.antenna else min(1.5, 0.24 * bw)
+        flags = resolved_flags([r["true_range_m"] for r in rows], [r["true_azimuth_deg"] for r in rows],
+                               bandwidth_hz=cube.radar["bandwidth_hz"], wavelength_m=299_792_458.0 / cube.radar["fc_hz"],
+                               speed_mps=float(np.linalg.norm(geo["v_ref"])), prf_hz=cube.radar["prf_hz"],
+                               cpi=proc["cpi"], depression_deg=geo["depression_deg"],
+                               beamwidth_two_way_deg=MonopulseAntenna(bw, squint).two_way_3db_width_deg())
+        for row, flag in zip(rows, flags):
+            row["resolved"] = bool(flag)
         spectra = read_stage(run_dir / "stages" / f"{len(stages) - 1:02d}_doppler_spectra.h5")
         beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
         if np.isfinite(beta):

@@ -41,7 +41,7 @@ def load_sweep(path: str) -> dict:
         raise BadInput(f"{path}: sweep file not found") from None
     if not isinstance(raw, dict):
         raise BadInput(f"{path}: top level: expected a mapping")
-    allowed = {"name", "scenarios", "set", "grid", "config"}
+    allowed = {"name", "scenarios", "set", "grid", "config", "combine"}
     extra = sorted(set(raw) - allowed)
     if extra:
         raise BadInput(f"{path}: {extra[0]}: unknown key; allowed: {', '.join(sorted(allowed))}")
@@ -54,8 +54,12 @@ def load_sweep(path: str) -> dict:
     sets = raw.get("set") or []
     if not isinstance(sets, list):
         raise BadInput(f"{path}: set: expected a list of KEY.PATH=VALUE strings")
+    combine = raw.get("combine") or []
+    if not isinstance(combine, list) or any(c not in grid for c in combine):
+        raise BadInput(f"{path}: combine: expected a list of grid keys; allowed: {', '.join(grid)}")
     base = p.parent
     return {"name": str(raw.get("name", p.stem)), "scenarios": [str((base / s).resolve()) for s in scen],
+            "combine": combine,
             "set": [str(s) for s in sets], "grid": grid,
             "config": str((base / raw["config"]).resolve()) if raw.get("config") else None}
 
@@ -140,8 +144,33 @@ def run_sweep(path: str, out_dir: str | Path, *, workers: int = 1, quiet: bool =
     finally:
         if pool:
             pool.shutdown()
+    if sweep["combine"]:
+        rows = combine_rows(rows, sweep)
     write_summary(out, sweep, rows)
     return rows
+
+
+def combine_rows(rows: list[dict], sweep: dict) -> list[dict]:
+    """Merge the runs that differ only in the ``combine`` keys: the summary is recomputed over the
+    union of their targets (e.g. a lattice processed as interleaved column subsets), times add up."""
+    from .evaluate import summarize
+
+    keep = [k for k in sweep["grid"] if k not in sweep["combine"]]
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["scenario"], *(json.dumps(r[k]) for k in keep)), []).append(r)
+    out = []
+    for members in groups.values():
+        targets = []
+        for r in members:
+            targets += json.loads((Path(r["run_dir"]) / "metrics.json").read_text())["targets"]
+        summary = summarize(targets, {})
+        out.append({"scenario": members[0]["scenario"], **{k: members[0][k] for k in keep},
+                    **{k: summary.get(k) for k in SUMMARY_KEYS},
+                    **{k: v for k, v in summary.items() if k not in SUMMARY_KEYS},
+                    "runs": len(members), "total_s": sum(r["total_s"] for r in members),
+                    "run_dir": str(Path(members[0]["run_dir"]).parent)})
+    return out
 
 
 def _fmt(v, nd=3):
@@ -159,13 +188,14 @@ def write_summary(out: Path, sweep: dict, rows: list[dict]) -> None:
     writer.writeheader()
     writer.writerows(rows)
     atomic_write_text(out / "summary.csv", buf.getvalue())
-    atomic_write_text(out / "summary.md", markdown_table(rows, ["scenario", *sweep["grid"]]))
+    keys = [k for k in sweep["grid"] if k not in sweep["combine"]]
+    atomic_write_text(out / "summary.md", markdown_table(rows, ["scenario", *keys]))
     if rows:
         from .plots import speed_accuracy_chart, stability_map
 
-        speed_accuracy_chart(out / "speed_accuracy.png", rows, list(sweep["grid"]))
-        if len(sweep["grid"]) == 2:
-            stability_map(out / "stability.png", rows, list(sweep["grid"]))
+        speed_accuracy_chart(out / "speed_accuracy.png", rows, keys)
+        if len(keys) == 2:
+            stability_map(out / "stability.png", rows, keys)
 
 
 def markdown_table(rows, key_cols) -> str:
