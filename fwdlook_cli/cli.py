@@ -66,6 +66,9 @@ def _scenario_and_cube(source, raw, config, overrides, quiet):
         if raw:
             raise BadInput(f"{source}: give either a raw cube or --raw, not both")
         raw, raw_scn, name = source, {}, src.stem
+        cube = read_raw(raw)
+        if cube.diff is None or cube.attrs.get("scenario_kind") == "isar":
+            raw_scn = {"kind": "isar"}
     else:
         try:
             text = src.read_text(encoding="utf-8")
@@ -75,9 +78,11 @@ def _scenario_and_cube(source, raw, config, overrides, quiet):
     if raw_scn is not None and not isinstance(raw_scn, dict):
         raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
     if name is not None:
-        raw_scn = {"name": name}
+        raw_scn = {**raw_scn, "name": name}
     scn = resolve_with_config(raw_scn, source, config, overrides)
-    if raw:
+    if name is not None:
+        pass                          # the source itself is the cube, already read
+    elif raw:
         cube = read_raw(raw)
     else:
         if scn["kind"] != "forward":

@@ -34,7 +34,8 @@ def describe_raw(path: str) -> str:
     r, t = cube.radar, cube.slow_time_s
     lines = [
         f"{path}: fwdlook raw cube (format_version 1)",
-        f"  echo            sum + diff, {cube.n_pulses} pulses x {cube.n_range} range samples, complex64",
+        f"  echo            {'sum + diff' if cube.diff is not None else 'sum only (single channel)'}, "
+        f"{cube.n_pulses} pulses x {cube.n_range} range samples, complex64",
         f"  radar           fc {r['fc_hz'] / 1e9:g} GHz, bandwidth {r['bandwidth_hz'] / 1e6:g} MHz, "
         f"fs {r['fs_hz'] / 1e6:g} MHz, PRF {r['prf_hz']:g} Hz, sum beam {r['beamwidth_3db_deg']:g} deg",
         f"  range window    {cube.range_m[0]:.1f} .. {cube.range_m[-1]:.1f} m, "

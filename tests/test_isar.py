@@ -1,0 +1,294 @@
+"""ISAR (seed 001): second-order keystone with the shift n0 of the range minimum.
+
+Facts checked: eq. (13) with its units corrected against the simulator's exact range and the echo's
+zero-Doppler pulse; the second-order keystone on a range curve symmetric about the middle; the n0
+shift for an off-centre minimum; the n0 estimate; the Doppler-ambiguity number; the paper's Sec. 4
+scenarios (span and integration gain per correction); CZT against DFT keystone; scenario validation;
+single-channel cubes on disk; the run directory.  Small cubes except the two paper scenarios (6000 x
+~100, about 0.3 s per correction).
+"""
+from __future__ import annotations
+
+import copy
+import json
+import math
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from fwdlook_cli import isar
+from fwdlook_cli.config import load_scenario, resolve_scenario
+from fwdlook_cli.errors import BadInput
+from fwdlook_cli.io import read_raw, write_raw
+
+SCEN = Path(__file__).resolve().parents[1] / "scenarios"
+PAPER = [SCEN / "isar_theta3.yaml", SCEN / "isar_theta5.yaml"]
+
+# paper geometry (f0 3 GHz, Fp 3 kHz, R0 1100 m, v 40 m/s), a shorter dwell, no noise
+BASE = {"name": "isar_test", "kind": "isar",
+        "radar": {"fc_hz": 3.0e9, "bandwidth_hz": 300.0e6, "fs_hz": 360.0e6, "pulse_width_s": 0.1e-6,
+                  "prf_hz": 3000.0, "n_pulses": 3000},
+        "target": {"range_m": 1100.0, "theta0_deg": 0.0, "velocity_mps": [0.0, 40.0, 0.0]},
+        "noise": {"snr_db": None, "seed": 3}}
+
+
+def scenario(**sections):
+    raw = copy.deepcopy(BASE)
+    for key, value in sections.items():
+        if isinstance(value, dict):
+            raw.setdefault(key, {}).update(value)
+        else:
+            raw[key] = value
+    return resolve_scenario(raw, "<test>")
+
+
+def run(cube, scn, **processing):
+    proc = dict(scn["processing"], **processing)
+    final, _ = isar.run_isar_stages(cube, proc)
+    _, metrics = isar.isar_outputs(final, cube, proc)
+    return final, metrics
+
+
+@pytest.fixture(scope="module")
+def paper_table():
+    rows = isar.isar_correction_table(PAPER)
+    return {(r["scenario"], r["correction"]): r for r in rows}
+
+
+# ----------------------------------------------------------------------------------------------
+# Eq. (13) with its units corrected
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("theta0", [3.0, 5.0])
+def test_eq13_corrected_units_match_exact_range_minimum(theta0):
+    # a 6 s observation so that the minimum (1.44 s / 2.40 s after the middle) lies inside it
+    scn = scenario(radar={"n_pulses": 18000}, target={"theta0_deg": theta0})
+    t, pos0, vel, _ = isar.isar_geometry(scn)
+    r = isar.scatterer_ranges_m(pos0, vel, t)[0]
+    n0 = isar.n0_pulses_eq13(1100.0, theta0, 40.0, 3000.0)            # R0 sin(theta0) Fp / v
+    assert abs(int(np.argmin(r)) - ((len(t) - 1) / 2 + n0)) <= 1.0
+    printed = 1100.0 * math.sin(math.radians(theta0)) / (40.0 * 3000.0)  # eq. (13) as printed (s^2)
+    assert printed < 1e-3 and n0 > 4000                                # ...is no pulse count at all
+
+
+def test_echo_doppler_changes_sign_at_the_eq13_pulse():
+    """The simulated echo itself: its pulse-to-pulse phase step (Doppler) is zero at the minimum."""
+    scn = scenario(radar={"n_pulses": 12000}, target={"theta0_deg": 3.0})
+    cube, stats = isar.simulate_isar_scenario(scn)
+    pos, _ = isar.peak_track(cube.sum)
+    cell = np.rint(pos).astype(int)
+    s = cube.sum[np.arange(cube.n_pulses), cell]
+    step = np.angle(s[1:] * np.conj(s[:-1]))                           # > 0 approaching, < 0 receding
+    crossing = int(np.nonzero(np.diff(np.sign(step)) < 0)[0][0]) + 1
+    expected = (cube.n_pulses - 1) / 2 + isar.n0_pulses_eq13(1100.0, 3.0, 40.0, 3000.0)
+    assert abs(crossing - expected) <= 1.0
+    assert stats.n0_pulses == pytest.approx(isar.n0_pulses_eq13(1100.0, 3.0, 40.0, 3000.0), rel=1e-9)
+
+
+# ----------------------------------------------------------------------------------------------
+# The corrections
+# ----------------------------------------------------------------------------------------------
+def test_second_order_keystone_removes_a_range_curve_symmetric_about_the_middle():
+    # theta0 = 0: the range minimum is at the middle; v = 100 m/s gives 1.2 cells of curvature
+    scn = scenario(target={"theta0_deg": 0.0, "velocity_mps": [0.0, 100.0, 0.0]})
+    cube, stats = isar.simulate_isar_scenario(scn)
+    assert abs(stats.n0_pulses) < 1e-9
+    _, before = run(cube, scn, correction="none")
+    _, after = run(cube, scn, correction="keystone2")
+    assert before["summary"]["migration_span_cells"] > 1.0
+    assert after["summary"]["migration_span_cells"] < 0.1
+
+
+def test_n0_shift_moves_the_centre_to_the_range_minimum():
+    # theta0 = 3 deg: the minimum lies n0 = 4318 pulses after the middle of a 1 s observation
+    scn = scenario(target={"theta0_deg": 3.0, "velocity_mps": [0.0, 40.0, 0.0]})
+    cube, _ = isar.simulate_isar_scenario(scn)
+    _, middle = run(cube, scn, correction="keystone2")
+    _, shifted = run(cube, scn, correction="keystone2_n0")
+    assert shifted["summary"]["n0_used_pulses"] == pytest.approx(4317.7, abs=0.1)
+    assert shifted["t_ref_s"] == pytest.approx((2999 / 2 + 4317.716) / 3000.0, abs=1e-4)
+    assert shifted["summary"]["migration_span_cells"] < 1.0
+    assert middle["summary"]["migration_span_cells"] > 1.0
+    # after the shifted keystone the target sits at its range at t_ref, the closest approach
+    target = shifted["targets"][0]
+    assert target["true_range_m"] == pytest.approx(1100.0 * math.cos(math.radians(3.0)), abs=1e-6)
+    assert abs(target["range_error_m"]) < 0.05
+
+
+def test_n0_estimate_within_two_pulses_at_20_db():
+    for path in PAPER:
+        scn = load_scenario(path, ["noise.snr_db=20"])
+        cube, stats = isar.simulate_isar_scenario(scn)
+        final, metrics = run(cube, scn, correction="keystone2_n0_est")
+        assert abs(metrics["summary"]["n0_est_pulses"] - stats.n0_pulses) <= 2.0
+        assert metrics["params"]["range_model_source"] == "estimate"
+
+
+def test_doppler_ambiguity_number_from_the_geometry():
+    # 2 v sin(theta0) / lambda = 1043 Hz at PRF 1000 Hz: ambiguity number 1
+    scn = scenario(radar={"bandwidth_hz": 30e6, "fs_hz": 36e6, "pulse_width_s": 1e-6, "prf_hz": 1000.0,
+                          "n_pulses": 600},
+                   target={"range_m": 2000.0, "theta0_deg": 10.0, "velocity_mps": [0.0, 300.0, 0.0]})
+    cube, _ = isar.simulate_isar_scenario(scn)
+    _, auto = run(cube, scn, correction="keystone2_n0")
+    _, wrong = run(cube, scn, correction="keystone2_n0", ambiguity=0)
+    _, est = run(cube, scn, correction="keystone2_n0_est")
+    assert auto["params"]["ambiguity_numbers"] == [1] and est["params"]["ambiguity_numbers"] == [1]
+    assert auto["summary"]["migration_span_cells"] < 0.5
+    assert est["summary"]["migration_span_cells"] < 0.5
+    assert wrong["summary"]["migration_span_cells"] > 2.0
+
+
+def test_ideal_integration_gain_of_an_unmigrating_target():
+    """A nearly static target: the measured gain is the closed form N a |p(0)| up to the range-sampling
+    loss of the compressed pulse at fs = 1.2 B (about 0.1 dB)."""
+    scn = scenario(radar={"n_pulses": 512}, target={"velocity_mps": [0.0, 0.01, 0.0]})
+    cube, _ = isar.simulate_isar_scenario(scn)
+    _, m = run(cube, scn, correction="none")
+    assert -0.25 < m["summary"]["integration_gain_db"] <= 0.01
+    assert m["summary"]["islr_db"] == pytest.approx(-10.0, abs=0.6)
+    assert m["summary"]["azimuth_pslr_db"] == pytest.approx(-13.26, abs=0.2)
+
+
+def test_czt_and_dft_keystones_agree():
+    scn = scenario(radar={"n_pulses": 256, "bandwidth_hz": 100e6, "fs_hz": 120e6},
+                   target={"theta0_deg": 3.0, "velocity_mps": [0.0, 150.0, 0.0]})
+    cube, _ = isar.simulate_isar_scenario(scn)
+    a, _ = run(cube, scn, correction="keystone2_n0", keystone="czt")
+    b, _ = run(cube, scn, correction="keystone2_n0", keystone="dft")
+    scale = np.abs(b["echo_rc"]).max()
+    assert np.abs(a["echo_rc"] - b["echo_rc"]).max() < 1e-4 * scale
+
+
+def test_stages_are_pure():
+    scn = scenario(radar={"n_pulses": 256})
+    cube, _ = isar.simulate_isar_scenario(scn)
+    src, stages = isar.build_isar_stages(cube, dict(scn["processing"], correction="keystone2_n0_est"))
+    assert [s.name for s in stages] == ["estimate_n0", "range_fft", "rcmc", "range_ifft", "azimuth_compress"]
+    data = src
+    for st in stages:
+        before = {k: v.data.copy() for k, v in data.vars.items()}
+        out = st.fn(data, **st.params)
+        assert out is not data
+        for k, v in before.items():
+            assert np.array_equal(data.vars[k].data, v), (st.name, k)
+        data = out
+
+
+# ----------------------------------------------------------------------------------------------
+# The paper's Sec. 4 scenarios: the correction table
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["isar_theta3", "isar_theta5"])
+def test_paper_scenarios_n0_shift_within_one_cell_and_one_db(paper_table, name):
+    shifted = paper_table[(name, "keystone2_n0")]
+    est = paper_table[(name, "keystone2_n0_est")]
+    for row in (shifted, est):
+        assert row["migration_span_cells"] <= 1.0
+        assert row["integration_gain_db"] >= -1.0
+    # without the shift the table shows more: migration left and integration lost
+    for corr in ("none", "keystone1", "keystone2"):
+        row = paper_table[(name, corr)]
+        assert row["migration_span_cells"] > 1.0, corr
+        assert row["integration_gain_db"] < shifted["integration_gain_db"] - 1.0, corr
+    assert paper_table[(name, "none")]["migration_span_cells"] > 5.0
+    assert abs(est["n0_est"] - est["n0_true"]) <= 2.0
+
+
+def test_paper_scenarios_say_what_the_paper_says():
+    for path, theta in zip(PAPER, (3.0, 5.0)):
+        scn = load_scenario(path)
+        assert scn["kind"] == "isar" and scn["processing"]["correction"] == "keystone2_n0"
+        assert scn["radar"]["fc_hz"] == 3e9 and scn["radar"]["prf_hz"] == 3000.0
+        assert scn["target"]["range_m"] == 1100.0 and scn["target"]["theta0_deg"] == theta
+        assert scn["target"]["velocity_mps"] == [0.0, 40.0, 0.0]
+
+
+def test_table_format(paper_table):
+    text = isar.format_isar_table(list(paper_table.values()))
+    assert text.count("\n") == 2 + 9 and "keystone2_n0_est" in text
+
+
+# ----------------------------------------------------------------------------------------------
+# Validation, single-channel cubes, the run directory
+# ----------------------------------------------------------------------------------------------
+def test_unknown_key_under_target_names_its_path():
+    raw = copy.deepcopy(BASE)
+    raw["target"]["speed_mps"] = 40.0
+    with pytest.raises(BadInput, match=r"target\.speed_mps: unknown key; allowed: range_m"):
+        resolve_scenario(raw, "x.yaml")
+
+
+def test_bad_correction_names_the_key_and_the_allowed_values():
+    with pytest.raises(BadInput, match=r"x\.yaml: processing\.correction = 'keystone3': allowed: none, "
+                                       r"keystone1, keystone2, keystone2_n0, keystone2_n0_est"):
+        resolve_scenario(dict(BASE, processing={"correction": "keystone3"}), "x.yaml")
+
+
+@pytest.mark.parametrize("override, match", [
+    ("radar.fs_hz=100e6", r"radar\.fs_hz = 1e\+08: must be >= radar\.bandwidth_hz"),
+    ("radar.range_window_m=[1090, 1100]", r"radar\.range_window_m = \[1090, 1100\]: the object spans"),
+    ("target.velocity_mps=[0, 0, 0]", r"target\.velocity_mps = \[0, 0, 0\]: must be non-zero"),
+    ("target.amplitude=[1, 2]", r"target\.amplitude: list of 2 values"),
+    ("processing.n0_search.passes=0", r"processing\.n0_search\.passes = 0: must be >= 1"),
+])
+def test_cross_checks(override, match):
+    with pytest.raises(BadInput, match=match):
+        resolve_scenario(BASE, "x.yaml", [override])
+
+
+def test_single_channel_cube_round_trip(tmp_path):
+    scn = scenario(radar={"n_pulses": 64}, noise={"snr_db": 20.0},
+                   target={"points_m": [[0, 0, 0], [3.0, -2.0, 0.0]], "amplitude": [1.0, 0.5]})
+    cube, _ = isar.simulate_isar_scenario(scn)
+    path = tmp_path / "isar.h5"
+    write_raw(path, cube)
+    with h5py.File(path, "r") as f:
+        assert f.attrs["channels"] == "sum" and "diff" not in f["echo"]
+        assert f["truth/targets/vy_mps"].attrs["units"] == "m/s"
+    back = read_raw(path)
+    assert back.diff is None
+    assert np.array_equal(back.sum, cube.sum) and np.array_equal(back.range_m, cube.range_m)
+    assert np.array_equal(back.scan_angle_deg, cube.scan_angle_deg)
+    for key in ("x_m", "y_m", "z_m", "amplitude", "vx_mps", "vy_mps", "vz_mps"):
+        assert np.array_equal(back.truth[key], cube.truth[key])
+    # the marker is what allows the missing channel: without it /echo/diff is still required
+    with h5py.File(path, "a") as f:
+        del f.attrs["channels"]
+    with pytest.raises(BadInput, match=r"/echo/diff: dataset missing"):
+        read_raw(path)
+
+
+def test_cube_without_truth_processes_with_the_estimate():
+    scn = scenario(radar={"n_pulses": 1500}, target={"theta0_deg": 3.0})
+    cube, _ = isar.simulate_isar_scenario(scn)
+    cube.truth = None
+    with pytest.raises(BadInput, match=r"keystone2_n0.*processing\.n0_pulses"):
+        isar.build_isar_stages(cube, dict(scn["processing"], correction="keystone2_n0"))
+    _, m = run(cube, scn, correction="keystone2_n0_est")
+    assert m["targets"] == [] and m["summary"]["n_targets"] == 0
+    assert m["summary"]["migration_span_cells"] < 1.0 and m["summary"]["integration_gain_db"] > -1.0
+
+
+def test_fwdlook_run_writes_isar_metrics(tmp_path, capsys):
+    from fwdlook_cli.cli import main
+
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        main(["run", str(PAPER[0]), "-o", str(out), "-q", "--set", "radar.n_pulses=1500"])
+    assert exc.value.code == 0, capsys.readouterr().err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["method"] == "keystone2_n0" and metrics["scenario"] == "isar_theta3"
+    for key in ("migration_span_cells", "integration_gain_db", "n_targets", "detected",
+                "max_abs_range_error_m", "rms_range_error_m", "max_abs_azimuth_error_deg", "median_islr_db"):
+        assert key in metrics["summary"]
+    assert sorted(p.name for p in (out / "stages").iterdir()) == [
+        "01_range_fft.h5", "02_rcmc.h5", "03_range_ifft.h5", "04_azimuth_compress.h5"]
+    assert (out / "image.h5").exists() and (out / "image.png").stat().st_size > 0
+
+
+def test_figures(tmp_path):
+    paths = isar.save_isar_figures(tmp_path, [PAPER[0]], overrides=["radar.n_pulses=600"])
+    assert [p.name for p in paths] == ["isar_theta3_echo_before.png", "isar_theta3_echo_after.png",
+                                       "isar_theta3_image.png"]
+    assert all(p.stat().st_size > 0 for p in paths)
