@@ -10,8 +10,9 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SCENARIO ?= scenarios/paper_fig6_a50.yaml
 RUN_DIR ?= runs/default
+SCALE ?= full
 
-.PHONY: help install run test test-slow bench clean
+.PHONY: help install run test test-slow bench reproduce clean
 
 help: ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -37,6 +38,9 @@ test-slow: $(STAMP) ## also the full paper-size runs
 
 bench: $(STAMP) ## timings in one process on the paper cube
 	$(BIN)/fwdlook bench
+
+reproduce: $(STAMP) ## the papers' tables and figures beside ours (SCALE=quick|full) in reports/reproduce
+	$(BIN)/python -m fwdlook_cli.reproduce --out reports/reproduce --scale $(SCALE)
 
 clean: ## remove generated outputs (keeps .venv)
 	rm -rf runs reports .pytest_cache .hypothesis

@@ -1,6 +1,7 @@
 """Plotting at the edge: quick-look PNGs with labelled axes (matplotlib, Agg backend)."""
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -84,12 +85,13 @@ def stability_map(path, rows, grid_keys, *, error_key="max_abs_range_error_m"):
     fig, axes = plt.subplots(1, len(scenarios), figsize=(4.2 * len(scenarios), 3.8), dpi=110, squeeze=False)
     for ax, scen in zip(axes[0], scenarios):
         sel = [r for r in rows if r["scenario"] == scen]
-        v1 = list(dict.fromkeys(r[k1] for r in sel))
-        v2 = list(dict.fromkeys(r[k2] for r in sel))
+        key = lambda v: json.dumps(v)  # noqa: E731  (list values such as accel_mps2 are not hashable)
+        v1 = list(dict.fromkeys(key(r[k1]) for r in sel))
+        v2 = list(dict.fromkeys(key(r[k2]) for r in sel))
         grid = np.full((len(v2), len(v1)), np.nan)
         for r in sel:
             if r.get(error_key) is not None:
-                grid[v2.index(r[k2]), v1.index(r[k1])] = r[error_key]
+                grid[v2.index(key(r[k2])), v1.index(key(r[k1]))] = r[error_key]
         mesh = ax.imshow(np.log10(grid), origin="lower", aspect="auto", cmap="magma_r")
         ax.set_xticks(range(len(v1)), [str(v) for v in v1], rotation=45, fontsize=7)
         ax.set_yticks(range(len(v2)), [str(v) for v in v2], fontsize=7)
@@ -124,8 +126,8 @@ def image_panels(path, panels, *, ncols=None, dynamic_range_db=40.0, suptitle=No
     n = len(panels)
     ncols = ncols or n
     nrows = int(np.ceil(n / ncols))
-    fig, axes = plt.subplots(nrows, ncols, figsize=(panel_size[0] * ncols + 0.8, panel_size[1] * nrows),
-                             dpi=110, squeeze=False)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(panel_size[0] * ncols + 0.8, panel_size[1] * nrows + 0.4),
+                             dpi=110, squeeze=False, layout="constrained")
     common = max((float(np.max(p["power"])) if np.size(p["power"]) else 0.0) for p in panels) or 1.0
     mesh = None
     for ax, p in zip(axes.flat, panels):
@@ -143,9 +145,9 @@ def image_panels(path, panels, *, ncols=None, dynamic_range_db=40.0, suptitle=No
         ax.set_visible(False)
     if mesh is not None:
         label = "dB re brightest pixel of all panels" if reference == "common" else "dB re panel peak"
-        fig.colorbar(mesh, ax=axes.ravel().tolist(), label=label, shrink=0.85)
+        fig.colorbar(mesh, ax=axes, label=label, shrink=0.85)
     if suptitle:
-        fig.suptitle(suptitle, fontsize=10, y=1.0 + 0.04 / nrows)
+        fig.suptitle(suptitle, fontsize=10)
     path = Path(path)
     tmp = path.with_name(path.stem + ".partial.png")
     fig.savefig(tmp, bbox_inches="tight")

@@ -95,7 +95,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                  png=True) -> dict:
     """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics."""
     from .chain import build_forward_stages
-    from .evaluate import peak_loss_db, summarize, target_metrics
+    from .evaluate import dwell_profile_metrics, summarize, target_metrics
     from .pipeline import read_stage, run_stages
 
     run_dir = Path(run_dir)
@@ -141,9 +141,12 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         spectra = read_stage(run_dir / "stages" / f"{len(stages) - 1:02d}_doppler_spectra.h5")
         beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
         if np.isfinite(beta):
-            for row, loss in zip(rows, peak_loss_db(spectra, truth, cube.truth["amplitude"],
-                                                    float(cube.antenna["monopulse_slope_per_deg"]), beta, geo["p_ref"])):
-                row["peak_loss_db"] = float(loss)
+            dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
+                                          float(cube.antenna["monopulse_slope_per_deg"]), beta, geo["p_ref"])
+            for row, extra in zip(rows, dwell):
+                row["image_islr_db"], row["image_pslr_db"] = row["islr_db"], row["pslr_db"]
+                row["image_range_width_3db_m"] = row["range_width_3db_m"]
+                row.update(extra)
     timings["outputs"] = time.perf_counter() - t_out
     timing = {k: float(v) for k, v in timings.items()}
     timing["total"] = time.perf_counter() - t_start

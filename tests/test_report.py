@@ -1,0 +1,160 @@
+"""``fwdlook report`` and the reproduction's Sec. 4.1 table (fast: two tiny runs, no paper cube).
+
+The report's tables are checked against the metrics.json they come from (parsed back out of
+report.md), its figures are opened as PNGs; bad input exits 2 with one line naming the path.
+The reproduction's section (a) is checked against the closed forms of paper eq. (16), (17), (19), (20).
+"""
+from __future__ import annotations
+
+import json
+import math
+import struct
+from pathlib import Path
+
+import pytest
+
+from fwdlook_cli.cli import main
+from fwdlook_cli.geometry import C_MPS
+from fwdlook_cli.report import SIG_DIGITS, parse_md_table, parse_value
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = REPO / "scenarios" / "tiny.yaml"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+METHODS = ("tracking", "decimation")
+
+
+def run_cli(argv, capsys):
+    """Run ``fwdlook ARGV`` in-process; return (exit code, stdout, stderr)."""
+    with pytest.raises(SystemExit) as exc_info:
+        main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return exc_info.value.code, out, err
+
+
+@pytest.fixture(scope="module")
+def tiny_runs(tmp_path_factory):
+    """The tiny scenario run twice, with two methods, into temporary run directories."""
+    base = tmp_path_factory.mktemp("runs")
+    dirs = []
+    for method in METHODS:
+        run_dir = base / method
+        with pytest.raises(SystemExit) as exc_info:
+            main(["run", str(TINY), "-o", str(run_dir), "--set", f"processing.method={method}", "-q"])
+        assert exc_info.value.code == 0
+        assert (run_dir / "metrics.json").exists()
+        dirs.append(run_dir)
+    return dirs
+
+
+@pytest.fixture(scope="module")
+def report_dir(tiny_runs, tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    with pytest.raises(SystemExit) as exc_info:
+        main(["report", *map(str, tiny_runs), "-o", str(out), "-q"])
+    assert exc_info.value.code == 0
+    return out
+
+
+def _section(lines, heading):
+    """Lines from ``heading`` up to the next heading of the same or higher level."""
+    level = heading.split(" ")[0]
+    start = lines.index(heading)
+    end = len(lines)
+    for i in range(start + 1, len(lines)):
+        if lines[i].startswith("#") and len(lines[i].split(" ")[0]) <= len(level):
+            end = i
+            break
+    return lines[start + 1:end]
+
+
+def _subsection(lines, heading):
+    start = lines.index(heading)
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("#")), len(lines))
+    return lines[start + 1:end]
+
+
+def _close(printed, value):
+    """A printed number equals the metrics.json value to the report's SIG_DIGITS digits."""
+    if value is None:
+        return printed is None
+    if isinstance(value, bool):
+        return printed is value
+    if isinstance(value, int):
+        return printed == value
+    if isinstance(value, str):
+        return printed == value
+    return math.isclose(printed, value, rel_tol=10 ** (1 - SIG_DIGITS), abs_tol=1e-12)
+
+
+def test_report_tables_equal_metrics_json(tiny_runs, report_dir):
+    lines = (report_dir / "report.md").read_text(encoding="utf-8").splitlines()
+    for run_dir in tiny_runs:
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        run_lines = _section(lines, f"## Run `{run_dir.name}`")
+        summary = dict(parse_md_table(_subsection(run_lines, "### Summary")))
+        assert parse_value(summary["method"]) == metrics["method"]
+        assert metrics["method"] == run_dir.name
+        assert _close(parse_value(summary["t_ref_s"]), metrics["t_ref_s"])
+        for key, value in metrics["params"].items():
+            assert _close(parse_value(summary[f"params.{key}"]), value), key
+        for key, value in metrics["summary"].items():
+            assert _close(parse_value(summary[f"summary.{key}"]), value), key
+        heads = [c.strip() for c in _subsection(run_lines, "### Targets")[3].strip("|").split("|")]
+        body = parse_md_table(_subsection(run_lines, "### Targets")[3:])
+        assert len(body) == len(metrics["targets"]) == 3
+        for cells, target in zip(body, metrics["targets"]):
+            for head, cell in zip(heads, cells):
+                assert _close(parse_value(cell), target.get(head)), (head, cell, target.get(head))
+    timing = parse_md_table(_section(lines, "## Timing per stage (s)"))
+    by_stage = {row[0]: row[1:] for row in timing}
+    for col, run_dir in enumerate(tiny_runs):
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        for stage, seconds in metrics["timing_s"].items():
+            assert _close(parse_value(by_stage[stage][col]), seconds), stage
+
+
+@pytest.mark.parametrize("name", ["images.png", "real_beam.png", "range_profiles.png", "errors.png"])
+def test_report_figures_are_png(report_dir, name):
+    path = report_dir / name
+    data = path.read_bytes()
+    assert data[:8] == PNG_MAGIC
+    width, height = struct.unpack(">II", data[16:24])          # IHDR
+    assert width >= 300 and height >= 200
+    assert len(data) > 10_000
+    assert f"]({name})" in (report_dir / "report.md").read_text()
+    assert not list(report_dir.glob("*.partial*"))
+
+
+def test_report_default_dir_for_one_run(tiny_runs, capsys):
+    code, out, err = run_cli(["report", tiny_runs[0], "-q"], capsys)
+    assert code == 0, err
+    assert Path(out.strip()) == tiny_runs[0] / "report" / "report.md"
+    assert (tiny_runs[0] / "report" / "images.png").exists()
+
+
+def test_report_without_metrics_exits_2(tmp_path, capsys):
+    empty = tmp_path / "not_a_run"
+    empty.mkdir()
+    code, out, err = run_cli(["report", empty, "-o", tmp_path / "rep"], capsys)
+    assert code == 2
+    lines = err.splitlines()
+    assert len(lines) == 1 and "Traceback" not in err
+    assert str(empty) in lines[0] and "metrics.json" in lines[0]
+    assert out == ""
+    assert not (tmp_path / "rep").exists()
+
+
+def test_reproduce_sec41_equals_closed_forms():
+    from fwdlook_cli.reproduce import PAPER_CLAIMS, sec41_table
+
+    rows = {r["key"]: r for r in sec41_table(REPO / "scenarios" / "paper_fig5_a0.yaml")}
+    assert rows["F_0deg"]["ours"] == 12 == PAPER_CLAIMS["sec4.1"]["F_0deg"]["value"]
+    assert rows["F_10deg"]["ours"] == 11 == PAPER_CLAIMS["sec4.1"]["F_10deg"]["value"]
+    assert rows["ambiguity_change_q_10deg"]["ours"] == 4
+    # eq. (19)-(20): c F_R / (2 f_c cos phi_0), h = 50 m at 1700 m ground range
+    cos_phi0 = math.cos(math.atan2(50.0, 1700.0))
+    assert rows["residual_velocity_mps"]["ours"] == pytest.approx(C_MPS * 2500 / (2 * 18e9 * cos_phi0), rel=1e-12)
+    assert rows["residual_velocity_mps"]["ours"] == pytest.approx(20.8, abs=0.05)
+    assert rows["residual_velocity_q_mps"]["ours"] == pytest.approx(0.83, abs=0.005)
+    assert rows["depression_deg"]["ours"] == pytest.approx(math.degrees(math.atan2(50.0, 1700.0)), rel=1e-12)
+    assert rows["f_dc0_hz"]["ours"] == pytest.approx(2 * 240 * 18e9 * cos_phi0 / C_MPS, rel=1e-12)
