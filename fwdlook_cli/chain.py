@@ -265,6 +265,7 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     out.add("cpi_time_s", t_c, ("cpi_time_s",), "s", "CPI centre time t_c")
     out.add("doppler_cell", np.arange(n_doppler), ("doppler_cell",), "1", "zoomed Doppler cell")
     out.vars["range_m"] = data.vars["range_m"]
+    out.vars["xyz"] = data.vars["xyz"]
     out.add("cpi_beam_deg", beam_c, ("cpi_time_s",), "deg", "mean beam pointing angle in the CPI")
     out.add("cpi_speed_mps", speed, ("cpi_time_s",), "m/s", "CPI speed used for the Doppler band (eq. 25)")
     out.add("cpi_position_m", data["position_m"][:m].reshape(n_cpi, cpi, 3).mean(axis=1),

@@ -79,7 +79,7 @@ def _scenario_and_cube(source, raw, config, overrides, quiet):
         raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
     if name is not None:
         raw_scn = {**raw_scn, "name": name}
-    scn = resolve_with_config(raw_scn, source, config, overrides)
+    scn = resolve_with_config(raw_scn, source, config, overrides, check_pulses=not (raw or name))
     if name is not None:
         pass                          # the source itself is the cube, already read
     elif raw:
@@ -102,14 +102,14 @@ def _default_run_dir(scn, output):
     return Path(output) if output else Path("runs") / scn["name"]
 
 
-def _process(scn, cube, run_dir, force, from_stage, quiet):
+def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube"):
     if scn["kind"] == "isar":
         from .isar import process_isar_cube
 
         return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
     from .process import process_cube
 
-    return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
+    return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source)
 
 
 def _print_summary(metrics, run_dir, quiet):
@@ -140,7 +140,7 @@ def process(source, output, config, raw, overrides, from_stage, force, quiet):
     """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
     scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet)
     run_dir = _default_run_dir(scn, output)
-    metrics = _process(scn, cube, run_dir, force, from_stage, quiet)
+    metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source)
     _print_summary(metrics, run_dir, quiet)
 
 
@@ -161,7 +161,7 @@ def run(scenario, output, config, raw, overrides, force, quiet):
     run_dir.mkdir(parents=True, exist_ok=True)
     if not raw:
         write_raw(run_dir / "raw.h5", cube)
-    metrics = _process(scn, cube, run_dir, force, None, quiet)
+    metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario)
     _print_summary(metrics, run_dir, quiet)
     click.echo(str(run_dir / "metrics.json"))
 

@@ -388,8 +388,12 @@ def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...], source: s
     return raw
 
 
-def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=()) -> dict:
-    """Validate a raw scenario mapping (plus overrides) and return the resolved scenario."""
+def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, check_pulses: bool = True) -> dict:
+    """Validate a raw scenario mapping (plus overrides) and return the resolved scenario.
+
+    ``check_pulses=False`` leaves out the checks against the scenario's own pulse count (Q divides it,
+    the CPI fits it): for settings that will process a recorded cube, which is checked instead.
+    """
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
@@ -401,7 +405,10 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=()) -> dict
     if kind not in SCHEMAS:
         raise BadInput(f"{source}: kind = {_show(kind)}: allowed: {', '.join(SCHEMAS)}")
     resolved = _resolve(raw, SCHEMAS[kind], "", source)
-    CROSS_CHECKS[kind](resolved, source)
+    if kind == "forward":
+        CROSS_CHECKS[kind](resolved, source, check_pulses=check_pulses)
+    else:
+        CROSS_CHECKS[kind](resolved, source)
     return resolved
 
 
@@ -462,7 +469,7 @@ def scene_points(scn: dict):
     return pts, amps
 
 
-def _forward_checks(scn: dict, source: str) -> None:
+def _forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None:
     radar, ant, sc, proc = scn["radar"], scn["antenna"], scn["scene"], scn["processing"]
     if radar["fs_hz"] < radar["bandwidth_hz"]:
         raise BadInput(f"{source}: radar.fs_hz = {radar['fs_hz']:g}: must be >= radar.bandwidth_hz "
@@ -492,9 +499,9 @@ def _forward_checks(scn: dict, source: str) -> None:
         if m > needed + 1.0 + 1e-9:
             raise BadInput(f"{source}: radar.n_pulses = {m}: the scan lasts {scan_duration_s(scn):g} s, "
                            f"at most {int(needed) + 1} pulses fit it at prf_hz = {radar['prf_hz']:g}")
-    if m % proc["q"]:
+    if check_pulses and m % proc["q"]:
         raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the pulse count {m}")
-    if proc["cpi"] > m:
+    if check_pulses and proc["cpi"] > m:
         raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the {m} pulses")
     if radar["range_window_m"] != "auto":
         from .geometry import scene_range_extent_m  # local: geometry imports nothing from here

@@ -492,9 +492,13 @@ def keystone_sinc(x, alpha, *, t0_index=0.0, doppler_ref=0.0, n_taps=16):
         taps = base.astype(np.int64)[:, :, None] + j  # (rows, nc, n_taps)
         u = tau[:, :, None] - taps
         w = np.sinc(u) * (i0(beta * np.sqrt(np.clip(1.0 - (u / half) ** 2, 0.0, None))) / i0(beta))
+        outside = (taps < 0) | (taps >= n)
+        w[outside] = 0.0
+        # normalise by the taps inside the sequence: near the ends the demodulated (near-DC) signal
+        # is extrapolated flat instead of being pulled towards zero
         w /= w.sum(axis=-1, keepdims=True)
         flat = taps * nc + col[:, None]
-        flat[(taps < 0) | (taps >= n)] = zero_index
+        flat[outside] = zero_index
         # 2. interpolate, 3. remodulate exp(j 2 pi f0 (tau - t0))
         y[rs] = np.einsum("rct,rct->rc", xd_flat[flat], w) * _cis(f0 * (tau - t0))
     return y

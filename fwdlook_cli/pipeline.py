@@ -78,22 +78,30 @@ def _canon(value):
     return value
 
 
+PROVENANCE_KEYS = ("format", "stage", "config_sha256", "input_sha256", "settings", "software",
+                   "software_version", "created_utc", "compute_s")
+
+
 def stage_key(name: str, params: dict, previous_key: str) -> str:
-    blob = json.dumps({"stage": name, "params": _canon(params), "input": previous_key}, sort_keys=True,
-                      default=str)
+    """Hash of a stage's name, settings, input key and the software version (new code, new files)."""
+    from . import __version__
+
+    blob = json.dumps({"stage": name, "params": _canon(params), "input": previous_key,
+                       "version": __version__}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
 def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key: str, params: dict,
                 extra_attrs: dict | None = None) -> None:
     with atomic_h5(path) as f:
-        f.attrs["format"] = "fwdlook-stage"
+        for k, v in {**data.attrs, **(extra_attrs or {})}.items():
+            if k not in PROVENANCE_KEYS:
+                f.attrs[k] = json.dumps(v) if isinstance(v, (dict, list)) else v
+        f.attrs["format"] = "fwdlook-stage"      # provenance last: never taken from carried attrs
         f.attrs["stage"] = stage
         f.attrs["config_sha256"] = key
         f.attrs["input_sha256"] = input_key
         f.attrs["settings"] = json.dumps(_canon(params), sort_keys=True, default=str)
-        for k, v in {**data.attrs, **(extra_attrs or {})}.items():
-            f.attrs[k] = json.dumps(v) if isinstance(v, (dict, list)) else v
         scales = {}
         for name, var in data.vars.items():  # coordinates first, as dimension scales
             if var.dims == (name,):
@@ -106,14 +114,18 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
             ds = put(f, name, var.data, var.units, var.long_name)
             ds.attrs["dims"] = json.dumps(list(var.dims))
             for axis, dim in enumerate(var.dims):
-                if dim in scales and scales[dim].shape[0] == var.data.shape[axis]:
-                    ds.dims[axis].attach_scale(scales[dim])
+                if dim not in scales or scales[dim].shape[0] != var.data.shape[axis]:
+                    raise ValueError(f"stage {stage}: {name} axis {axis} is '{dim}', which has no coordinate "
+                                     f"of length {var.data.shape[axis]} in the stage output")
+                ds.dims[axis].attach_scale(scales[dim])
 
 
 def read_stage(path: Path) -> StageData:
     out = StageData()
     with h5py.File(path, "r") as f:
         for k, v in f.attrs.items():
+            if k in PROVENANCE_KEYS:
+                continue
             out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
         for name, ds in f.items():
             if not isinstance(ds, h5py.Dataset):

@@ -30,7 +30,8 @@ def load_config_overlay(path: str | None) -> dict:
     return raw.get("processing") or {}
 
 
-def resolve_with_config(raw_scenario: dict, source: str, config_path: str | None, overrides) -> dict:
+def resolve_with_config(raw_scenario: dict, source: str, config_path: str | None, overrides, *,
+                        check_pulses: bool = True) -> dict:
     """Scenario's own processing section, then the -c preset over it, then --set over both."""
     raw = dict(raw_scenario or {})
     overlay = load_config_overlay(config_path)
@@ -41,7 +42,7 @@ def resolve_with_config(raw_scenario: dict, source: str, config_path: str | None
         proc.update(overlay)
         raw["processing"] = proc
     try:
-        return resolve_scenario(raw, source, overrides)
+        return resolve_scenario(raw, source, overrides, check_pulses=check_pulses)
     except BadInput as exc:
         if config_path and "processing." in str(exc):
             raise BadInput(f"{exc} (with -c {config_path})") from None
@@ -92,8 +93,13 @@ def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_
 
 
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
-                 png=True) -> dict:
-    """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics."""
+                 png=True, source: str = "raw cube") -> dict:
+    """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics.
+
+    The run directory's outputs of an earlier run are removed first and ``scenario.yaml`` is written
+    last, so a failed or interrupted run never leaves outputs that look complete for other settings
+    (the stage files stay: they carry their own hashes and are reused only where they match).
+    """
     from .chain import build_forward_stages
     from .evaluate import dwell_profile_metrics, summarize, target_metrics
     from .pipeline import read_stage, run_stages
@@ -106,14 +112,18 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
 
         proc = dict(proc, **plan_for_cube(cube, proc)["processing"])
     if cube.diff is None:
-        raise BadInput("raw cube: /echo/diff: the forward-looking chain needs both channels")
+        raise BadInput(f"{source}: /echo/diff: the forward-looking chain needs both channels")
     if cube.n_pulses % (proc["q"] if proc["method"] == "decimation" else 1):
-        raise BadInput(f"processing.q = {proc['q']}: must divide the pulse count {cube.n_pulses}")
+        raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the cube's pulse count {cube.n_pulses}")
     if proc["cpi"] > cube.n_pulses:
-        raise BadInput(f"processing.cpi = {proc['cpi']}: longer than the {cube.n_pulses} pulses")
+        raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the cube's {cube.n_pulses} pulses")
     t_start = time.perf_counter()
-    atomic_write_text(run_dir / "scenario.yaml", dump_scenario(scn))
     src, stages, geo = build_forward_stages(cube, proc)
+    names = [st.name for st in stages]
+    if from_stage is not None and from_stage not in names:
+        raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
+    for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):
+        (run_dir / name).unlink(missing_ok=True)
     final, timings, keys = run_stages(stages, src, cube_hash(cube), run_dir, force=force,
                                       from_stage=from_stage, quiet=quiet)
     t_out = time.perf_counter()
@@ -169,6 +179,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         "timing_s": timing,
     }
     atomic_write_text(run_dir / "metrics.json", json.dumps(metrics, indent=1, allow_nan=False))
+    atomic_write_text(run_dir / "scenario.yaml", dump_scenario(scn))
     if png:
         from .plots import save_image_png
 
