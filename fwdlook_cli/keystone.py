@@ -496,7 +496,8 @@ def keystone_sinc(x, alpha, *, t0_index=0.0, doppler_ref=0.0, n_taps=16):
         w[outside] = 0.0
         # normalise by the taps inside the sequence: near the ends the demodulated (near-DC) signal
         # is extrapolated flat instead of being pulled towards zero
-        w /= w.sum(axis=-1, keepdims=True)
+        norm = w.sum(axis=-1, keepdims=True)
+        w /= np.where(norm != 0.0, norm, 1.0)   # a position with every tap outside gives 0
         flat = taps * nc + col[:, None]
         flat[outside] = zero_index
         # 2. interpolate, 3. remodulate exp(j 2 pi f0 (tau - t0))
