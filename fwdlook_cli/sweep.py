@@ -13,6 +13,7 @@ Each grid point is resolved like ``--set`` overrides; a raw cube is simulated on
 simulation (everything but ``processing``) and shared by the runs that process it.  Outputs:
 ``DIR/<scenario>/<key=value,...>/`` run directories, ``DIR/summary.json``, ``DIR/summary.csv``,
 ``DIR/summary.md``, ``DIR/speed_accuracy.png`` and, for a two-key grid, ``DIR/stability.png``.
+Each run's stage files are deleted once it is summarised (``keep_stages: true`` keeps them).
 """
 from __future__ import annotations
 
@@ -41,7 +42,7 @@ def load_sweep(path: str) -> dict:
         raise BadInput(f"{path}: sweep file not found") from None
     if not isinstance(raw, dict):
         raise BadInput(f"{path}: top level: expected a mapping")
-    allowed = {"name", "scenarios", "set", "grid", "config", "combine"}
+    allowed = {"name", "scenarios", "set", "grid", "config", "combine", "keep_stages"}
     extra = sorted(set(raw) - allowed)
     if extra:
         raise BadInput(f"{path}: {extra[0]}: unknown key; allowed: {', '.join(sorted(allowed))}")
@@ -59,7 +60,7 @@ def load_sweep(path: str) -> dict:
         raise BadInput(f"{path}: combine: expected a list of grid keys; allowed: {', '.join(grid)}")
     base = p.parent
     return {"name": str(raw.get("name", p.stem)), "scenarios": [str((base / s).resolve()) for s in scen],
-            "combine": combine,
+            "combine": combine, "keep_stages": bool(raw.get("keep_stages", False)),
             "set": [str(s) for s in sets], "grid": grid,
             "config": str((base / raw["config"]).resolve()) if raw.get("config") else None}
 
@@ -105,6 +106,8 @@ def _simulate(args):
 
 
 def _process(run):
+    import shutil
+
     from .io import read_raw
 
     cube = read_raw(run["raw"])
@@ -113,6 +116,10 @@ def _process(run):
     else:
         from .process import process_cube as proc
     metrics = proc(cube, run["resolved"], run["run_dir"], quiet=True, png=False)
+    if not run["keep_stages"]:
+        # a sweep keeps each run's metrics.json, image.h5 and scenario.yaml; its stage files (about
+        # 60 MB per paper-size run) would fill a disk over hundreds of runs
+        shutil.rmtree(Path(run["run_dir"]) / "stages", ignore_errors=True)
     return {"scenario": run["scenario"], **{k: v for k, v in run["point"].items()},
             **{k: metrics["summary"].get(k) for k in SUMMARY_KEYS},
             **{k: metrics["summary"][k] for k in metrics["summary"] if k not in SUMMARY_KEYS},
@@ -128,6 +135,7 @@ def run_sweep(path: str, out_dir: str | Path, *, workers: int = 1, quiet: bool =
     sims = {}
     for run in runs:
         run["raw"] = str(raw_dir / f"{run['sim_key'][:16]}.h5")
+        run["keep_stages"] = sweep["keep_stages"]
         sims.setdefault(run["raw"], run["resolved"])
     todo = [(scn, p) for p, scn in sims.items() if not Path(p).exists()]
     pool = ProcessPoolExecutor(workers) if workers > 1 else None
@@ -200,8 +208,13 @@ def write_summary(out: Path, sweep: dict, rows: list[dict]) -> None:
 
 def markdown_table(rows, key_cols) -> str:
     show = [*key_cols, "detected", "max_abs_range_error_m", "median_abs_range_error_m",
-            "rms_azimuth_error_deg", "median_islr_db", "total_s"]
-    heads = [c.split(".")[-1] for c in show]
+            "max_abs_range_error_resolved_m", "rms_azimuth_error_deg", "rms_azimuth_error_resolved_deg",
+            "median_islr_db", "total_s"]
+    names = {"max_abs_range_error_m": "max abs range error (m)", "median_abs_range_error_m": "median (m)",
+             "max_abs_range_error_resolved_m": "max, resolved targets (m)",
+             "rms_azimuth_error_deg": "rms azimuth error (deg)", "rms_azimuth_error_resolved_deg": "rms, resolved (deg)",
+             "median_islr_db": "median ISLR (dB)", "total_s": "time (s)"}
+    heads = [names.get(c, c.split(".")[-1]) for c in show]
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(show)]
     for r in rows:
         lines.append("| " + " | ".join(_fmt(r.get(c), 2 if c.endswith("db") else 3) for c in show) + " |")
