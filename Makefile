@@ -10,6 +10,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SCENARIO ?= scenarios/paper_fig6_a50.yaml
 RUN_DIR ?= runs/default
+CONFIG ?= configs/tracking.yaml
 SCALE ?= full
 
 .PHONY: help install run test test-slow bench reproduce clean
@@ -25,15 +26,15 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP) ## create .venv and install fwdlook (editable) with its test extra
 
-run: $(STAMP) ## simulate the default scenario (SCENARIO=...) and describe the cube
-	mkdir -p $(RUN_DIR)
-	$(BIN)/fwdlook simulate $(SCENARIO) -o $(RUN_DIR)/raw.h5
+run: $(STAMP) ## simulate and process the default scenario end to end (SCENARIO=, CONFIG=, RUN_DIR=)
+	$(BIN)/fwdlook run $(SCENARIO) -c $(CONFIG) -o $(RUN_DIR)
 	$(BIN)/fwdlook info $(RUN_DIR)/raw.h5
+	@echo "image: $(RUN_DIR)/image.png  metrics: $(RUN_DIR)/metrics.json  stages: $(RUN_DIR)/stages/"
 
 test: $(STAMP) ## run the test suite (fast tests; a few minutes on 2 cores)
 	$(BIN)/python -m pytest -q
 
-test-slow: $(STAMP) ## also the full paper-size runs
+test-slow: $(STAMP) ## the slow tests only: every lattice target placed, on the three paper scenarios
 	$(BIN)/python -m pytest -q -m slow
 
 bench: $(STAMP) ## timings in one process on the paper cube

@@ -216,21 +216,24 @@ def summarize(rows, timing_s: dict) -> dict:
     return out
 
 
+def _stat(fn, values):
+    """fn over the non-None values, None when there are none (no NaN-of-empty warnings)."""
+    vals = np.array([v for v in values if v is not None], dtype=np.float64)
+    return _f(fn(vals)) if vals.size else None
+
+
 def _summary_of(rows) -> dict:
     det = [r for r in rows if r["detected"]]
-    rng = np.array([abs(r["range_error_m"]) for r in det]) if det else np.array([np.nan])
-    az = np.array([abs(r["azimuth_error_deg"]) for r in det]) if det else np.array([np.nan])
-    islr = [r["islr_db"] for r in det if r["islr_db"] is not None]
+    rng = [abs(r["range_error_m"]) for r in det]
+    az = [abs(r["azimuth_error_deg"]) for r in det]
+    rms = lambda v: np.sqrt(np.mean(v**2))  # noqa: E731
     return {
         "n_targets": len(rows), "detected": len(det),
-        "max_abs_range_error_m": _f(np.max(rng)), "rms_range_error_m": _f(np.sqrt(np.mean(rng**2))),
-        "median_abs_range_error_m": _f(np.median(rng)),
-        "max_abs_azimuth_error_deg": _f(np.max(az)), "rms_azimuth_error_deg": _f(np.sqrt(np.mean(az**2))),
-        "median_islr_db": _f(np.median(islr)) if islr else None,
-        "median_pslr_db": _f(np.median([r["pslr_db"] for r in det if r["pslr_db"] is not None]))
-        if det else None,
-        "median_angle_width_3db_deg": _f(np.median([r["angle_width_3db_deg"] for r in det
-                                                    if r["angle_width_3db_deg"] is not None])) if det else None,
-        "median_peak_loss_db": _f(np.median([r["peak_loss_db"] for r in rows])) if rows and "peak_loss_db" in rows[0]
-        else None,
+        "max_abs_range_error_m": _stat(np.max, rng), "rms_range_error_m": _stat(rms, rng),
+        "median_abs_range_error_m": _stat(np.median, rng),
+        "max_abs_azimuth_error_deg": _stat(np.max, az), "rms_azimuth_error_deg": _stat(rms, az),
+        "median_islr_db": _stat(np.median, [r["islr_db"] for r in det]),
+        "median_pslr_db": _stat(np.median, [r["pslr_db"] for r in det]),
+        "median_angle_width_3db_deg": _stat(np.median, [r["angle_width_3db_deg"] for r in det]),
+        "median_peak_loss_db": _stat(np.median, [r.get("peak_loss_db") for r in rows]),
     }
