@@ -397,9 +397,11 @@ def chain_geometry(cube, proc: dict) -> dict:
     reference_range_m = float(0.5 * (cube.range_m[0] + cube.range_m[-1]))
     depression = float(np.degrees(np.arcsin(np.clip(p_ref[2] / reference_range_m, -1, 1))))
     fc, prf = cube.radar["fc_hz"], cube.radar["prf_hz"]
-    # eq. (16)-(17): boresight Doppler with the speed at t_ref (at t = 0 for t_ref = start, as the paper)
+    # eq. (16)-(17): boresight Doppler with the speed at t_ref (processing.ambiguity_speed: t_ref), or
+    # with the initial speed v of the paper's Sec. 4 (initial); the same for t_ref = start
     los0 = unit_vector(0.0, depression)
-    f_dc0 = 2.0 * float(np.dot(v_ref, los0)) * fc / C_MPS
+    v_amb = v_ref if proc.get("ambiguity_speed", "t_ref") == "t_ref" else cube.velocity_mps[0]
+    f_dc0 = 2.0 * float(np.dot(v_amb, los0)) * fc / C_MPS
     return {"fit": fit, "t_ref_s": t_ref_s, "p_ref": p_ref, "v_ref": v_ref, "depression_deg": depression,
             "reference_range_m": reference_range_m, "f_dc0_hz": f_dc0,
             "radial_accel_mps2": float(fit.accel_mps2[1] * np.cos(np.radians(depression)))}

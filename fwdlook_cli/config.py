@@ -310,6 +310,9 @@ FORWARD_SCHEMA: dict[str, Any] = {
                                  "(traditional, decimation), beam for tracking"),
         "doppler_centroid": Field(boolean, True, "eq. (23)-(26) per-CPI Doppler-centroid compensation"),
         "cpi": Field(integer(2), 32, "pulses per CPI for monopulse imaging"),
+        "ambiguity_speed": Field(choice("t_ref", "initial"), "t_ref",
+                                 "speed of the boresight Doppler that fixes the ambiguity number F (eq. 16-17): "
+                                 "at t_ref, or the initial v of the paper (the same for t_ref = start)"),
         "t_ref": Field(choice("start", "centre"), "centre", "time the corrected image refers to"),
         "n_doppler": Field(integer(4, 4096), 64, "zoomed Doppler cells per CPI over the main-beam band"),
         "doppler_window": Field(choice("none", "hamming", "hann", "taylor"), "none",

@@ -1,0 +1,110 @@
+"""`plan` against closed forms, `processing.method: auto`, and `sweep` (grid, combine, outputs)."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from fwdlook_cli.cli import main
+from fwdlook_cli.config import load_scenario
+from fwdlook_cli.geometry import C_MPS, residual_velocity_mps
+from fwdlook_cli.plan import plan_for_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def paper(name, *sets):
+    return load_scenario(ROOT / "scenarios" / name, list(sets))
+
+
+def test_plan_paper_a0_closed_forms():
+    scn = paper("paper_fig5_a0.yaml")
+    p = plan_for_scenario(scn)
+    assert p["half_range_cell_m"] == pytest.approx(C_MPS / (2 * 60e6) / 2)
+    assert p["ambiguity_number_boresight"] == 12
+    assert p["ambiguity_number_range"] == [11, 12]           # the paper: 12 at 0 deg, 11 at 10 deg
+    assert p["range_curvature_m"] == pytest.approx(0.0, abs=1e-9) and not p["needs_curvature"]
+    assert p["doppler_centroid_drift_hz"] == pytest.approx(0.0, abs=1e-6)
+    # one wrong F acting for the longest lever arm (the scan's first pulse, where F is 11):
+    # eq. (19) x (|t - t_ref| + dwell / 2)
+    lever = p["t_ref_s"] + p["dwell_s"] / 2
+    assert p["traditional_residual_walk_m"] == pytest.approx(residual_velocity_mps(2500, 18e9) * lever, rel=1e-6)
+    q25 = next(r for r in p["decimation"] if r["q"] == 25)
+    assert q25["residual_walk_m"] == pytest.approx(q25["ambiguity_spread"] * residual_velocity_mps(2500, 18e9, 25)
+                                                   * lever, rel=1e-6)
+    assert p["processing"]["method"] == "tracking"           # no Q keeps the residual under half a cell
+
+
+def test_plan_curvature_and_drift_at_a50():
+    p = plan_for_scenario(paper("paper_fig6_a50.yaml"))
+    lever = p["t_ref_s"] + p["dwell_s"] / 2
+    cos_phi = np.cos(np.radians(p["depression_deg"]))
+    assert p["range_curvature_m"] == pytest.approx(0.5 * 50.0 * cos_phi * lever**2, rel=1e-6)
+    # eq. (25): the beam-centre Doppler drifts by 2 a t cos(theta) cos(phi) / lambda; largest on the last
+    # pulse (t = 0.9996 s, theta = 14.99 deg)
+    t_last, theta_last = 2499 / 2500, -15.0 + 30.0 * 2499 / 2500
+    drift = 2 * 50.0 * t_last * np.cos(np.radians(theta_last)) * cos_phi * 18e9 / C_MPS
+    assert abs(p["doppler_centroid_drift_hz"]) == pytest.approx(drift, rel=1e-6)
+    assert p["processing"]["range_curvature"] and p["processing"]["doppler_centroid"]
+
+
+def test_plan_command_text_and_json(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["plan", str(ROOT / "scenarios" / "tiny.yaml"), "--json"])
+    assert exc.value.code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["processing"]["method"] in ("none", "traditional", "decimation", "tracking")
+    with pytest.raises(SystemExit) as exc:
+        main(["plan", str(ROOT / "scenarios" / "tiny.yaml")])
+    assert exc.value.code == 0 and "=> method" in capsys.readouterr().out
+
+
+def test_method_auto_runs_the_planned_method(tmp_path, capsys):
+    scn_path = ROOT / "scenarios" / "tiny.yaml"
+    planned = plan_for_scenario(load_scenario(scn_path))["processing"]["method"]
+    with pytest.raises(SystemExit) as exc:
+        main(["run", str(scn_path), "-o", str(tmp_path), "--set", "processing.method=auto", "-q"])
+    assert exc.value.code == 0
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["method"] == planned
+
+
+def test_sweep_grid_combine_and_outputs(tmp_path, capsys):
+    sweep = {"name": "t", "scenarios": [str(ROOT / "scenarios" / "tiny.yaml")],
+             "set": ["noise.snr_db=null"],
+             "grid": {"scene.points_m": [[[-150.0, 1000.0]], [[120.0, 990.0]]],
+                      "processing.method": ["tracking", "beam"]},
+             "combine": ["scene.points_m"]}
+    path = tmp_path / "sweep.yaml"
+    path.write_text(yaml.safe_dump(sweep))
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", str(path), "-o", str(tmp_path / "out"), "-q"])
+    assert exc.value.code == 0
+    rows = json.loads((tmp_path / "out" / "summary.json").read_text())["rows"]
+    # two methods, each the union of the two single-point runs
+    assert sorted(r["processing.method"] for r in rows) == ["beam", "tracking"]
+    assert all(r["n_targets"] == 2 and r["runs"] == 2 for r in rows)
+    for r in rows:
+        members = [json.loads(p.read_text()) for p in Path(r["run_dir"]).glob("*/metrics.json")
+                   if f"method={r['processing.method']}" in p.parent.name.split(",")]
+        assert len(members) == 2
+        errors = [abs(t["range_error_m"]) for m in members for t in m["targets"]]
+        assert r["max_abs_range_error_m"] == pytest.approx(max(errors))
+    assert not list((tmp_path / "out").glob("*/*/stages"))        # stage files pruned
+    for name in ("summary.md", "summary.csv", "speed_accuracy.png"):
+        assert (tmp_path / "out" / name).stat().st_size > 100
+
+
+def test_sweep_rejects_unknown_keys_and_bad_grid(tmp_path, capsys):
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump({"scenarios": [str(ROOT / "scenarios" / "tiny.yaml")],
+                                    "grid": {"processing.method": ["warp"]}}))
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", str(path), "-o", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and "processing.method" in err[0] and "warp" in err[0]
+    path.write_text(yaml.safe_dump({"scenarios": ["tiny.yaml"], "grids": {}}))
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", str(path)])
+    assert exc.value.code == 2 and "grids" in capsys.readouterr().err
