@@ -396,7 +396,7 @@ def chain_geometry(cube, proc: dict) -> dict:
     v_ref = np.array([np.interp(m_ref, n, cube.velocity_mps[:, i]) for i in range(3)])
     reference_range_m = float(0.5 * (cube.range_m[0] + cube.range_m[-1]))
     depression = float(np.degrees(np.arcsin(np.clip(p_ref[2] / reference_range_m, -1, 1))))
-    fc, prf = cube.radar["fc_hz"], cube.radar["prf_hz"]
+    fc = cube.radar["fc_hz"]
     # eq. (16)-(17): boresight Doppler with the speed at t_ref (processing.ambiguity_speed: t_ref), or
     # with the initial speed v of the paper's Sec. 4 (initial); the same for t_ref = start
     los0 = unit_vector(0.0, depression)

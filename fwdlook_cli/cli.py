@@ -5,7 +5,6 @@ or dataset; 1 internal fault (traceback kept).  Progress and logs go to stderr, 
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 

@@ -28,7 +28,6 @@ from fwdlook_cli.chain import build_forward_stages, decimate, range_fft, regroup
 from fwdlook_cli.cli import main
 from fwdlook_cli.config import load_scenario
 from fwdlook_cli.geometry import C_MPS
-from fwdlook_cli.io import write_raw
 from fwdlook_cli.simulate import simulate_scenario
 from fwdlook_cli.testing import lone_target_scenario, tiny_scenario
 
@@ -579,14 +578,6 @@ def test_t_ref_and_truth_at_t_ref(tiny_runs, method, t_ref):
 # ----------------------------------------------------------------------------------------------
 # bad input through main: exit 2, one line naming the file and key, nothing that looks complete
 # ----------------------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def tiny_raw(tmp_path_factory):
-    path = tmp_path_factory.mktemp("raw") / "tiny_raw.h5"
-    cube, _ = simulate_scenario(tiny_scenario())
-    write_raw(path, cube)
-    return path
-
-
 def _nan_cube(src, dst):
     dst.write_bytes(src.read_bytes())
     with h5py.File(dst, "r+") as f:

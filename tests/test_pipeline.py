@@ -22,9 +22,6 @@ import pytest
 import fwdlook_cli
 import fwdlook_cli.chain as chain
 from fwdlook_cli.cli import main
-from fwdlook_cli.io import write_raw
-from fwdlook_cli.simulate import simulate_scenario
-from fwdlook_cli.testing import tiny_scenario
 
 STAGES = ("range_fft", "decimate", "keystone", "regroup", "range_curvature", "doppler_spectra",
           "monopulse_image")
@@ -37,14 +34,6 @@ PROGRESS = re.compile(r"^\[(\d+)/(\d+)\]\s+(\w+)\s+([\d.]+) ms")
 # ----------------------------------------------------------------------------------------------
 # helpers
 # ----------------------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def tiny_raw(tmp_path_factory):
-    path = tmp_path_factory.mktemp("raw") / "tiny_raw.h5"
-    cube, _ = simulate_scenario(tiny_scenario())
-    write_raw(path, cube)
-    return path
-
-
 def fwdlook(argv, capsys):
     """``fwdlook ARGV`` in-process: (exit code, stdout, stderr)."""
     with pytest.raises(SystemExit) as info:

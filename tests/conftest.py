@@ -1,0 +1,15 @@
+"""Fixtures shared by several test modules."""
+import pytest
+
+from fwdlook_cli.io import write_raw
+from fwdlook_cli.simulate import simulate_scenario
+from fwdlook_cli.testing import tiny_scenario
+
+
+@pytest.fixture(scope="module")
+def tiny_raw(tmp_path_factory):
+    """The tiny scene simulated once per module and written as a raw cube."""
+    path = tmp_path_factory.mktemp("raw") / "tiny_raw.h5"
+    cube, _ = simulate_scenario(tiny_scenario())
+    write_raw(path, cube)
+    return path
