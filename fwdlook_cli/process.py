@@ -85,11 +85,13 @@ def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_
         r = put_scale(f, "range_m", final["range_m"], "m", "slant range from the antenna at t_ref")
         a = put_scale(f, "angle_deg", final["angle_deg"], "deg", "azimuth atan2(dx, dy) from the antenna at t_ref")
         rn = put_scale(f, "range_native_m", final["range_native_m"], "m", "slant range, native sampling")
-        put(f, "image", final["image"], "1", "monopulse image: sum power in (range, angle)", dims=(r, a))
-        put(f, "real_beam", final["real_beam"], "1", "real-beam image: sum power against beam angle", dims=(rn, a))
+        z = {"compression": "gzip", "compression_opts": 1, "shuffle": True}   # images are mostly empty
+        put(f, "image", final["image"], "1", "monopulse image: sum power in (range, angle)", dims=(r, a), **z)
+        put(f, "real_beam", final["real_beam"], "1", "real-beam image: sum power against beam angle",
+            dims=(rn, a), **z)
         gx = put_scale(f, "ground_x_m", ground_x, "m", "ground cross-range x")
         gy = put_scale(f, "ground_y_m", ground_y, "m", "ground forward y")
-        put(f, "ground_image", ground, "1", "monopulse image projected on the ground (y, x)", dims=(gy, gx))
+        put(f, "ground_image", ground, "1", "monopulse image projected on the ground (y, x)", dims=(gy, gx), **z)
 
 
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
