@@ -1103,8 +1103,14 @@ def process_isar_cube(cube, scn: dict, run_dir, *, force=False, from_stage=None,
     run_dir.mkdir(parents=True, exist_ok=True)
     proc = scn["processing"]
     t_start = time.perf_counter()
-    atomic_write_text(run_dir / "scenario.yaml", dump_scenario(scn))
     src, stages = build_isar_stages(cube, proc)
+    names = [st.name for st in stages]
+    if from_stage is not None and from_stage not in names:
+        from .errors import BadInput
+
+        raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
+    for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):   # no stale outputs
+        (run_dir / name).unlink(missing_ok=True)
     final, timings, keys = run_stages(stages, src, cube_hash(cube), run_dir, force=force,
                                       from_stage=from_stage, quiet=quiet)
     t_out = time.perf_counter()
@@ -1125,6 +1131,7 @@ def process_isar_cube(cube, scn: dict, run_dir, *, force=False, from_stage=None,
     metrics.update(scenario=scn["name"], scenario_sha256=scenario_hash(scn), stage_sha256=keys,
                    timing_s=timing)
     atomic_write_text(run_dir / "metrics.json", json.dumps(metrics, indent=1, allow_nan=False))
+    atomic_write_text(run_dir / "scenario.yaml", dump_scenario(scn))   # last: the run is complete
     return metrics
 
 
