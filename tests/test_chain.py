@@ -645,3 +645,21 @@ def test_unknown_method_exits_2(tmp_path, capsys, command):
     code, out, err = run_main([command, TINY_YAML, "-o", run_dir, "--set", "processing.method=magic"], capsys)
     assert_bad_input(code, out, err, [TINY_YAML, "processing.method", "magic", "decimation"])
     assert_no_outputs(run_dir)
+
+
+def test_cube_without_truth_processes(tiny_raw, tmp_path, capsys):
+    """CONTRACT.md 3: a recorded cube has no /truth; it is imaged, with no per-target metrics."""
+    import shutil
+
+    import h5py
+
+    raw = tmp_path / "recorded.h5"
+    shutil.copy(tiny_raw, raw)
+    with h5py.File(raw, "a") as f:
+        del f["truth"]
+    code, out, err = run_main(["process", str(raw), "-o", str(tmp_path / "run"), "-q"], capsys)
+    assert code == 0, err
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["targets"] == [] and m["summary"]["n_targets"] == 0
+    with h5py.File(tmp_path / "run" / "image.h5", "r") as f:
+        assert f["image"][()].max() > 0
