@@ -2,24 +2,21 @@
 
 For every truth target the truth is its slant range and azimuth from the antenna phase centre at
 t_ref.  The measured position is the image peak inside a search window around the truth (+-15 m in
-range, +-0.5 deg in angle: half the paper lattice's spacing, so a neighbour is never taken), refined by
-refined on the two marginal cuts through it (parabolic interpolation of log power in range; the
-power centroid within +-0.2 deg in angle, since the angle cut is a histogram of per-CPI monopulse
-estimates whose scatter, about 0.1 deg per CPI at 20 dB SNR, makes its single highest bin a noisy
-estimator): the range profile summed
-over +-0.25 deg of angle around the peak column, and the angle profile summed over +-1 range
-resolution cell around the peak row.  (A single-pixel cut is fragile: the monopulse projection
-scatters a target's range skirts over neighbouring angle bins, and a one-column profile came out
-0.7 m off on the tiny scene where the marginal is within 0.1 m.)  A target counts as detected when that peak lies
-inside the window (not on its edge) and at least 10 dB over the image's median non-zero pixel.
+range, +-0.5 deg in angle: half the paper lattice's spacing, so a neighbour is never taken), refined
+on the two marginal cuts through it: the range profile summed over +-0.25 deg of angle around the
+peak column (parabolic interpolation of log power), and the angle profile summed over +-1 range
+resolution cell around the peak row (power centroid within +-0.2 deg: the angle cut is a histogram of
+per-CPI monopulse estimates, about 0.1 deg of scatter each at 20 dB SNR, so its single highest bin is
+a noisy estimator).  A single-pixel cut is fragile: the projection scatters a target's range skirts
+over neighbouring angle bins, and a one-column profile came out 0.7 m off on the tiny scene where the
+marginal is within 0.1 m.  A target counts as detected when that peak lies inside the window (not on
+its edge) and at least 10 dB over the image's median non-zero pixel.  The angle 3 dB width comes from
+the angle cut; the image's own range-cut ISLR/PSLR/width are kept as ``image_*`` (its sidelobes are
+cut by the projection threshold).
 
-ISLR and PSLR (paper eq. 27) are measured on that range profile through the peak (power,
-already range-oversampled, treated as |profile|^2), main lobe between the first minima, window
-+-5 range resolution cells (+-15 m for the paper: half the lattice spacing, so the next row stays
-out; an ideal sinc gives ISLR -10.7 dB in that window); the 3 dB widths in range and angle come from the cuts
-through the peak.  Peak loss compares the strongest zoomed-Doppler sample of the target (best CPI)
-with an ideally focused one: amplitude x two-way sum gain at that CPI's beam offset x the window's
-coherent gain.
+ISLR (paper eq. 27), PSLR, the range 3 dB width and the peak loss come from the dwell range profile
+(:func:`dwell_profile_metrics`): main lobe between the first minima, window +-5 range resolution cells
+(+-15 m for the paper: half the lattice spacing; an ideal sinc gives ISLR -10.7 dB there).
 """
 from __future__ import annotations
 
