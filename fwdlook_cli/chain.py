@@ -25,6 +25,7 @@ import scipy.fft
 
 from .geometry import C_MPS
 from .keystone import KeystonePlan, keystone_dft, keystone_sinc
+from .keystone import _cis as _cis_cycles
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion,
                      keystone_residual_envelope_m, unit_vector)
 from .pipeline import Stage, StageData
@@ -39,12 +40,8 @@ def _ctx(data: StageData) -> StageData:
 
 
 def _cis(phase_rad):
-    """exp(j phase) in complex64, the phase reduced mod 2 pi in float64 first."""
-    ph = np.mod(phase_rad, 2.0 * np.pi).astype(np.float32)
-    out = np.empty(ph.shape, dtype=np.complex64)
-    out.real = np.cos(ph)
-    out.imag = np.sin(ph)
-    return out
+    """exp(j phase) in complex64, the phase reduced mod 2 pi in float64 first (keystone._cis)."""
+    return _cis_cycles(np.asarray(phase_rad) / (2.0 * np.pi), np.complex64)
 
 
 # ----------------------------------------------------------------------------------------------

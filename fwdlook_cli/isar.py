@@ -447,10 +447,7 @@ def simulate_isar_scenario(scn: dict):
 # ----------------------------------------------------------------------------------------------
 # Small DSP helpers
 # ----------------------------------------------------------------------------------------------
-def _cis(cycles):
-    """exp(j 2 pi cycles), the phase reduced modulo one cycle in float64 first."""
-    ph = 2.0 * np.pi * np.mod(cycles, 1.0)
-    return np.cos(ph) + 1j * np.sin(ph)
+from .keystone import _cis  # noqa: E402  exp(j 2 pi cycles), reduced modulo one cycle in float64
 
 
 def _oversample_rows(x, factor):

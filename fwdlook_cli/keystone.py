@@ -125,13 +125,17 @@ def _n_cols(*arrays, n_cols=None):
 
 
 def _cis(cycles, dtype=np.complex128):
-    """``exp(j 2 pi cycles)`` with the phase reduced mod 1 cycle in float64 first."""
+    """``exp(j 2 pi cycles)`` with the phase reduced mod 1 cycle in float64 first; the cosine and sine
+    are then taken in the output's precision (float32 for complex64: 2e-7 rad, below its resolution)."""
+    dtype = np.dtype(dtype)
     ph = np.mod(cycles, 1.0)
     ph *= 2.0 * np.pi
-    out = np.empty(ph.shape, dtype=np.complex128)
+    real = np.float32 if dtype == np.complex64 else np.float64
+    ph = ph.astype(real, copy=False)
+    out = np.empty(ph.shape, dtype=dtype)
     np.cos(ph, out=out.real)
     np.sin(ph, out=out.imag)
-    return out.astype(dtype, copy=False)
+    return out
 
 
 def _check_dtype(dtype):
