@@ -50,7 +50,8 @@ def test_lattice_azimuth_and_resolved_range(scenario, tmp_path):
     m = run_tracking(scenario, tmp_path)
     rows = m["targets"]
     det = [r for r in rows if r["detected"]]
-    assert len(det) >= 55                      # the unresolved boresight blob may hide a few
+    # only targets that share an image cell with a neighbour may be missed
+    assert all(r["detected"] for r in rows if r["resolved"])
     az = np.array([r["azimuth_error_deg"] for r in det])
     assert np.sqrt(np.mean(az**2)) <= 0.3
     outer = np.array([r["azimuth_error_deg"] for r in det if abs(r["x_m"]) >= 210.0])
