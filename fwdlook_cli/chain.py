@@ -23,11 +23,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft
 
-from .geometry import C_MPS
+from .geometry import C_MPS, ambiguity_number
 from .keystone import KeystonePlan, keystone_dft, keystone_sinc
 from .keystone import _cis as _cis_cycles
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion,
-                     keystone_residual_envelope_m, unit_vector)
+                     keystone_residual_envelope_m, reference_depression_deg, unit_vector)
 from .pipeline import Stage, StageData
 
 CONTEXT = ("slow_time_s", "scan_angle_deg", "position_m", "velocity_mps", "xyz")
@@ -392,7 +392,7 @@ def chain_geometry(cube, proc: dict) -> dict:
     p_ref = np.array([np.interp(m_ref, n, cube.position_m[:, i]) for i in range(3)])
     v_ref = np.array([np.interp(m_ref, n, cube.velocity_mps[:, i]) for i in range(3)])
     reference_range_m = float(0.5 * (cube.range_m[0] + cube.range_m[-1]))
-    depression = float(np.degrees(np.arcsin(np.clip(p_ref[2] / reference_range_m, -1, 1))))
+    depression = reference_depression_deg(float(p_ref[2]), reference_range_m)
     fc = cube.radar["fc_hz"]
     # eq. (16)-(17): boresight Doppler with the speed at t_ref (processing.ambiguity_speed: t_ref), or
     # with the initial speed v of the paper's Sec. 4 (initial); the same for t_ref = start
@@ -420,7 +420,8 @@ def build_forward_stages(cube, proc: dict):
     method = proc["method"]
     q = proc["q"] if method == "decimation" else 1
     prf = cube.radar["prf_hz"]
-    ambiguity = int(np.floor(geo["f_dc0_hz"] / (prf / q) + 0.5))                # eq. (17), (20)
+    ambiguity = int(ambiguity_number(geo["f_dc0_hz"], prf / q))                # eq. (17), (20)
+    geo.update(q=q, ambiguity_number=ambiguity)
     src = StageData()
     src.add("slow_time_s", cube.slow_time_s, ("slow_time_s",), "s", "slow time")
     src.add("range_m", cube.range_m, ("range_m",), "m", "slant range")

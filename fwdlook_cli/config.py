@@ -518,14 +518,3 @@ def _forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> Non
 
 
 CROSS_CHECKS: dict[str, Callable[[dict, str], None]] = {"forward": _forward_checks}
-
-
-def schema_rows(schema: dict | None = None, prefix: str = ""):
-    """(key path, default, doc) rows for the README and ``fwdlook validate --defaults``."""
-    schema = FORWARD_SCHEMA if schema is None else schema
-    for key, spec in schema.items():
-        where = f"{prefix}.{key}" if prefix else key
-        if isinstance(spec, dict):
-            yield from schema_rows(spec, where)
-        else:
-            yield where, spec.default, spec.doc

@@ -198,7 +198,7 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
     return out
 
 
-def summarize(rows, timing_s: dict) -> dict:
+def summarize(rows) -> dict:
     out = _summary_of(rows)
     resolved = [r for r in rows if r.get("resolved")]
     if resolved and len(resolved) < len(rows):

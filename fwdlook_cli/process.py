@@ -166,18 +166,17 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         "fwdlook_version": __version__,
         "scenario": scn["name"],
         "method": proc["method"],
-        "params": {"q": proc["q"] if proc["method"] == "decimation" else 1, "keystone": proc["keystone"],
+        "params": {"q": geo["q"], "keystone": proc["keystone"],
                    "range_curvature": bool(proc["range_curvature"]), "t_ref": proc["t_ref"],
                    "doppler_centroid": bool(proc["doppler_centroid"]), "cpi": proc["cpi"],
-                   "ambiguity_number": int(np.floor(geo["f_dc0_hz"] / (cube.radar["prf_hz"] /
-                                           (proc["q"] if proc["method"] == "decimation" else 1)) + 0.5)),
+                   "ambiguity_number": geo["ambiguity_number"],
                    "boresight_doppler_hz": geo["f_dc0_hz"], "depression_deg": geo["depression_deg"],
                    "radial_accel_mps2": geo["radial_accel_mps2"]},
         "t_ref_s": geo["t_ref_s"],
         "scenario_sha256": scenario_hash(scn),
         "stage_sha256": keys,
         "targets": rows,
-        "summary": summarize(rows, timing) if rows else {"n_targets": 0, "detected": 0},
+        "summary": summarize(rows) if rows else {"n_targets": 0, "detected": 0},
         "timing_s": timing,
     }
     atomic_write_text(run_dir / "metrics.json", json.dumps(metrics, indent=1, allow_nan=False))

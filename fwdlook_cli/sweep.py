@@ -172,7 +172,7 @@ def combine_rows(rows: list[dict], sweep: dict) -> list[dict]:
         targets = []
         for r in members:
             targets += json.loads((Path(r["run_dir"]) / "metrics.json").read_text())["targets"]
-        summary = summarize(targets, {})
+        summary = summarize(targets)
         out.append({"scenario": members[0]["scenario"], **{k: members[0][k] for k in keep},
                     **{k: summary.get(k) for k in SUMMARY_KEYS},
                     **{k: v for k, v in summary.items() if k not in SUMMARY_KEYS},
