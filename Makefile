@@ -41,7 +41,7 @@ bench: $(STAMP) ## timings in one process on the paper cube
 	$(BIN)/fwdlook bench
 
 reproduce: $(STAMP) ## the papers' tables and figures beside ours (SCALE=quick|full) in reports/reproduce
-	$(BIN)/python -m fwdlook_cli.reproduce --out reports/reproduce --scale $(SCALE)
+	$(BIN)/python -m fwdlook_cli.report.reproduce --out reports/reproduce --scale $(SCALE)
 
 clean: ## remove generated outputs (keeps .venv)
 	rm -rf runs reports .pytest_cache .hypothesis

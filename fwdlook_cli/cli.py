@@ -35,13 +35,13 @@ def simulate(scenario, output, overrides, quiet):
     """Synthesise the range-compressed sum/difference echo cube of SCENARIO.yaml."""
     import time
 
-    from .config import load_scenario
-    from .io import write_raw
-    from .simulate import simulate_scenario
+    from .scenario.loader import load_scenario
+    from .io.raw import write_raw
+    from .forward.simulate import simulate_scenario
 
     scn = load_scenario(scenario, overrides)
     if scn["kind"] != "forward":
-        from .isar import simulate_isar_scenario  # noqa: F401  (ISAR scenario kind)
+        from .isar.simulate import simulate_isar_scenario  # noqa: F401  (ISAR scenario kind)
 
         cube, stats = simulate_isar_scenario(scn)
     else:
@@ -56,9 +56,9 @@ def simulate(scenario, output, overrides, quiet):
 
 def _scenario_and_cube(source, raw, config, overrides, quiet):
     """(resolved scenario, cube): simulate a scenario, or load RAW (given, or as the source)."""
-    from .config import yaml_load
-    from .io import read_raw
-    from .process import resolve_with_config
+    from .scenario.yamlio import yaml_load
+    from .io.raw import read_raw
+    from .scenario.overlay import resolve_with_config
 
     src = Path(source)
     if src.suffix.lower() in (".h5", ".hdf5", ".hdf"):
@@ -85,11 +85,11 @@ def _scenario_and_cube(source, raw, config, overrides, quiet):
         cube = read_raw(raw)
     else:
         if scn["kind"] != "forward":
-            from .isar import simulate_isar_scenario
+            from .isar.simulate import simulate_isar_scenario
 
             cube, _ = simulate_isar_scenario(scn)
         else:
-            from .simulate import simulate_scenario
+            from .forward.simulate import simulate_scenario
 
             cube, stats = simulate_scenario(scn)
             _log(quiet, f"simulate: {cube.n_pulses} x {cube.n_range}, {stats.n_pairs_kept}/{stats.n_pairs} "
@@ -103,10 +103,10 @@ def _default_run_dir(scn, output):
 
 def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube"):
     if scn["kind"] == "isar":
-        from .isar import process_isar_cube
+        from .isar.process import process_isar_cube
 
         return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
-    from .process import process_cube
+    from .forward.process import process_cube
 
     return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source)
 
@@ -153,7 +153,7 @@ def process(source, output, config, raw, overrides, from_stage, force, quiet):
 @quiet_option
 def run(scenario, output, config, raw, overrides, force, quiet):
     """The main job: simulate (or load --raw), process and report into RUN_DIR."""
-    from .io import write_raw
+    from .io.raw import write_raw
 
     scn, cube = _scenario_and_cube(scenario, raw, config, overrides, quiet)
     run_dir = _default_run_dir(scn, output)
@@ -171,8 +171,8 @@ def run(scenario, output, config, raw, overrides, force, quiet):
 @json_option
 def plan(scenario, overrides, as_json):
     """The migration budget of a scene: which corrections it needs and why."""
-    from .config import load_scenario
-    from .plan import format_plan, plan_for_scenario, plan_json
+    from .scenario.loader import load_scenario
+    from .forward.plan import format_plan, plan_for_scenario, plan_json
 
     scn = load_scenario(scenario, overrides)
     if scn["kind"] != "forward":
@@ -190,7 +190,7 @@ def plan(scenario, overrides, as_json):
 @quiet_option
 def sweep(sweep_file, output, workers, scheduler, quiet):
     """Grids of runs: summary table, speed-accuracy chart, stability map."""
-    from .sweep import load_sweep, run_sweep
+    from .report.sweep import load_sweep, run_sweep
 
     if scheduler != "local":
         raise BadInput(f"--scheduler {scheduler}: no distributed scheduler is installed; allowed: local")
@@ -209,7 +209,7 @@ def sweep(sweep_file, output, workers, scheduler, quiet):
 @quiet_option
 def report(run_dirs, output, target, quiet):
     """Figures and tables for one run or several side by side (report.md and PNGs)."""
-    from .report import DEFAULT_TARGET_XY_M, make_report
+    from .report.report import DEFAULT_TARGET_XY_M, make_report
 
     path = make_report(run_dirs, output, target_xy=tuple(target) if target else DEFAULT_TARGET_XY_M)
     _log(quiet, f"wrote {path.parent}/ (report.md and figures)")
@@ -220,7 +220,7 @@ def report(run_dirs, output, target, quiet):
 @click.argument("path")
 def info(path):
     """Describe a raw cube, a stage file or an image (FILE.h5)."""
-    from .info import describe
+    from .io.info import describe
 
     click.echo(describe(path))
 
@@ -230,8 +230,8 @@ def info(path):
 @set_option
 def validate(path, overrides):
     """Check a scenario (YAML) or a raw cube (HDF5); exit 0 if valid, 2 if not."""
-    from .config import load_scenario, scenario_hash
-    from .io import read_raw
+    from .scenario.loader import load_scenario, scenario_hash
+    from .io.raw import read_raw
 
     p = Path(path)
     if p.suffix.lower() in (".h5", ".hdf5", ".hdf"):
@@ -246,7 +246,7 @@ def validate(path, overrides):
 @json_option
 def bench(as_json):
     """Timings measured in one process on the paper cube (ratios to one plain 2-D FFT)."""
-    from .bench import print_bench
+    from .report.bench import print_bench
 
     print_bench(as_json)
 

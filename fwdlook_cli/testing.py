@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import copy
 
-from .config import resolve_scenario
+from .scenario.loader import resolve_scenario
 
 TINY = {
     "name": "tiny",

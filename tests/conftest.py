@@ -1,8 +1,8 @@
 """Fixtures shared by several test modules."""
 import pytest
 
-from fwdlook_cli.io import write_raw
-from fwdlook_cli.simulate import simulate_scenario
+from fwdlook_cli.io.raw import write_raw
+from fwdlook_cli.forward.simulate import simulate_scenario
 from fwdlook_cli.testing import tiny_scenario
 
 

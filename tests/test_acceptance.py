@@ -16,8 +16,9 @@ import pytest
 
 import yaml
 
-from fwdlook_cli.process import process_cube, resolve_with_config
-from fwdlook_cli.simulate import simulate_scenario
+from fwdlook_cli.forward.process import process_cube
+from fwdlook_cli.scenario.overlay import resolve_with_config
+from fwdlook_cli.forward.simulate import simulate_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from fwdlook_cli.antenna import MonopulseAntenna
+from fwdlook_cli.dsp.antenna import MonopulseAntenna
 
 
 @pytest.mark.parametrize("beamwidth, squint", [(6.0, 1.5), (6.0, 0.5), (3.0, 0.7)])

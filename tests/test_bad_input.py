@@ -17,9 +17,9 @@ import pytest
 import yaml
 
 from fwdlook_cli.cli import main
-from fwdlook_cli.config import load_scenario, scenario_hash
-from fwdlook_cli.io import write_raw
-from fwdlook_cli.simulate import simulate_scenario
+from fwdlook_cli.scenario.loader import load_scenario, scenario_hash
+from fwdlook_cli.io.raw import write_raw
+from fwdlook_cli.forward.simulate import simulate_scenario
 
 TINY = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
 TINY_TEXT = TINY.read_text(encoding="utf-8")

@@ -23,12 +23,12 @@ import h5py
 import numpy as np
 import pytest
 
-from fwdlook_cli.antenna import MonopulseAntenna
-from fwdlook_cli.chain import build_forward_stages, decimate, range_fft, regroup
+from fwdlook_cli.dsp.antenna import MonopulseAntenna
+from fwdlook_cli.forward.chain import build_forward_stages, decimate, range_fft, regroup
 from fwdlook_cli.cli import main
-from fwdlook_cli.config import load_scenario
-from fwdlook_cli.geometry import C_MPS
-from fwdlook_cli.simulate import simulate_scenario
+from fwdlook_cli.scenario.loader import load_scenario
+from fwdlook_cli.dsp.geometry import C_MPS
+from fwdlook_cli.forward.simulate import simulate_scenario
 from fwdlook_cli.testing import lone_target_scenario, tiny_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -2,8 +2,7 @@
 import numpy as np
 import pytest
 
-from fwdlook_cli.geometry import (C_MPS, ambiguity_number, depression_deg, doppler_centroid_hz,
-                                  platform_state, residual_velocity_mps, slant_range_m)
+from fwdlook_cli.dsp.geometry import C_MPS, ambiguity_number, depression_deg, doppler_centroid_hz, platform_state, residual_velocity_mps, slant_range_m
 
 FC, PRF, V, H, Y0 = 18e9, 2500.0, 240.0, 50.0, 1700.0
 

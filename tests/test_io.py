@@ -15,9 +15,10 @@ import pytest
 import yaml
 
 from fwdlook_cli.cli import main
-from fwdlook_cli.config import load_scenario, resolve_scenario, scenario_hash
-from fwdlook_cli.io import atomic_h5, read_raw, write_raw
-from fwdlook_cli.simulate import simulate_scenario
+from fwdlook_cli.scenario.loader import load_scenario, resolve_scenario, scenario_hash
+from fwdlook_cli.io.h5 import atomic_h5
+from fwdlook_cli.io.raw import read_raw, write_raw
+from fwdlook_cli.forward.simulate import simulate_scenario
 
 TINY = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
 RADAR_KEYS = ("fc_hz", "bandwidth_hz", "fs_hz", "prf_hz", "beamwidth_3db_deg")

@@ -18,10 +18,16 @@ import h5py
 import numpy as np
 import pytest
 
-from fwdlook_cli import isar
-from fwdlook_cli.config import load_scenario, resolve_scenario
+from fwdlook_cli.isar.chain import build_isar_stages, run_isar_stages
+from fwdlook_cli.isar.evaluate import isar_outputs
+from fwdlook_cli.isar.geometry import n0_pulses_eq13
+from fwdlook_cli.isar.simulate import simulate_isar_scenario
+from fwdlook_cli.isar.track import peak_track
+from fwdlook_cli.report.isar_tables import format_isar_table, isar_correction_table, save_isar_figures
+from fwdlook_cli.scenario.isar import isar_geometry, scatterer_ranges_m
+from fwdlook_cli.scenario.loader import load_scenario, resolve_scenario
 from fwdlook_cli.errors import BadInput
-from fwdlook_cli.io import read_raw, write_raw
+from fwdlook_cli.io.raw import read_raw, write_raw
 
 SCEN = Path(__file__).resolve().parents[1] / "scenarios"
 PAPER = [SCEN / "isar_theta3.yaml", SCEN / "isar_theta5.yaml"]
@@ -46,14 +52,14 @@ def scenario(**sections):
 
 def run(cube, scn, **processing):
     proc = dict(scn["processing"], **processing)
-    final, _ = isar.run_isar_stages(cube, proc)
-    _, metrics = isar.isar_outputs(final, cube, proc)
+    final, _ = run_isar_stages(cube, proc)
+    _, metrics = isar_outputs(final, cube, proc)
     return final, metrics
 
 
 @pytest.fixture(scope="module")
 def paper_table():
-    rows = isar.isar_correction_table(PAPER)
+    rows = isar_correction_table(PAPER)
     return {(r["scenario"], r["correction"]): r for r in rows}
 
 
@@ -64,9 +70,9 @@ def paper_table():
 def test_eq13_corrected_units_match_exact_range_minimum(theta0):
     # a 6 s observation so that the minimum (1.44 s / 2.40 s after the middle) lies inside it
     scn = scenario(radar={"n_pulses": 18000}, target={"theta0_deg": theta0})
-    t, pos0, vel, _ = isar.isar_geometry(scn)
-    r = isar.scatterer_ranges_m(pos0, vel, t)[0]
-    n0 = isar.n0_pulses_eq13(1100.0, theta0, 40.0, 3000.0)            # R0 sin(theta0) Fp / v
+    t, pos0, vel, _ = isar_geometry(scn)
+    r = scatterer_ranges_m(pos0, vel, t)[0]
+    n0 = n0_pulses_eq13(1100.0, theta0, 40.0, 3000.0)            # R0 sin(theta0) Fp / v
     assert abs(int(np.argmin(r)) - ((len(t) - 1) / 2 + n0)) <= 1.0
     printed = 1100.0 * math.sin(math.radians(theta0)) / (40.0 * 3000.0)  # eq. (13) as printed (s^2)
     assert printed < 1e-3 and n0 > 4000                                # ...is no pulse count at all
@@ -75,15 +81,15 @@ def test_eq13_corrected_units_match_exact_range_minimum(theta0):
 def test_echo_doppler_changes_sign_at_the_eq13_pulse():
     """The simulated echo itself: its pulse-to-pulse phase step (Doppler) is zero at the minimum."""
     scn = scenario(radar={"n_pulses": 12000}, target={"theta0_deg": 3.0})
-    cube, stats = isar.simulate_isar_scenario(scn)
-    pos, _ = isar.peak_track(cube.sum)
+    cube, stats = simulate_isar_scenario(scn)
+    pos, _ = peak_track(cube.sum)
     cell = np.rint(pos).astype(int)
     s = cube.sum[np.arange(cube.n_pulses), cell]
     step = np.angle(s[1:] * np.conj(s[:-1]))                           # > 0 approaching, < 0 receding
     crossing = int(np.nonzero(np.diff(np.sign(step)) < 0)[0][0]) + 1
-    expected = (cube.n_pulses - 1) / 2 + isar.n0_pulses_eq13(1100.0, 3.0, 40.0, 3000.0)
+    expected = (cube.n_pulses - 1) / 2 + n0_pulses_eq13(1100.0, 3.0, 40.0, 3000.0)
     assert abs(crossing - expected) <= 1.0
-    assert stats.n0_pulses == pytest.approx(isar.n0_pulses_eq13(1100.0, 3.0, 40.0, 3000.0), rel=1e-9)
+    assert stats.n0_pulses == pytest.approx(n0_pulses_eq13(1100.0, 3.0, 40.0, 3000.0), rel=1e-9)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -92,7 +98,7 @@ def test_echo_doppler_changes_sign_at_the_eq13_pulse():
 def test_second_order_keystone_removes_a_range_curve_symmetric_about_the_middle():
     # theta0 = 0: the range minimum is at the middle; v = 100 m/s gives 1.2 cells of curvature
     scn = scenario(target={"theta0_deg": 0.0, "velocity_mps": [0.0, 100.0, 0.0]})
-    cube, stats = isar.simulate_isar_scenario(scn)
+    cube, stats = simulate_isar_scenario(scn)
     assert abs(stats.n0_pulses) < 1e-9
     _, before = run(cube, scn, correction="none")
     _, after = run(cube, scn, correction="keystone2")
@@ -103,7 +109,7 @@ def test_second_order_keystone_removes_a_range_curve_symmetric_about_the_middle(
 def test_n0_shift_moves_the_centre_to_the_range_minimum():
     # theta0 = 3 deg: the minimum lies n0 = 4318 pulses after the middle of a 1 s observation
     scn = scenario(target={"theta0_deg": 3.0, "velocity_mps": [0.0, 40.0, 0.0]})
-    cube, _ = isar.simulate_isar_scenario(scn)
+    cube, _ = simulate_isar_scenario(scn)
     _, middle = run(cube, scn, correction="keystone2")
     _, shifted = run(cube, scn, correction="keystone2_n0")
     assert shifted["summary"]["n0_used_pulses"] == pytest.approx(4317.7, abs=0.1)
@@ -119,7 +125,7 @@ def test_n0_shift_moves_the_centre_to_the_range_minimum():
 def test_n0_estimate_within_two_pulses_at_20_db():
     for path in PAPER:
         scn = load_scenario(path, ["noise.snr_db=20"])
-        cube, stats = isar.simulate_isar_scenario(scn)
+        cube, stats = simulate_isar_scenario(scn)
         final, metrics = run(cube, scn, correction="keystone2_n0_est")
         assert abs(metrics["summary"]["n0_est_pulses"] - stats.n0_pulses) <= 2.0
         assert metrics["params"]["range_model_source"] == "estimate"
@@ -130,7 +136,7 @@ def test_doppler_ambiguity_number_from_the_geometry():
     scn = scenario(radar={"bandwidth_hz": 30e6, "fs_hz": 36e6, "pulse_width_s": 1e-6, "prf_hz": 1000.0,
                           "n_pulses": 600},
                    target={"range_m": 2000.0, "theta0_deg": 10.0, "velocity_mps": [0.0, 300.0, 0.0]})
-    cube, _ = isar.simulate_isar_scenario(scn)
+    cube, _ = simulate_isar_scenario(scn)
     _, auto = run(cube, scn, correction="keystone2_n0")
     _, wrong = run(cube, scn, correction="keystone2_n0", ambiguity=0)
     _, est = run(cube, scn, correction="keystone2_n0_est")
@@ -144,7 +150,7 @@ def test_ideal_integration_gain_of_an_unmigrating_target():
     """A nearly static target: the measured gain is the closed form N a |p(0)| up to the range-sampling
     loss of the compressed pulse at fs = 1.2 B (about 0.1 dB)."""
     scn = scenario(radar={"n_pulses": 512}, target={"velocity_mps": [0.0, 0.01, 0.0]})
-    cube, _ = isar.simulate_isar_scenario(scn)
+    cube, _ = simulate_isar_scenario(scn)
     _, m = run(cube, scn, correction="none")
     assert -0.25 < m["summary"]["integration_gain_db"] <= 0.01
     assert m["summary"]["islr_db"] == pytest.approx(-10.0, abs=0.6)
@@ -154,7 +160,7 @@ def test_ideal_integration_gain_of_an_unmigrating_target():
 def test_czt_and_dft_keystones_agree():
     scn = scenario(radar={"n_pulses": 256, "bandwidth_hz": 100e6, "fs_hz": 120e6},
                    target={"theta0_deg": 3.0, "velocity_mps": [0.0, 150.0, 0.0]})
-    cube, _ = isar.simulate_isar_scenario(scn)
+    cube, _ = simulate_isar_scenario(scn)
     a, _ = run(cube, scn, correction="keystone2_n0", keystone="czt")
     b, _ = run(cube, scn, correction="keystone2_n0", keystone="dft")
     scale = np.abs(b["echo_rc"]).max()
@@ -163,8 +169,8 @@ def test_czt_and_dft_keystones_agree():
 
 def test_stages_are_pure():
     scn = scenario(radar={"n_pulses": 256})
-    cube, _ = isar.simulate_isar_scenario(scn)
-    src, stages = isar.build_isar_stages(cube, dict(scn["processing"], correction="keystone2_n0_est"))
+    cube, _ = simulate_isar_scenario(scn)
+    src, stages = build_isar_stages(cube, dict(scn["processing"], correction="keystone2_n0_est"))
     assert [s.name for s in stages] == ["estimate_n0", "range_fft", "rcmc", "range_ifft", "azimuth_compress"]
     data = src
     for st in stages:
@@ -205,7 +211,7 @@ def test_paper_scenarios_say_what_the_paper_says():
 
 
 def test_table_format(paper_table):
-    text = isar.format_isar_table(list(paper_table.values()))
+    text = format_isar_table(list(paper_table.values()))
     assert text.count("\n") == 2 + 9 and "keystone2_n0_est" in text
 
 
@@ -240,7 +246,7 @@ def test_cross_checks(override, match):
 def test_single_channel_cube_round_trip(tmp_path):
     scn = scenario(radar={"n_pulses": 64}, noise={"snr_db": 20.0},
                    target={"points_m": [[0, 0, 0], [3.0, -2.0, 0.0]], "amplitude": [1.0, 0.5]})
-    cube, _ = isar.simulate_isar_scenario(scn)
+    cube, _ = simulate_isar_scenario(scn)
     path = tmp_path / "isar.h5"
     write_raw(path, cube)
     with h5py.File(path, "r") as f:
@@ -261,10 +267,10 @@ def test_single_channel_cube_round_trip(tmp_path):
 
 def test_cube_without_truth_processes_with_the_estimate():
     scn = scenario(radar={"n_pulses": 1500}, target={"theta0_deg": 3.0})
-    cube, _ = isar.simulate_isar_scenario(scn)
+    cube, _ = simulate_isar_scenario(scn)
     cube.truth = None
     with pytest.raises(BadInput, match=r"keystone2_n0.*processing\.n0_pulses"):
-        isar.build_isar_stages(cube, dict(scn["processing"], correction="keystone2_n0"))
+        build_isar_stages(cube, dict(scn["processing"], correction="keystone2_n0"))
     _, m = run(cube, scn, correction="keystone2_n0_est")
     assert m["targets"] == [] and m["summary"]["n_targets"] == 0
     assert m["summary"]["migration_span_cells"] < 1.0 and m["summary"]["integration_gain_db"] > -1.0
@@ -288,7 +294,7 @@ def test_fwdlook_run_writes_isar_metrics(tmp_path, capsys):
 
 
 def test_figures(tmp_path):
-    paths = isar.save_isar_figures(tmp_path, [PAPER[0]], overrides=["radar.n_pulses=600"])
+    paths = save_isar_figures(tmp_path, [PAPER[0]], overrides=["radar.n_pulses=600"])
     assert [p.name for p in paths] == ["isar_theta3_echo_before.png", "isar_theta3_echo_after.png",
                                        "isar_theta3_image.png"]
     assert all(p.stat().st_size > 0 for p in paths)

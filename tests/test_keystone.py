@@ -5,13 +5,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fwdlook_cli.keystone import (
-    KeystonePlan,
-    keystone,
-    keystone_dft,
-    keystone_positions,
-    keystone_sinc,
-)
+from fwdlook_cli.dsp.keystone_czt import KeystonePlan
+from fwdlook_cli.dsp.keystone import keystone, keystone_dft, keystone_sinc
+from fwdlook_cli.dsp.keystone_common import keystone_positions
 
 FC_HZ = 18e9  # the paper's Ku-band carrier
 

@@ -10,14 +10,8 @@ from scipy.integrate import quad
 from scipy.signal import resample
 from scipy.signal.windows import hamming
 
-from fwdlook_cli.metrics import (
-    ideal_sinc_islr_db,
-    ideal_sinc_pslr_db,
-    image_peak_2d,
-    interpolate_peak,
-    oversample_profile,
-    profile_metrics,
-)
+from fwdlook_cli.dsp.profile import ideal_sinc_islr_db, ideal_sinc_pslr_db, profile_metrics
+from fwdlook_cli.dsp.peaks import image_peak_2d, interpolate_peak, oversample_profile
 
 C_MPS = 299_792_458.0
 B_HZ = 100e6  # pulse bandwidth

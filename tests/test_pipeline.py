@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import fwdlook_cli
-import fwdlook_cli.chain as chain
+import fwdlook_cli.forward.chain as chain
 from fwdlook_cli.cli import main
 
 STAGES = ("range_fft", "decimate", "keystone", "regroup", "range_curvature", "doppler_spectra",

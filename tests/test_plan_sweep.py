@@ -7,9 +7,9 @@ import pytest
 import yaml
 
 from fwdlook_cli.cli import main
-from fwdlook_cli.config import load_scenario
-from fwdlook_cli.geometry import C_MPS, residual_velocity_mps
-from fwdlook_cli.plan import plan_for_scenario
+from fwdlook_cli.scenario.loader import load_scenario
+from fwdlook_cli.dsp.geometry import C_MPS, residual_velocity_mps
+from fwdlook_cli.forward.plan import plan_for_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 

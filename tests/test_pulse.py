@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from fwdlook_cli.pulse import CompressedPulse, lfm_compressed_closed_form
+from fwdlook_cli.dsp.pulse import CompressedPulse, lfm_compressed_closed_form
 
 
 def test_unweighted_table_matches_closed_form():

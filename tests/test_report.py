@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from fwdlook_cli.cli import main
-from fwdlook_cli.geometry import C_MPS
-from fwdlook_cli.report import SIG_DIGITS, parse_md_table, parse_value
+from fwdlook_cli.dsp.geometry import C_MPS
+from fwdlook_cli.report.report import SIG_DIGITS, parse_md_table, parse_value
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = REPO / "scenarios" / "tiny.yaml"
@@ -145,7 +145,8 @@ def test_report_without_metrics_exits_2(tmp_path, capsys):
 
 
 def test_reproduce_sec41_equals_closed_forms():
-    from fwdlook_cli.reproduce import PAPER_CLAIMS, sec41_table
+    from fwdlook_cli.report.experiments import PAPER_CLAIMS
+    from fwdlook_cli.report.reproduce import sec41_table
 
     rows = {r["key"]: r for r in sec41_table(REPO / "scenarios" / "paper_fig5_a0.yaml")}
     assert rows["F_0deg"]["ours"] == 12 == PAPER_CLAIMS["sec4.1"]["F_0deg"]["value"]

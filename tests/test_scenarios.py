@@ -3,7 +3,8 @@ from pathlib import Path
 
 import pytest
 
-from fwdlook_cli.config import load_scenario, n_pulses, scenario_hash, scene_points
+from fwdlook_cli.scenario.loader import load_scenario, scenario_hash
+from fwdlook_cli.scenario.forward import n_pulses, scene_points
 
 SCEN = sorted((Path(__file__).resolve().parent.parent / "scenarios").glob("*.yaml"))
 

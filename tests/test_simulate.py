@@ -3,11 +3,13 @@ noise power, and that gating skips only negligible energy."""
 import numpy as np
 import pytest
 
-from fwdlook_cli.antenna import MonopulseAntenna
-from fwdlook_cli.geometry import C_MPS, azimuth_deg, scene_geometry, slant_range_m
-from fwdlook_cli.metrics import profile_metrics
-from fwdlook_cli.pulse import CompressedPulse
-from fwdlook_cli.simulate import noise_sigma_for, simulate_echo, simulate_scenario
+from fwdlook_cli.dsp.antenna import MonopulseAntenna
+from fwdlook_cli.dsp.geometry import C_MPS, azimuth_deg, slant_range_m
+from fwdlook_cli.scenario.forward import scene_geometry
+from fwdlook_cli.dsp.profile import profile_metrics
+from fwdlook_cli.dsp.pulse import CompressedPulse
+from fwdlook_cli.dsp.pulse import noise_sigma_for
+from fwdlook_cli.forward.simulate import simulate_echo, simulate_scenario
 from fwdlook_cli.testing import lone_target_scenario, tiny_scenario
 
 

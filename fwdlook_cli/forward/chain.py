@@ -1,0 +1,464 @@
+"""The forward-looking processing chain, one pure function per stage (Li & Li 2023, Sec. 3).
+
+Stages (each writes ``RUN_DIR/stages/NN_<name>.h5``):
+
+1. ``range_fft``        range time -> range frequency f_r (eq. 6)
+2. ``decimate``         slow time split into Q sub-sequences P_q = pulses q, q+Q, ... (Sec. 3.2, Fig. 3)
+3. ``keystone``         the method's range-migration correction (see below), per sub-sequence
+4. ``regroup``          sub-sequences interleaved back into one sequence (Fig. 3, inverse)
+5. ``range_curvature``  eq. (12) compensation about t_ref, then back to range time
+6. ``doppler_spectra``  per CPI, zoomed Doppler spectra of sum and difference (eq. 23-26)
+7. ``monopulse_image``  angle per Doppler cell from Re(diff/sum), sum power projected on (range, angle)
+
+Methods (stage 3): ``none`` (identity); ``bulk`` (per-pulse envelope shift by the INS motion along
+the flight path); ``beam`` (per-pulse envelope shift by the predicted range history of the beam's
+pointing direction); ``traditional`` (keystone over the whole sequence with one ambiguity number, eq. 8,
+15-22 with the NOTES.md correction); ``decimation`` (the paper's algorithm: keystone of every sub-sequence
+at PRF/Q with its ambiguity number, one global time origin); ``tracking`` (keystone whose Doppler
+reference follows the predicted beam-centre Doppler history from INS motion and scan: demodulate,
+resample with F = 0, remodulate).  Every corrected output refers to t_ref (NOTES.md).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+
+from ..dsp.geometry import C_MPS, ambiguity_number
+from ..dsp.keystone_czt import KeystonePlan
+from ..dsp.keystone import keystone_dft, keystone_sinc
+from ..dsp.keystone_common import _cis as _cis_cycles
+from .motion import DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector
+from ..runner import Stage
+from ..io.stagefile import StageData
+
+CONTEXT = ("slow_time_s", "scan_angle_deg", "position_m", "velocity_mps", "xyz")
+KEYSTONE_METHODS = ("traditional", "decimation", "tracking")
+
+
+def _ctx(data: StageData) -> StageData:
+    """A new StageData carrying the context vars (axes, INS) and attrs forward."""
+    return data.copy_vars(*CONTEXT)
+
+
+def _cis(phase_rad):
+    """exp(j phase) in complex64, the phase reduced mod 2 pi in float64 first (keystone._cis)."""
+    return _cis_cycles(np.asarray(phase_rad) / (2.0 * np.pi), np.complex64)
+
+
+# ----------------------------------------------------------------------------------------------
+# 1. range FFT
+# ----------------------------------------------------------------------------------------------
+def range_fft(data: StageData, *, fs_hz: float) -> StageData:
+    """Range time -> range frequency (eq. 6), both channels; f_r in FFT order, values centred."""
+    out = _ctx(data)
+    n_r = data["sum"].shape[1]
+    fr_hz = scipy.fft.fftfreq(n_r, 1.0 / fs_hz)
+    out.add("fr_hz", fr_hz, ("fr_hz",), "Hz", "range frequency (FFT order)")
+    out.add("range_m", data["range_m"], ("range_m",), "m", "slant range of the input samples")
+    for ch in ("sum", "diff"):
+        out.add(f"{ch}_f", scipy.fft.fft(data[ch], axis=1, workers=-1), ("slow_time_s", "fr_hz"), "1",
+                f"{ch} channel, range frequency")
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# 2. decimation and 4. regrouping (Sec. 3.2, Fig. 3)
+# ----------------------------------------------------------------------------------------------
+def decimate(data: StageData, *, q: int) -> StageData:
+    """Sub-sequence q holds pulses q, q+Q, q+2Q, ...: layout [P, Q, n_fr] (a view, no copy)."""
+    out = _ctx(data)
+    for name in ("fr_hz", "range_m"):
+        out.vars[name] = data.vars[name]
+    m, n_f = data["sum_f"].shape
+    if m % q:
+        raise ValueError(f"q = {q} does not divide the {m} pulses")
+    out.add("subseq", np.arange(q), ("subseq",), "1", "sub-sequence index q")
+    out.add("sub_pulse", np.arange(m // q), ("sub_pulse",), "1", "pulse index p within a sub-sequence")
+    for ch in ("sum", "diff"):
+        out.add(f"{ch}_f", data[f"{ch}_f"].reshape(m // q, q, n_f), ("sub_pulse", "subseq", "fr_hz"), "1",
+                f"{ch} channel, decimated sub-sequences")
+    out.attrs["q"] = q
+    return out
+
+
+def regroup(data: StageData) -> StageData:
+    """Inverse of ``decimate``: interleave the sub-sequences back into one slow-time sequence."""
+    out = _ctx(data)
+    for name in ("fr_hz", "range_m"):
+        out.vars[name] = data.vars[name]
+    for ch in ("sum", "diff"):
+        x = data[f"{ch}_f"]
+        out.add(f"{ch}_f", x.reshape(x.shape[0] * x.shape[1], x.shape[2]), ("slow_time_s", "fr_hz"), "1",
+                f"{ch} channel, range-migration corrected, regrouped")
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# 3. the method's range-migration correction
+# ----------------------------------------------------------------------------------------------
+def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: float, prf_hz: float,
+                   t_ref_s: float, ambiguity: int, doppler_ref_hz: float, depression_deg: float,
+                   reference_range_m: float, n_taps: int = 16) -> StageData:
+    """Stage 3: range-migration correction of every sub-sequence (layout [P, Q, n_fr]).
+
+    ``ambiguity`` is the Doppler ambiguity number at the sub-sequence rate PRF/Q (eq. 17 and 20),
+    ``doppler_ref_hz`` the unrounded reference Doppler the sinc implementation demodulates.
+    """
+    out = _ctx(data)
+    for name in ("fr_hz", "range_m", "subseq", "sub_pulse"):
+        out.vars[name] = data.vars[name]
+    fr_hz = data["fr_hz"]
+    x_sum, x_diff = data["sum_f"], data["diff_f"]
+    p, q, n_f = x_sum.shape
+    t = data["slow_time_s"]
+    m0 = (t_ref_s - t[0]) * prf_hz                        # keystone time origin, in pulses (may be fractional)
+    dims = ("sub_pulse", "subseq", "fr_hz")
+
+    if method == "none":
+        y_sum, y_diff = x_sum, x_diff
+    elif method in ("bulk", "beam"):
+        pos = data["position_m"]
+        if method == "bulk":
+            delta_r = bulk_range_history_m(pos, m0, depression_deg)
+        else:
+            delta_r = beam_range_history_m(pos, m0, data["scan_angle_deg"], depression_deg,
+                                           reference_range_m)
+        # envelope shift of pulse m by the predicted R(t_m) - R(t_ref); carrier phase kept
+        shift = _cis(4.0 * np.pi * delta_r[:, None] * fr_hz[None, :] / C_MPS).reshape(p, q, n_f)
+        y_sum, y_diff = x_sum * shift, x_diff * shift
+    elif method in ("traditional", "decimation", "tracking"):
+        alpha = fc_hz / (fc_hz + fr_hz)                   # eq. (8)
+        t0_sub = (m0 - np.arange(q)) / q                  # global origin in each sub-sequence's samples
+        alpha_cols = np.tile(alpha, q)                    # column (q, k) -> index q*n_f + k
+        t0_cols = np.repeat(t0_sub, n_f)
+        x = np.concatenate([x_sum.reshape(p, q * n_f), x_diff.reshape(p, q * n_f)], axis=1)
+        alpha2, t02 = np.tile(alpha_cols, 2), np.tile(t0_cols, 2)
+        if method == "tracking":
+            if q != 1:
+                raise ValueError("tracking keystone runs on the whole sequence (q = 1)")
+            hist = DopplerPhaseHistory(t, data["velocity_mps"], data["scan_angle_deg"], depression_deg,
+                                       fc_hz, t_ref_s)
+            scale = np.tile(1.0 + fr_hz / fc_hz, 2)[None, :]     # Doppler at f_r scales by (fc+fr)/fc
+            x = x * _cis(-hist.phase_rad(t)[:, None] * scale)    # demodulate the predicted history
+            ambiguity_used = 0
+        else:
+            ambiguity_used = ambiguity
+        if implementation == "czt":
+            y = KeystonePlan(p, alpha2, t0_index=t02)(x, ambiguity=ambiguity_used)
+        elif implementation == "dft":
+            y = keystone_dft(x, alpha2, t0_index=t02, ambiguity=ambiguity_used).astype(np.complex64)
+        elif implementation == "sinc":
+            ref = 0.0 if method == "tracking" else doppler_ref_hz / (prf_hz / q)
+            y = keystone_sinc(x, alpha2, t0_index=t02, doppler_ref=ref, n_taps=n_taps).astype(np.complex64)
+        else:
+            raise ValueError(f"keystone implementation {implementation!r}; allowed: czt, dft, sinc")
+        if method == "tracking":
+            tau = alpha2[None, :] * (np.arange(p)[:, None] - t02[None, :]) + t02[None, :]
+            y = y * _cis(hist.phase_rad(t[0] + tau / prf_hz) * scale)  # remodulate at the new times
+        y_sum = y[:, : q * n_f].reshape(p, q, n_f)
+        y_diff = y[:, q * n_f:].reshape(p, q, n_f)
+    else:
+        raise ValueError(f"method {method!r}; allowed: none, bulk, beam, traditional, decimation, tracking")
+    out.add("sum_f", y_sum, dims, "1", f"sum channel after the {method} correction")
+    out.add("diff_f", y_diff, dims, "1", f"difference channel after the {method} correction")
+    out.attrs.update(method=method, keystone=implementation, ambiguity_number=int(ambiguity),
+                     t_ref_s=float(t_ref_s))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# 5. range curvature (eq. 12), back to range time
+# ----------------------------------------------------------------------------------------------
+def range_curvature(data: StageData, *, model: str, radial_accel_mps2: float, t_ref_s: float,
+                    prf_hz: float, depression_deg: float, reference_range_m: float) -> StageData:
+    """Range-curvature compensation about t_ref, then inverse range FFT back to range time.
+
+    ``model``: ``eq12`` multiplies by exp(j 2 pi f_r a_y cos(phi_0) (t - t_ref)^2 / c) (the paper's eq. 12);
+    ``beam`` by exp(j 4 pi f_r E(t) / c) with E the exact residual envelope a keystone leaves for the
+    beam-centre point of each pulse (:func:`motion.keystone_residual_envelope_m`); ``off`` does neither.
+    """
+    out = _ctx(data)
+    out.vars["range_m"] = data.vars["range_m"]
+    t = data["slow_time_s"] - t_ref_s
+    fr_hz = data["fr_hz"]
+    if model == "eq12":
+        h = _cis(2.0 * np.pi * fr_hz[None, :] * radial_accel_mps2 * (t**2)[:, None] / C_MPS)
+    elif model == "beam":
+        env_m = keystone_residual_envelope_m(data["slow_time_s"], data["position_m"], data["velocity_mps"],
+                                             t_ref_s, prf_hz, data["scan_angle_deg"], depression_deg,
+                                             reference_range_m)
+        h = _cis(4.0 * np.pi * fr_hz[None, :] * env_m[:, None] / C_MPS)
+    elif model == "off":
+        h = None
+    else:
+        raise ValueError(f"curvature model {model!r}; allowed: off, eq12, beam")
+    for ch in ("sum", "diff"):
+        x = data[f"{ch}_f"]
+        if h is not None:
+            x = x * h
+        out.add(ch, scipy.fft.ifft(x, axis=1, workers=-1).astype(np.complex64, copy=False),
+                ("slow_time_s", "range_m"), "1", f"{ch} channel, motion compensated, range time")
+    out.attrs.update(range_curvature=model, radial_accel_mps2=float(radial_accel_mps2))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# 6. per-CPI Doppler spectra (eq. 23-26)
+# ----------------------------------------------------------------------------------------------
+def cpi_doppler_band_hz(speed_mps, beam_deg, depression_deg, fc_hz, beamwidth_deg, prf_hz, n_cpi_pulses,
+                        band_beamwidths=1.0):
+    """Doppler band of the main beam per CPI: eq. (25) centroid and eq. (26) width, computed exactly as
+    the range of 2 v cos(theta') cos(phi_0)/lambda over theta' = theta +- band_beamwidths * theta_3 / 2.
+
+    For |theta| > theta_3/2 the width is eq. (26)'s 2 v f_c theta_3 cos(phi_0) sin(theta)/c (to first
+    order); near boresight it is eq. (26)'s second case.  At least 4 Doppler resolution cells wide.
+    """
+    k = 2.0 * np.asarray(speed_mps) * fc_hz / C_MPS * np.cos(np.radians(depression_deg))
+    half = band_beamwidths * beamwidth_deg / 2.0
+    th = np.asarray(beam_deg)
+    f_a, f_b = k * np.cos(np.radians(th - half)), k * np.cos(np.radians(th + half))
+    f_hi = np.where(np.abs(th) < half, k, np.maximum(f_a, f_b))
+    f_lo = np.minimum(f_a, f_b)
+    min_width = 4.0 * prf_hz / n_cpi_pulses
+    centre = 0.5 * (f_lo + f_hi)
+    width = np.clip(f_hi - f_lo, min_width, prf_hz)
+    return centre - width / 2, centre + width / 2
+
+
+def _window(name: str, n: int) -> np.ndarray:
+    from ..dsp.pulse import weighting
+
+    return weighting(name, n)
+
+
+def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, fc_hz: float,
+                    beamwidth_deg: float, depression_deg: float, prf_hz: float, follow_speed: bool,
+                    band_beamwidths: float = 1.0) -> StageData:
+    """Per CPI: zoomed DFT (a chirp-Z zoom on the main-beam Doppler band) of both channels.
+
+    The CPI speed is v_c = v + a t_c (eq. 25, from the INS) when ``follow_speed``; otherwise the
+    initial speed v is used for every CPI (what is lost without eq. 25 shows in the image).
+    """
+    out = StageData(attrs=dict(data.attrs))
+    t = data["slow_time_s"]
+    n_cpi = len(t) // cpi
+    m = n_cpi * cpi
+    t_cpi = t[:m].reshape(n_cpi, cpi)
+    t_c = t_cpi.mean(axis=1)
+    beam_c = data["scan_angle_deg"][:m].reshape(n_cpi, cpi).mean(axis=1)
+    vel = data["velocity_mps"][:m].reshape(n_cpi, cpi, 3).mean(axis=1)
+    speed = vel[:, 1] if follow_speed else np.full(n_cpi, data["velocity_mps"][0, 1])
+    f_lo, f_hi = cpi_doppler_band_hz(speed, beam_c, depression_deg, fc_hz, beamwidth_deg, prf_hz, cpi,
+                                     band_beamwidths)
+    frac = (np.arange(n_doppler) + 0.5) / n_doppler
+    f_z = f_lo[:, None] + (f_hi - f_lo)[:, None] * frac[None, :]          # [n_cpi, n_doppler], true Hz
+    w = _window(window, cpi)
+    # zoom matrix E[i, z, n] = w_n exp(-j 2 pi f_z (t_n - t_c)): the DFT evaluated on the band only
+    e = w[None, None, :] * _cis(-2.0 * np.pi * f_z[:, :, None] * (t_cpi - t_c[:, None])[:, None, :])
+    e = e.astype(np.complex64)
+    n_r = data["sum"].shape[1]
+    x = np.concatenate([data["sum"][:m].reshape(n_cpi, cpi, n_r), data["diff"][:m].reshape(n_cpi, cpi, n_r)],
+                       axis=2)
+    z = np.matmul(e, x)
+    out.add("cpi_time_s", t_c, ("cpi_time_s",), "s", "CPI centre time t_c")
+    out.add("doppler_cell", np.arange(n_doppler), ("doppler_cell",), "1", "zoomed Doppler cell")
+    out.vars["range_m"] = data.vars["range_m"]
+    out.vars["xyz"] = data.vars["xyz"]
+    out.add("cpi_beam_deg", beam_c, ("cpi_time_s",), "deg", "mean beam pointing angle in the CPI")
+    out.add("cpi_speed_mps", speed, ("cpi_time_s",), "m/s", "CPI speed used for the Doppler band (eq. 25)")
+    out.add("cpi_position_m", data["position_m"][:m].reshape(n_cpi, cpi, 3).mean(axis=1),
+            ("cpi_time_s", "xyz"), "m", "mean antenna position in the CPI")
+    out.add("doppler_hz", f_z, ("cpi_time_s", "doppler_cell"), "Hz", "true Doppler of each zoomed cell")
+    out.add("sum_z", z[:, :, :n_r], ("cpi_time_s", "doppler_cell", "range_m"), "1", "sum Doppler spectrum")
+    out.add("diff_z", z[:, :, n_r:], ("cpi_time_s", "doppler_cell", "range_m"), "1", "difference Doppler spectrum")
+    out.attrs.update(cpi=cpi, coherent_gain=float(w.sum()), doppler_window=window)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# 7. monopulse image
+# ----------------------------------------------------------------------------------------------
+def oversample_range(x, factor: int):
+    """Band-limited oversampling of the last (range) axis by FFT zero-padding, amplitudes preserved."""
+    if factor == 1:
+        return x
+    n = x.shape[-1]
+    spec = scipy.fft.fft(x, axis=-1, workers=-1)
+    spec *= factor
+    pad = np.zeros(spec.shape[:-1] + (n * factor,), dtype=spec.dtype)
+    half = n // 2
+    pad[..., : n - half] = spec[..., : n - half]
+    pad[..., n * factor - half:] = spec[..., n - half:]
+    return scipy.fft.ifft(pad, axis=-1, workers=-1, overwrite_x=True)
+
+
+def azimuth_at_t_ref(range_m, azimuth_deg, position_at_measure_m, position_ref_m):
+    """Ground point seen at ``azimuth_deg`` from the antenna at one time, and ``range_m`` from it at
+    t_ref: returns its azimuth from the t_ref antenna and its ground (x, y); NaN where no solution.
+
+    The monopulse angle is measured at the CPI time, the corrected range refers to t_ref; the point
+    P = g_c + s u(theta) (ground) with |P - p_ref| = R is solved exactly (a quadratic in s).
+    """
+    u = np.stack([np.sin(np.radians(azimuth_deg)), np.cos(np.radians(azimuth_deg))], axis=-1)
+    d = position_at_measure_m[..., :2] - position_ref_m[:2]
+    b = np.sum(d * u, axis=-1)
+    c = np.sum(d * d, axis=-1) + position_ref_m[2] ** 2 - np.asarray(range_m) ** 2
+    disc = b * b - c
+    s = -b + np.sqrt(np.where(disc >= 0, disc, np.nan))
+    gx = position_at_measure_m[..., 0] + s * u[..., 0]
+    gy = position_at_measure_m[..., 1] + s * u[..., 1]
+    return np.degrees(np.arctan2(gx - position_ref_m[0], gy - position_ref_m[1])), gx, gy
+
+
+def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: float, angle_step_deg: float,
+                    range_oversample: int, threshold_db: float, dynamic_range_db: float,
+                    position_ref_m: list, max_offset_beamwidths: float = 0.5) -> StageData:
+    """Monopulse imaging from sum/difference Doppler estimates (Sec. 3.2 end; NOTES.md).
+
+    Per CPI, Doppler cell and range: offset d = atanh(Re(diff/sum))/k (exact for the Gaussian beams),
+    angle = CPI beam angle + d, moved to the t_ref frame; the sum power is accumulated in a
+    (range, angle) image.  Cells below ``threshold_db`` over the CPI's median power (noise floor) or
+    more than ``dynamic_range_db`` under its peak, or with |d| beyond ``max_offset_beamwidths`` x the
+    beamwidth, are not projected.  The real-beam image (CPI sum power at the beam angle) is made too.
+    """
+    s = oversample_range(data["sum_z"], range_oversample)
+    dz = oversample_range(data["diff_z"], range_oversample)
+    range_m = data["range_m"]
+    dr = (range_m[1] - range_m[0]) / range_oversample
+    range_os = range_m[0] + dr * np.arange(s.shape[2])
+    power = (s.real**2 + s.imag**2).astype(np.float32)
+    ratio = (dz.real * s.real + dz.imag * s.imag) / np.maximum(power, 1e-30)
+    floor = np.median(power.reshape(power.shape[0], -1), axis=1)
+    peak = power.reshape(power.shape[0], -1).max(axis=1)
+    level = np.maximum(floor * 10 ** (threshold_db / 10), peak * 10 ** (-dynamic_range_db / 10))
+    max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
+    keep = (power > level[:, None, None]) & (np.abs(ratio) < max_ratio)
+    i_cpi, _, i_r = np.nonzero(keep)
+    offset = np.arctanh(ratio[keep]) / slope_per_deg
+    beam = data["cpi_beam_deg"][i_cpi]
+    p_ref = np.asarray(position_ref_m, dtype=np.float64)
+    az_ref, gx, gy = azimuth_at_t_ref(range_os[i_r], beam + offset, data["cpi_position_m"][i_cpi], p_ref)
+    w = power[keep].astype(np.float64)
+    ok = np.isfinite(az_ref)
+    beam_all = data["cpi_beam_deg"]
+    a0 = np.floor((beam_all.min() - beamwidth_deg) / angle_step_deg) * angle_step_deg
+    n_a = int(np.ceil((beam_all.max() + beamwidth_deg - a0) / angle_step_deg)) + 1
+    angle_deg = a0 + angle_step_deg * np.arange(n_a)
+    a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
+    inside = (a_idx >= 0) & (a_idx < n_a)
+    flat = i_r[ok][inside] * n_a + a_idx[inside]
+    image = np.bincount(flat, weights=w[ok][inside], minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
+
+    # real-beam image: incoherent CPI sum power at the beam angle (same t_ref angle mapping)
+    rb_power = np.sum(np.abs(data["sum_z"]) ** 2, axis=1)                      # [n_cpi, n_r]
+    n_cpi, n_r = rb_power.shape
+    rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_cpi, n_r)),
+                                   np.broadcast_to(beam_all[:, None], (n_cpi, n_r)),
+                                   data["cpi_position_m"][:, None, :], p_ref)
+    rb_idx = np.rint((rb_az - a0) / angle_step_deg)
+    good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
+    rb_flat = (np.broadcast_to(np.arange(n_r), (n_cpi, n_r))[good] * n_a + rb_idx[good].astype(np.int64))
+    real_beam = np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)
+
+    out = StageData(attrs=dict(data.attrs))
+    out.add("range_m", range_os, ("range_m",), "m", "slant range from the antenna at t_ref")
+    out.add("angle_deg", angle_deg, ("angle_deg",), "deg", "azimuth from the antenna at t_ref")
+    out.add("range_native_m", range_m, ("range_native_m",), "m", "slant range, native sampling")
+    out.add("image", image.astype(np.float32), ("range_m", "angle_deg"), "1", "monopulse image, sum power")
+    out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
+            "real-beam image, sum power against beam angle")
+    # kept cells, for the ground projection and diagnostics
+    out.add("cell", np.arange(int(ok.sum())), ("cell",), "1", "projected Doppler cell")
+    out.add("cell_x_m", gx[ok], ("cell",), "m", "ground x of each projected cell")
+    out.add("cell_y_m", gy[ok], ("cell",), "m", "ground y of each projected cell")
+    out.add("cell_power", w[ok].astype(np.float32), ("cell",), "1", "sum power of each projected cell")
+    out.attrs.update(range_oversample=range_oversample, angle_step_deg=angle_step_deg,
+                     slope_per_deg=slope_per_deg, position_ref_m=list(map(float, p_ref)))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Building the chain from a cube and the processing settings
+# ----------------------------------------------------------------------------------------------
+def t_ref_seconds(slow_time_s, t_ref: str) -> float:
+    return float(slow_time_s[0]) if t_ref == "start" else float(0.5 * (slow_time_s[0] + slow_time_s[-1]))
+
+
+def chain_geometry(cube, proc: dict) -> dict:
+    """Everything the stages need that is derived from the cube (never from the scenario)."""
+    fit = fit_motion(cube.slow_time_s, cube.position_m)
+    t_ref_s = t_ref_seconds(cube.slow_time_s, proc["t_ref"])
+    n = np.arange(cube.n_pulses, dtype=np.float64)
+    m_ref = (t_ref_s - cube.slow_time_s[0]) * cube.radar["prf_hz"]
+    p_ref = np.array([np.interp(m_ref, n, cube.position_m[:, i]) for i in range(3)])
+    v_ref = np.array([np.interp(m_ref, n, cube.velocity_mps[:, i]) for i in range(3)])
+    reference_range_m = float(0.5 * (cube.range_m[0] + cube.range_m[-1]))
+    depression = reference_depression_deg(float(p_ref[2]), reference_range_m)
+    fc = cube.radar["fc_hz"]
+    # eq. (16)-(17): boresight Doppler with the speed at t_ref (processing.ambiguity_speed: t_ref), or
+    # with the initial speed v of the paper's Sec. 4 (initial); the same for t_ref = start
+    los0 = unit_vector(0.0, depression)
+    v_amb = v_ref if proc.get("ambiguity_speed", "t_ref") == "t_ref" else cube.velocity_mps[0]
+    f_dc0 = 2.0 * float(np.dot(v_amb, los0)) * fc / C_MPS
+    return {"fit": fit, "t_ref_s": t_ref_s, "p_ref": p_ref, "v_ref": v_ref, "depression_deg": depression,
+            "reference_range_m": reference_range_m, "f_dc0_hz": f_dc0,
+            "radial_accel_mps2": float(fit.accel_mps2[1] * np.cos(np.radians(depression)))}
+
+
+def monopulse_slope(cube) -> float:
+    """The cube's monopulse slope, or the one of the default squint (1.5 deg) for a foreign cube."""
+    if cube.antenna and "monopulse_slope_per_deg" in cube.antenna:
+        return float(cube.antenna["monopulse_slope_per_deg"])
+    from ..dsp.antenna import MonopulseAntenna
+
+    bw = cube.radar["beamwidth_3db_deg"]
+    return MonopulseAntenna(bw, min(1.5, 0.24 * bw)).slope_per_deg
+
+
+def build_forward_stages(cube, proc: dict):
+    """(source StageData, [Stage]) for a raw cube and resolved ``processing`` settings."""
+    geo = chain_geometry(cube, proc)
+    method = proc["method"]
+    q = proc["q"] if method == "decimation" else 1
+    prf = cube.radar["prf_hz"]
+    ambiguity = int(ambiguity_number(geo["f_dc0_hz"], prf / q))                # eq. (17), (20)
+    geo.update(q=q, ambiguity_number=ambiguity)
+    src = StageData()
+    src.add("slow_time_s", cube.slow_time_s, ("slow_time_s",), "s", "slow time")
+    src.add("range_m", cube.range_m, ("range_m",), "m", "slant range")
+    src.add("xyz", np.arange(3), ("xyz",), "1", "x, y, z")
+    src.add("scan_angle_deg", cube.scan_angle_deg, ("slow_time_s",), "deg", "beam pointing azimuth")
+    src.add("position_m", cube.position_m, ("slow_time_s", "xyz"), "m", "antenna phase centre (INS)")
+    src.add("velocity_mps", cube.velocity_mps, ("slow_time_s", "xyz"), "m/s", "antenna velocity (INS)")
+    src.add("sum", cube.sum, ("slow_time_s", "range_m"), "1", "sum channel echo")
+    src.add("diff", cube.diff, ("slow_time_s", "range_m"), "1", "difference channel echo")
+    src.attrs.update(t_ref_s=geo["t_ref_s"], method=method)
+    fc = cube.radar["fc_hz"]
+    curvature = proc["curvature_model"]
+    if curvature == "auto":
+        curvature = "beam" if method == "tracking" else "eq12"
+    if not proc["range_curvature"] or method not in KEYSTONE_METHODS:
+        curvature = "off"       # bulk and beam already shift by the whole predicted range history
+    stages = [
+        Stage("range_fft", range_fft, {"fs_hz": cube.radar["fs_hz"]}),
+        Stage("decimate", decimate, {"q": q}),
+        Stage("keystone", keystone_stage, {
+            "method": method, "implementation": proc["keystone"], "fc_hz": fc, "prf_hz": prf,
+            "t_ref_s": geo["t_ref_s"], "ambiguity": ambiguity, "doppler_ref_hz": geo["f_dc0_hz"],
+            "depression_deg": geo["depression_deg"], "reference_range_m": geo["reference_range_m"]}),
+        Stage("regroup", regroup, {}),
+        Stage("range_curvature", range_curvature, {
+            "model": curvature, "radial_accel_mps2": geo["radial_accel_mps2"], "t_ref_s": geo["t_ref_s"],
+            "prf_hz": prf, "depression_deg": geo["depression_deg"],
+            "reference_range_m": geo["reference_range_m"]}),
+        Stage("doppler_spectra", doppler_spectra, {
+            "cpi": proc["cpi"], "n_doppler": proc["n_doppler"], "window": proc["doppler_window"], "fc_hz": fc,
+            "beamwidth_deg": cube.radar["beamwidth_3db_deg"], "depression_deg": geo["depression_deg"],
+            "prf_hz": prf, "follow_speed": bool(proc["doppler_centroid"])}),
+        Stage("monopulse_image", monopulse_image, {
+            "slope_per_deg": monopulse_slope(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
+            "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
+            "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
+            "position_ref_m": [float(v) for v in geo["p_ref"]]}),
+    ]
+    return src, stages, geo

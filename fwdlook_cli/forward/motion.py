@@ -1,0 +1,122 @@
+"""What the processor knows of the motion: the INS track in the cube, fitted and predicted.
+
+The processor never reads the scenario.  It takes the antenna phase-centre positions and velocities
+per pulse (``/platform``) and the beam pointing angles (``/axes/scan_angle_deg``) from the cube and
+derives from them what each method needs: the constant acceleration of the paper's model (least
+squares over the track), the reference depression angle, and the *predicted beam-centre Doppler
+history* (used by ``tracking``) and range histories (``bulk``, ``beam``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from ..dsp.geometry import C_MPS
+
+
+@dataclass(frozen=True)
+class MotionFit:
+    """Constant-acceleration fit p(t) = p0 + v0 t + a t^2 / 2 of the INS track."""
+
+    p0_m: np.ndarray
+    v0_mps: np.ndarray
+    accel_mps2: np.ndarray
+    rms_residual_m: float
+
+    def position(self, t_s):
+        t = np.asarray(t_s, dtype=np.float64)[..., None]
+        return self.p0_m + self.v0_mps * t + 0.5 * self.accel_mps2 * t**2
+
+    def velocity(self, t_s):
+        t = np.asarray(t_s, dtype=np.float64)[..., None]
+        return self.v0_mps + self.accel_mps2 * t
+
+
+def fit_motion(slow_time_s, position_m) -> MotionFit:
+    t = np.asarray(slow_time_s, dtype=np.float64)
+    design = np.column_stack([np.ones_like(t), t, 0.5 * t**2])
+    coef, *_ = np.linalg.lstsq(design, position_m, rcond=None)
+    resid = position_m - design @ coef
+    return MotionFit(coef[0], coef[1], coef[2], float(np.sqrt(np.mean(resid**2))))
+
+
+def unit_vector(azimuth_deg, depression_deg):
+    """Unit line-of-sight vector from the antenna towards (azimuth, depression): [..., 3]."""
+    az, de = np.radians(azimuth_deg), np.radians(depression_deg)
+    return np.stack(np.broadcast_arrays(np.cos(de) * np.sin(az), np.cos(de) * np.cos(az), -np.sin(de)),
+                    axis=-1)
+
+
+def reference_depression_deg(height_m: float, reference_range_m: float) -> float:
+    """Depression phi_0 of the scene at the reference slant range (paper: phi ~ phi_0, constant)."""
+    return float(np.degrees(np.arcsin(np.clip(height_m / reference_range_m, -1.0, 1.0))))
+
+
+def beam_points_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m):
+    """For each pulse, the ground point on its beam axis (azimuth ``beam_deg[n]`` seen from the
+    antenna at t_ref) at ``reference_range_m`` slant range from it; and the antenna at t_ref."""
+    p = np.asarray(position_m, dtype=np.float64)
+    n = np.arange(len(p), dtype=np.float64)
+    p_ref = np.array([np.interp(t_ref_index, n, p[:, i]) for i in range(3)])
+    az = np.radians(np.asarray(beam_deg, dtype=np.float64))
+    ground = np.sqrt(max(reference_range_m**2 - p_ref[2] ** 2, 1.0))
+    target = np.column_stack([p_ref[0] + ground * np.sin(az), p_ref[1] + ground * np.cos(az), np.zeros(len(p))])
+    return target, p_ref
+
+
+def beam_range_history_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m):
+    """Predicted slant-range change of the beam-centre point at each pulse, relative to t_ref:
+    |P_n - p(t_n)| - |P_n - p_ref| (exact geometry, not the linear projection: the platform moves
+    130 m about t_ref)."""
+    target, p_ref = beam_points_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m)
+    return np.linalg.norm(target - position_m, axis=1) - np.linalg.norm(target - p_ref, axis=1)
+
+
+def keystone_residual_envelope_m(slow_time_s, position_m, velocity_mps, t_ref_s, prf_hz, beam_deg,
+                                 depression_deg, reference_range_m):
+    """Envelope position left by an exact keystone, relative to R(t_ref), for the beam-centre point.
+
+    Keystone (eq. 8) of exp(-j 4 pi (f_c + f_r) R(t)/c) about t_ref leaves, to first order in f_r/f_c,
+    the envelope at R(t') - t' dR/dt(t') (t' from t_ref): R0 for a linear history, R0 - R2 t'^2 for a
+    quadratic one (eq. 10, whose f_r t'^2 term eq. 12 compensates with the a_y cos(phi_0) model).  This
+    evaluates it exactly for the point each pulse's beam looks at, so the compensation also carries the
+    cos(theta) eq. 12 drops and the geometric v^2 (1 - cos^2 theta cos^2 phi)/(2 R) term of eq. (2).
+    """
+    t = np.asarray(slow_time_s, dtype=np.float64)
+    m_ref = (t_ref_s - t[0]) * prf_hz
+    target, p_ref = beam_points_m(position_m, m_ref, beam_deg, depression_deg, reference_range_m)
+    d = target - position_m
+    r = np.linalg.norm(d, axis=1)
+    r_dot = -np.einsum("ni,ni->n", d, velocity_mps) / r
+    return r - (t - t_ref_s) * r_dot - np.linalg.norm(target - p_ref, axis=1)
+
+
+def bulk_range_history_m(position_m, t_ref_index, depression_deg):
+    """Predicted range change of a boresight (along-track) scatterer: the INS motion along +y."""
+    p = np.asarray(position_m, dtype=np.float64)
+    n = np.arange(len(p), dtype=np.float64)
+    y_ref = np.interp(t_ref_index, n, p[:, 1])
+    return -(p[:, 1] - y_ref) * np.cos(np.radians(depression_deg))
+
+
+class DopplerPhaseHistory:
+    """Predicted carrier phase of the beam-centre direction, Psi(t) = 2 pi int f_b dt, Psi(t_ref) = 0.
+
+    f_b(t) = 2 v(t) . u(theta_beam(t), phi_0) / lambda is the Doppler of a scatterer on the beam axis
+    (eq. 16 and 25 with the INS velocity and the scan).  Psi is the antiderivative of a cubic spline of
+    f_b on the pulse grid, so it can be evaluated at the keystone's off-grid times.
+    """
+
+    def __init__(self, slow_time_s, velocity_mps, beam_deg, depression_deg, fc_hz, t_ref_s):
+        los = unit_vector(beam_deg, depression_deg)
+        f_b = 2.0 * np.einsum("ni,ni->n", velocity_mps, los) * fc_hz / C_MPS
+        self.doppler_hz = f_b
+        anti = CubicSpline(slow_time_s, f_b).antiderivative()
+        self._anti = anti
+        self._offset = float(anti(t_ref_s))
+
+    def phase_rad(self, t_s):
+        """2 pi int_{t_ref}^{t} f_b dt (float64; large values: reduce before casting)."""
+        return 2.0 * np.pi * (self._anti(t_s) - self._offset)

@@ -1,0 +1,144 @@
+"""``fwdlook plan``: the migration budget of a scene, and the corrections it therefore needs.
+
+Each effect is computed from the motion (INS track), the scan and the radar, at the scene's
+reference range, and compared with what it must stay within (CONTRACT.md section 6):
+
+* range walk: v cos(theta) cos(phi) x (the longest time a target is seen from t_ref), against half
+  a range cell: above it, a range-walk correction is needed;
+* range curvature: a_y cos(phi) T^2 / 2 over the same time (eq. 10-12), against half a range cell;
+* Doppler-ambiguity-number spread: F = <f_dc / PRF> (eq. 17) of every beam direction over the whole
+  scan, with the speed at that time; a spread above 0 means one fixed F is wrong somewhere and the
+  traditional keystone leaves a residual walk of (F error) c PRF / (2 f_c) (eq. 19);
+* decimation: the same spread at PRF/Q and the residual walk it leaves (eq. 20) for each Q that
+  divides the pulse count; the smallest Q whose residual stays under half a range cell;
+* Doppler-centroid drift: 2 a cos(theta) cos(phi) / lambda across the scan (eq. 25), against one
+  Doppler cell of a CPI (PRF / CPI): above it the CPI band must follow v_c.
+
+The recommendation (what ``processing.method: auto`` uses) is the cheapest method whose residual is
+under half a range cell: none, then traditional, then decimation with that Q, then tracking.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..dsp.geometry import C_MPS, ambiguity_number
+
+
+def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf_hz, fs_hz,
+                  beamwidth_deg, reference_range_m, t_ref_s, cpi, q_candidates=None) -> dict:
+    t = np.asarray(slow_time_s, dtype=np.float64)
+    half_cell_m = C_MPS / (2.0 * fs_hz) / 2.0
+    height = float(position_m[0, 2])
+    phi = np.arcsin(np.clip(height / reference_range_m, -1, 1))
+    # each beam direction theta(t) is seen around time t: its walk acts for |t - t_ref| + half a dwell
+    dwell_s = beamwidth_deg / max(abs(float(np.median(np.diff(scan_deg)))) * prf_hz, 1e-12)
+    lever_s = np.abs(t - t_ref_s) + dwell_s / 2
+    th = np.radians(scan_deg)
+    v_along = velocity_mps[:, 1]
+    radial_speed = v_along * np.cos(th) * np.cos(phi) + velocity_mps[:, 0] * np.sin(th) * np.cos(phi)
+    walk_m = float(np.max(np.abs(radial_speed) * lever_s))
+    accel = np.polyfit(t, velocity_mps[:, 1], 1)[0] if len(t) > 2 else 0.0
+    curvature_m = float(np.max(0.5 * abs(accel) * np.cos(phi) * lever_s**2))
+    f_dc = 2.0 * radial_speed * fc_hz / C_MPS                              # eq. (16), (25)
+    m_ref = int(np.clip(np.rint((t_ref_s - t[0]) * prf_hz), 0, len(t) - 1))
+    f_dc0 = 2.0 * v_along[m_ref] * np.cos(phi) * fc_hz / C_MPS             # boresight at t_ref
+    n = len(t)
+    q_candidates = q_candidates or [q for q in range(1, n + 1) if n % q == 0 and n // q >= 8][:40]
+    rows = []
+    for q in q_candidates:
+        prf_q = prf_hz / q
+        err = np.abs(ambiguity_number(f_dc, prf_q) - ambiguity_number(f_dc0, prf_q))
+        resid = float(np.max(err * C_MPS * prf_q / (2.0 * fc_hz) * lever_s))       # eq. (19)-(20)
+        rows.append({"q": q, "ambiguity_spread": int(err.max()), "residual_walk_m": resid})
+    drift_hz = float(np.ptp(f_dc - 2.0 * v_along[0] * np.cos(th) * np.cos(phi) * fc_hz / C_MPS))
+    doppler_cell_hz = prf_hz / cpi
+    traditional = rows[0]
+    deci_ok = [r for r in rows[1:] if r["residual_walk_m"] < half_cell_m]
+    if walk_m < half_cell_m:
+        method, q_best = "none", 1
+    elif traditional["residual_walk_m"] < half_cell_m:
+        method, q_best = "traditional", 1
+    elif deci_ok:
+        method, q_best = "decimation", deci_ok[0]["q"]
+    else:
+        method, q_best = "tracking", 1
+    return {
+        "half_range_cell_m": half_cell_m, "reference_range_m": float(reference_range_m),
+        "depression_deg": float(np.degrees(phi)), "dwell_s": float(dwell_s), "t_ref_s": float(t_ref_s),
+        "range_walk_m": walk_m, "needs_walk_correction": walk_m >= half_cell_m,
+        "range_curvature_m": curvature_m, "needs_curvature": curvature_m >= half_cell_m,
+        "forward_accel_mps2": float(accel),
+        "ambiguity_number_boresight": int(ambiguity_number(f_dc0, prf_hz)),
+        "ambiguity_number_range": [int(ambiguity_number(f_dc, prf_hz).min()),
+                                   int(ambiguity_number(f_dc, prf_hz).max())],
+        "ambiguity_spread": traditional["ambiguity_spread"],
+        "traditional_residual_walk_m": traditional["residual_walk_m"],
+        "decimation": rows,
+        "doppler_centroid_drift_hz": drift_hz, "doppler_cell_hz": doppler_cell_hz,
+        "needs_doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2,
+        "processing": {"method": method, "q": q_best if method == "decimation" else 1,
+                       "range_curvature": curvature_m >= half_cell_m,
+                       "doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2},
+    }
+
+
+def plan_for_cube(cube, proc: dict) -> dict:
+    from .chain import t_ref_seconds
+
+    t_ref_s = t_ref_seconds(cube.slow_time_s, proc["t_ref"])
+    out = plan_geometry(cube.slow_time_s, cube.position_m, cube.velocity_mps, cube.scan_angle_deg,
+                        fc_hz=cube.radar["fc_hz"], prf_hz=cube.radar["prf_hz"], fs_hz=cube.radar["fs_hz"],
+                        beamwidth_deg=cube.radar["beamwidth_3db_deg"],
+                        reference_range_m=float(0.5 * (cube.range_m[0] + cube.range_m[-1])), t_ref_s=t_ref_s,
+                        cpi=proc["cpi"])
+    return out
+
+
+def plan_for_scenario(scn: dict) -> dict:
+    """The plan from the scenario's geometry alone (nothing is simulated)."""
+    from .chain import t_ref_seconds
+    from ..dsp.geometry import scan_angle_deg, slant_range_m
+    from ..scenario.forward import scene_geometry
+
+    t, pos, vel, targets, _ = scene_geometry(scn)
+    ant, radar = scn["antenna"], scn["radar"]
+    r = slant_range_m(pos, targets)
+    return plan_geometry(t, pos, vel, scan_angle_deg(t, ant["scan_start_deg"], ant["scan_rate_dps"]),
+                         fc_hz=radar["fc_hz"], prf_hz=radar["prf_hz"], fs_hz=radar["fs_hz"],
+                         beamwidth_deg=ant["beamwidth_3db_deg"], reference_range_m=float(np.median(r)),
+                         t_ref_s=t_ref_seconds(t, scn["processing"]["t_ref"]), cpi=scn["processing"]["cpi"])
+
+
+def format_plan(plan: dict, name: str) -> str:
+    h = plan["half_range_cell_m"]
+
+    def verdict(flag):
+        return "NEEDS correction" if flag else "ok"
+
+    lines = [
+        f"migration budget of {name} (t_ref = {plan['t_ref_s']:.3f} s, reference range "
+        f"{plan['reference_range_m']:.0f} m, depression {plan['depression_deg']:.2f} deg)",
+        f"  range walk           {plan['range_walk_m']:9.2f} m   vs half a range cell {h:.2f} m   "
+        f"{verdict(plan['needs_walk_correction'])}",
+        f"  range curvature      {plan['range_curvature_m']:9.2f} m   vs {h:.2f} m   "
+        f"{verdict(plan['needs_curvature'])}  (a_y = {plan['forward_accel_mps2']:.1f} m/s^2, eq. 12)",
+        f"  ambiguity number     F = {plan['ambiguity_number_boresight']} on boresight, "
+        f"{plan['ambiguity_number_range'][0]}..{plan['ambiguity_number_range'][1]} across the scan: "
+        f"traditional keystone residual walk {plan['traditional_residual_walk_m']:.2f} m (eq. 19)",
+        f"  Doppler drift        {plan['doppler_centroid_drift_hz']:9.1f} Hz  vs half a CPI Doppler cell "
+        f"{plan['doppler_cell_hz'] / 2:.1f} Hz   {verdict(plan['needs_doppler_centroid'])} (eq. 25)",
+        "  decimation (eq. 20): " + ", ".join(
+            f"Q={r['q']}: spread {r['ambiguity_spread']}, residual {r['residual_walk_m']:.2f} m"
+            for r in plan["decimation"] if r["q"] in (1, 5, 10, 20, 25, 50, 100)),
+    ]
+    p = plan["processing"]
+    lines.append(f"=> method {p['method']}" + (f" with Q = {p['q']}" if p["method"] == "decimation" else "")
+                 + f", range_curvature {'on' if p['range_curvature'] else 'off'}, doppler_centroid "
+                 f"{'on' if p['doppler_centroid'] else 'off'}")
+    return "\n".join(lines)
+
+
+def plan_json(plan: dict) -> str:
+    return json.dumps(plan, indent=1)

@@ -1,0 +1,152 @@
+"""Driving a run: settings, the stage runner, image.h5, image.png, metrics.json (I/O at the edge)."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..scenario.loader import dump_scenario, scenario_hash
+from ..errors import BadInput
+from ..io.h5 import atomic_h5, atomic_write_text, put, put_scale
+from ..io.cube import cube_hash
+
+
+def ground_image(cell_x_m, cell_y_m, cell_power, step_m):
+    """Bin the projected cells' power on a ground (x, y) grid."""
+    if len(cell_x_m) == 0:
+        return np.zeros((1, 1), np.float32), np.zeros(1), np.zeros(1)
+    x0, x1 = np.percentile(cell_x_m, [0.1, 99.9])
+    y0, y1 = np.percentile(cell_y_m, [0.1, 99.9])
+    x0, y0 = np.floor(x0 / step_m) * step_m - 5 * step_m, np.floor(y0 / step_m) * step_m - 5 * step_m
+    nx = int(np.ceil((x1 - x0) / step_m)) + 10
+    ny = int(np.ceil((y1 - y0) / step_m)) + 10
+    ix = np.rint((cell_x_m - x0) / step_m).astype(np.int64)
+    iy = np.rint((cell_y_m - y0) / step_m).astype(np.int64)
+    ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    img = np.bincount(iy[ok] * nx + ix[ok], weights=cell_power[ok], minlength=nx * ny).reshape(ny, nx)
+    return img.astype(np.float32), x0 + step_m * np.arange(nx), y0 + step_m * np.arange(ny)
+
+
+def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_ref_s, method):
+    with atomic_h5(path) as f:
+        f.attrs["format"] = "fwdlook-image"
+        f.attrs["method"] = method
+        f.attrs["t_ref_s"] = t_ref_s
+        f.attrs["scenario"] = scenario_yaml
+        r = put_scale(f, "range_m", final["range_m"], "m", "slant range from the antenna at t_ref")
+        a = put_scale(f, "angle_deg", final["angle_deg"], "deg", "azimuth atan2(dx, dy) from the antenna at t_ref")
+        rn = put_scale(f, "range_native_m", final["range_native_m"], "m", "slant range, native sampling")
+        z = {"compression": "gzip", "compression_opts": 1, "shuffle": True}   # images are mostly empty
+        put(f, "image", final["image"], "1", "monopulse image: sum power in (range, angle)", dims=(r, a), **z)
+        put(f, "real_beam", final["real_beam"], "1", "real-beam image: sum power against beam angle",
+            dims=(rn, a), **z)
+        gx = put_scale(f, "ground_x_m", ground_x, "m", "ground cross-range x")
+        gy = put_scale(f, "ground_y_m", ground_y, "m", "ground forward y")
+        put(f, "ground_image", ground, "1", "monopulse image projected on the ground (y, x)", dims=(gy, gx), **z)
+
+
+def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
+                 png=True, source: str = "raw cube") -> dict:
+    """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics.
+
+    The run directory's outputs of an earlier run are removed first and ``scenario.yaml`` is written
+    last, so a failed or interrupted run never leaves outputs that look complete for other settings
+    (the stage files stay: they carry their own hashes and are reused only where they match).
+    """
+    from .chain import build_forward_stages
+    from .evaluate import dwell_profile_metrics, summarize, target_metrics
+    from ..io.stagefile import read_stage
+    from ..runner import run_stages
+
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    proc = scn["processing"]
+    if proc["method"] == "auto":
+        from .plan import plan_for_cube
+
+        proc = dict(proc, **plan_for_cube(cube, proc)["processing"])
+    if cube.diff is None:
+        raise BadInput(f"{source}: /echo/diff: the forward-looking chain needs both channels")
+    if cube.n_pulses % (proc["q"] if proc["method"] == "decimation" else 1):
+        raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the cube's pulse count {cube.n_pulses}")
+    if proc["cpi"] > cube.n_pulses:
+        raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the cube's {cube.n_pulses} pulses")
+    t_start = time.perf_counter()
+    src, stages, geo = build_forward_stages(cube, proc)
+    names = [st.name for st in stages]
+    if from_stage is not None and from_stage not in names:
+        raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
+    for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):
+        (run_dir / name).unlink(missing_ok=True)
+    final, timings, keys = run_stages(stages, src, cube_hash(cube), run_dir, force=force,
+                                      from_stage=from_stage, quiet=quiet)
+    t_out = time.perf_counter()
+    ground, gx, gy = ground_image(final["cell_x_m"], final["cell_y_m"], final["cell_power"],
+                                  step_m=float(cube.range_spacing_m) / 2)
+    write_image_h5(run_dir / "image.h5", final, ground, gx, gy, scenario_yaml=dump_scenario(scn),
+                   t_ref_s=geo["t_ref_s"], method=proc["method"])
+    rows = []
+    truth = cube.truth_xyz_m()
+    if truth is not None:
+        rows = target_metrics(final["image"], final["range_m"], final["angle_deg"], truth,
+                              cube.truth["amplitude"], geo["p_ref"], bandwidth_hz=cube.radar["bandwidth_hz"])
+        from ..dsp.antenna import MonopulseAntenna
+        from .evaluate import resolved_flags
+
+        bw = cube.radar["beamwidth_3db_deg"]
+        squint = float(cube.antenna.get("squint_deg", min(1.5, 0.24 * bw))) if cube.antenna else min(1.5, 0.24 * bw)
+        flags = resolved_flags([r["true_range_m"] for r in rows], [r["true_azimuth_deg"] for r in rows],
+                               bandwidth_hz=cube.radar["bandwidth_hz"], wavelength_m=299_792_458.0 / cube.radar["fc_hz"],
+                               speed_mps=float(np.linalg.norm(geo["v_ref"])), prf_hz=cube.radar["prf_hz"],
+                               cpi=proc["cpi"], depression_deg=geo["depression_deg"],
+                               beamwidth_two_way_deg=MonopulseAntenna(bw, squint).two_way_3db_width_deg())
+        for row, flag in zip(rows, flags):
+            row["resolved"] = bool(flag)
+        spectra = read_stage(run_dir / "stages" / f"{len(stages) - 1:02d}_doppler_spectra.h5")
+        beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
+        if np.isfinite(beta):
+            dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
+                                          float(cube.antenna["monopulse_slope_per_deg"]), beta, geo["p_ref"])
+            for row, extra in zip(rows, dwell):
+                row["image_islr_db"], row["image_pslr_db"] = row["islr_db"], row["pslr_db"]
+                row["image_range_width_3db_m"] = row["range_width_3db_m"]
+                row.update(extra)
+    timings["outputs"] = time.perf_counter() - t_out
+    timing = {k: float(v) for k, v in timings.items()}
+    timing["total"] = time.perf_counter() - t_start
+    metrics = {
+        "fwdlook_version": __version__,
+        "scenario": scn["name"],
+        "method": proc["method"],
+        "params": {"q": geo["q"], "keystone": proc["keystone"],
+                   "range_curvature": bool(proc["range_curvature"]), "t_ref": proc["t_ref"],
+                   "doppler_centroid": bool(proc["doppler_centroid"]), "cpi": proc["cpi"],
+                   "ambiguity_number": geo["ambiguity_number"],
+                   "boresight_doppler_hz": geo["f_dc0_hz"], "depression_deg": geo["depression_deg"],
+                   "radial_accel_mps2": geo["radial_accel_mps2"]},
+        "t_ref_s": geo["t_ref_s"],
+        "scenario_sha256": scenario_hash(scn),
+        "stage_sha256": keys,
+        "targets": rows,
+        "summary": summarize(rows) if rows else {"n_targets": 0, "detected": 0},
+        "timing_s": timing,
+    }
+    atomic_write_text(run_dir / "metrics.json", json.dumps(metrics, indent=1, allow_nan=False))
+    atomic_write_text(run_dir / "scenario.yaml", dump_scenario(scn))
+    if png:
+        from ..io.quicklook import save_image_png
+
+        markers = None
+        if truth is not None:
+            markers = (np.array([r["true_azimuth_deg"] for r in rows]), np.array([r["true_range_m"] for r in rows]))
+        sel = np.any(final["image"] > 0, axis=1)
+        rows_idx = np.nonzero(sel)[0]
+        lo, hi = (rows_idx[0], rows_idx[-1] + 1) if len(rows_idx) else (0, len(final["range_m"]))
+        save_image_png(run_dir / "image.png", final["image"][lo:hi], final["angle_deg"], final["range_m"][lo:hi],
+                       xlabel="azimuth at t_ref (deg)", ylabel="slant range at t_ref (m)",
+                       title=f"{scn['name']}: {proc['method']} (q={metrics['params']['q']}, "
+                             f"{proc['keystone']}), t_ref = {proc['t_ref']}", markers=markers)
+    return metrics

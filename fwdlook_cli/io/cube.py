@@ -1,0 +1,61 @@
+"""The raw cube: range-compressed sum/difference echoes with their axes, radar and motion.
+
+One object carries what CONTRACT.md section 3 lays out on disk; ``io.read_raw`` and
+``io.write_raw`` move it to and from HDF5.  Processing reads only these fields, never the
+informational scenario text.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+RADAR_KEYS = ("fc_hz", "bandwidth_hz", "fs_hz", "prf_hz", "beamwidth_3db_deg")
+
+
+@dataclass
+class RawCube:
+    sum: np.ndarray              # complex64 [n_pulses, n_range]
+    diff: np.ndarray | None      # complex64 [n_pulses, n_range]; None for a single-channel cube
+                                 # (ISAR): the file has no /echo/diff and root attr channels = "sum"
+    slow_time_s: np.ndarray      # float64 [n_pulses], t = 0 at the first pulse
+    range_m: np.ndarray          # float64 [n_range], slant range of each sample
+    scan_angle_deg: np.ndarray   # float64 [n_pulses], beam pointing azimuth
+    position_m: np.ndarray       # float64 [n_pulses, 3], antenna phase centre (INS)
+    velocity_mps: np.ndarray     # float64 [n_pulses, 3]
+    radar: dict                  # RADAR_KEYS (+ pulse_width_s where known)
+    antenna: dict = field(default_factory=dict)   # squint_deg, monopulse_slope_per_deg if known
+    truth: dict | None = None    # x_m, y_m, z_m, amplitude (1-D float64)
+    scenario_yaml: str | None = None
+    noise: dict = field(default_factory=dict)     # snr_db, sigma, seed (simulated data)
+    attrs: dict = field(default_factory=dict)     # provenance
+
+    @property
+    def n_pulses(self) -> int:
+        return self.sum.shape[0]
+
+    @property
+    def n_range(self) -> int:
+        return self.sum.shape[1]
+
+    @property
+    def range_spacing_m(self) -> float:
+        return float(self.range_m[1] - self.range_m[0]) if self.n_range > 1 else float("nan")
+
+    def truth_xyz_m(self) -> np.ndarray | None:
+        if not self.truth:
+            return None
+        return np.column_stack([self.truth["x_m"], self.truth["y_m"], self.truth["z_m"]])
+
+
+def cube_hash(cube) -> str:
+    h = hashlib.sha256()
+    for arr in (cube.sum, cube.diff, cube.slow_time_s, cube.range_m, cube.scan_angle_deg, cube.position_m,
+                cube.velocity_mps):
+        if arr is not None:
+            h.update(np.ascontiguousarray(arr).tobytes())
+    h.update(json.dumps(cube.radar, sort_keys=True, default=str).encode())
+    h.update(json.dumps(cube.antenna, sort_keys=True, default=str).encode())
+    return h.hexdigest()

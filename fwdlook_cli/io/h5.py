@@ -1,0 +1,59 @@
+"""HDF5 and text writing at the edges: atomic writes, datasets with units and long names, dimension scales.
+
+Every file is written to ``NAME.partial`` and renamed into place with ``os.replace``, so a failed or
+interrupted command never leaves a file that looks complete.
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import os
+from pathlib import Path
+
+import h5py
+
+from .. import __version__
+
+
+@contextlib.contextmanager
+def atomic_h5(path: str | Path):
+    """Open ``path.partial`` for writing; rename to ``path`` only if the block succeeds."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".partial")
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["software"] = "fwdlook"
+            f.attrs["software_version"] = __version__
+            f.attrs["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+            yield f
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def put(group: h5py.Group, name: str, data, units: str, long_name: str, *, dims=(), **kw):
+    """Create a dataset with its ``units`` and ``long_name`` and attach dimension scales ``dims``."""
+    ds = group.create_dataset(name, data=data, **kw)
+    ds.attrs["units"] = units
+    ds.attrs["long_name"] = long_name
+    for axis, scale in enumerate(dims):
+        if scale is not None:
+            ds.dims[axis].attach_scale(scale)
+    return ds
+
+
+def put_scale(group: h5py.Group, name: str, data, units: str, long_name: str):
+    ds = put(group, name, data, units, long_name)
+    ds.make_scale(name)
+    return ds

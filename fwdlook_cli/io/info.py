@@ -1,0 +1,63 @@
+"""``fwdlook info``: a plain description of a raw cube, a stage file or an image."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ..errors import BadInput
+
+
+def describe(path: str) -> str:
+    p = Path(path)
+    if not p.exists():
+        raise BadInput(f"{path}: file not found")
+    try:
+        with h5py.File(p, "r") as f:
+            fmt = f.attrs.get("format")
+    except OSError:
+        raise BadInput(f"{path}: not a readable HDF5 file (truncated or not HDF5)") from None
+    if isinstance(fmt, bytes):
+        fmt = fmt.decode()
+    if fmt == "fwdlook-raw":
+        return describe_raw(path)
+    from .describe import describe_h5
+
+    return f"{path}\n" + describe_h5(p)
+
+
+def describe_raw(path: str) -> str:
+    from .raw import read_raw
+
+    cube = read_raw(path)
+    r, t = cube.radar, cube.slow_time_s
+    lines = [
+        f"{path}: fwdlook raw cube (format_version 1)",
+        f"  echo            {'sum + diff' if cube.diff is not None else 'sum only (single channel)'}, "
+        f"{cube.n_pulses} pulses x {cube.n_range} range samples, complex64",
+        f"  radar           fc {r['fc_hz'] / 1e9:g} GHz, bandwidth {r['bandwidth_hz'] / 1e6:g} MHz, "
+        f"fs {r['fs_hz'] / 1e6:g} MHz, PRF {r['prf_hz']:g} Hz, sum beam {r['beamwidth_3db_deg']:g} deg",
+        f"  range window    {cube.range_m[0]:.1f} .. {cube.range_m[-1]:.1f} m, "
+        f"spacing {cube.range_spacing_m:.3f} m",
+        f"  slow time       0 .. {t[-1]:.4f} s",
+        f"  scan            {cube.scan_angle_deg[0]:+.2f} .. {cube.scan_angle_deg[-1]:+.2f} deg",
+    ]
+    speed = np.linalg.norm(cube.velocity_mps, axis=1)
+    lines.append(f"  platform        speed {speed[0]:.1f} -> {speed[-1]:.1f} m/s, height "
+                 f"{cube.position_m[0, 2]:.1f} m, travel {np.linalg.norm(cube.position_m[-1] - cube.position_m[0]):.1f} m")
+    if cube.antenna:
+        a = cube.antenna
+        lines.append(f"  monopulse       squint {a.get('squint_deg', float('nan')):g} deg, slope "
+                     f"{a.get('monopulse_slope_per_deg', float('nan')):.4f} /deg (diff/sum = tanh(k d))")
+    snr = cube.noise.get("snr_db")
+    lines.append(f"  SNR             {'noiseless' if snr is None or not np.isfinite(snr) else f'{snr:g} dB'}"
+                 " (peak sample, unit target at beam centre)" if snr is not None else
+                 "  SNR             unknown (not a simulated cube)")
+    n_truth = 0 if not cube.truth else len(cube.truth["x_m"])
+    lines.append(f"  truth           {n_truth} targets" if n_truth else "  truth           none")
+    if "scenario_name" in cube.attrs:
+        lines.append(f"  scenario        {cube.attrs['scenario_name']} "
+                     f"(sha256 {str(cube.attrs.get('scenario_sha256', ''))[:16]})")
+    lines.append(f"  software        {cube.attrs.get('software', '?')} {cube.attrs.get('software_version', '')}")
+    return "\n".join(lines)

@@ -1,0 +1,211 @@
+"""HDF5 at the edges: atomic writes, dimension scales, units, provenance; the raw-cube reader.
+
+Every file is written to ``NAME.partial`` and renamed into place with ``os.replace``, so a failed or
+interrupted command never leaves a file that looks complete.  Every dataset carries ``units`` and
+``long_name``; coordinates are HDF5 dimension scales so that netCDF-aware readers see named axes.
+The raw-cube reader accepts any file in the CONTRACT.md section 3 layout, whoever wrote it, and
+rejects a missing, mis-shaped, wrongly typed or non-finite dataset with one :class:`BadInput` line.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .cube import RADAR_KEYS, RawCube
+from ..errors import BadInput
+from .describe import _plain
+from .h5 import atomic_h5, put, put_scale
+
+RAW_FORMAT = "fwdlook-raw"
+RAW_FORMAT_VERSION = 1
+
+
+
+# ----------------------------------------------------------------------------------------------
+# Raw cube
+# ----------------------------------------------------------------------------------------------
+def write_raw(path: str | Path, cube: RawCube) -> None:
+    """Write a raw cube in the CONTRACT.md section 3 layout, atomically."""
+    with atomic_h5(path) as f:
+        f.attrs["format"] = RAW_FORMAT
+        f.attrs["format_version"] = RAW_FORMAT_VERSION
+        for key, value in cube.attrs.items():
+            f.attrs[key] = value
+        if cube.scenario_yaml is not None:
+            f.attrs["scenario"] = cube.scenario_yaml
+        axes = f.create_group("axes")
+        t = put_scale(axes, "slow_time_s", cube.slow_time_s.astype(np.float64), "s",
+                      "slow time, t = 0 at the first pulse")
+        r = put_scale(axes, "range_m", cube.range_m.astype(np.float64), "m", "slant range")
+        put(axes, "scan_angle_deg", cube.scan_angle_deg.astype(np.float64), "deg",
+            "beam pointing azimuth atan2(dx, dy)", dims=(t,))
+        echo = f.create_group("echo")
+        if cube.diff is None:  # single channel (ISAR): only /echo/sum, marked by the root attr
+            f.attrs["channels"] = "sum"
+        for name, data, what in (("sum", cube.sum, "sum"), ("diff", cube.diff, "difference")):
+            if data is None:
+                continue
+            put(echo, name, data.astype(np.complex64, copy=False), "1",
+                f"range-compressed baseband echo, {what} channel", dims=(t, r), chunks=True)
+        for key, value in cube.noise.items():
+            echo.attrs[f"noise_{key}"] = value
+        radar = f.create_group("radar")
+        for key, value in cube.radar.items():
+            radar.attrs[key] = value
+        if cube.antenna:
+            ant = f.create_group("antenna")
+            for key, value in cube.antenna.items():
+                ant.attrs[key] = value
+        plat = f.create_group("platform")
+        put(plat, "position_m", cube.position_m.astype(np.float64), "m",
+            "antenna phase centre (x, y, z) per pulse (INS)", dims=(t, None))
+        put(plat, "velocity_mps", cube.velocity_mps.astype(np.float64), "m/s",
+            "antenna phase-centre velocity per pulse (INS)", dims=(t, None))
+        if cube.truth:
+            tg = f.create_group("truth/targets")
+            for key, units in (("x_m", "m"), ("y_m", "m"), ("z_m", "m"), ("amplitude", "1")):
+                put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), units, f"target {key}")
+            for key in sorted(cube.truth.keys() - set(TRUTH_KEYS)):  # extra truth, e.g. vx_mps
+                put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), _truth_units(key),
+                    f"target {key}")
+
+
+TRUTH_KEYS = ("x_m", "y_m", "z_m", "amplitude")
+_UNIT_SUFFIXES = (("_mps", "m/s"), ("_deg", "deg"), ("_m", "m"), ("_s", "s"))
+
+
+def _truth_units(key: str) -> str:
+    """Units of an extra truth dataset from its name's suffix (``vx_mps`` -> m/s); else "1"."""
+    return next((units for suffix, units in _UNIT_SUFFIXES if key.endswith(suffix)), "1")
+
+
+def _need(f: h5py.File, path: str, source: str) -> h5py.Dataset:
+    obj = f.get(path)
+    if not isinstance(obj, h5py.Dataset):
+        raise BadInput(f"{source}: /{path}: dataset missing")
+    return obj
+
+
+def _array(f, path, source, *, kind, shape, complex_ok=False):
+    """Read one dataset, checking dtype kind, shape and finiteness."""
+    ds = _need(f, path, source)
+    dt = ds.dtype
+    if complex_ok:
+        if dt.kind != "c":
+            raise BadInput(f"{source}: /{path}: dtype {dt} not allowed; allowed: complex64 "
+                           f"(or complex128)")
+    elif dt.kind not in "f":
+        raise BadInput(f"{source}: /{path}: dtype {dt} not allowed; allowed: float64 (or float32)")
+    if ds.shape != shape:
+        want = "[" + ", ".join(str(s) for s in shape) + "]"
+        raise BadInput(f"{source}: /{path}: shape {list(ds.shape)}, expected {want}")
+    data = ds[()]
+    if not np.all(np.isfinite(data)):
+        bad = int(np.size(data) - np.count_nonzero(np.isfinite(data)))
+        raise BadInput(f"{source}: /{path}: {bad} NaN/Inf values; allowed: finite values only")
+    return data.astype(kind, copy=False)
+
+
+def read_raw(path: str | Path) -> RawCube:
+    """Read and validate a raw cube written by anyone in the CONTRACT.md section 3 layout."""
+    path = Path(path)
+    source = str(path)
+    if not path.exists():
+        raise BadInput(f"{source}: file not found")
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        raise BadInput(f"{source}: not a readable HDF5 file (truncated or not HDF5)") from None
+    try:
+        with f:
+            return _read_raw_open(f, source)
+    except (OSError, KeyError, RuntimeError) as exc:
+        raise BadInput(f"{source}: HDF5 read failed ({exc.__class__.__name__}: "
+                       f"{str(exc).splitlines()[0] if str(exc) else ''}); the file may be truncated") from None
+
+
+def _read_raw_open(f: h5py.File, source: str) -> RawCube:
+    fmt = f.attrs.get("format")
+    if isinstance(fmt, bytes):
+        fmt = fmt.decode()
+    if fmt != RAW_FORMAT:
+        raise BadInput(f"{source}: / attribute format = {fmt!r}; allowed: {RAW_FORMAT!r}")
+    try:
+        version = int(f.attrs.get("format_version", -1))
+    except (TypeError, ValueError):
+        version = None
+    if version != RAW_FORMAT_VERSION:
+        raise BadInput(f"{source}: / attribute format_version = {f.attrs.get('format_version')!r}; "
+                       f"allowed: {RAW_FORMAT_VERSION}")
+    echo_sum_ds = _need(f, "echo/sum", source)
+    if echo_sum_ds.ndim != 2 or min(echo_sum_ds.shape) < 2:
+        raise BadInput(f"{source}: /echo/sum: shape {list(echo_sum_ds.shape)}, expected "
+                       f"[n_pulses, n_range] with both >= 2")
+    n_p, n_r = echo_sum_ds.shape
+    echo_sum = _array(f, "echo/sum", source, kind=np.complex64, shape=(n_p, n_r), complex_ok=True)
+    channels = _plain(f.attrs.get("channels", "sum,diff"))
+    if channels == "sum" and "diff" not in f["echo"]:
+        echo_diff = None  # single-channel cube (ISAR): / attribute channels = "sum"
+    else:
+        echo_diff = _array(f, "echo/diff", source, kind=np.complex64, shape=(n_p, n_r), complex_ok=True)
+    slow_time_s = _array(f, "axes/slow_time_s", source, kind=np.float64, shape=(n_p,))
+    range_m = _array(f, "axes/range_m", source, kind=np.float64, shape=(n_r,))
+    scan = _array(f, "axes/scan_angle_deg", source, kind=np.float64, shape=(n_p,))
+    position = _array(f, "platform/position_m", source, kind=np.float64, shape=(n_p, 3))
+    velocity = _array(f, "platform/velocity_mps", source, kind=np.float64, shape=(n_p, 3))
+    dt = np.diff(slow_time_s)
+    if np.any(dt <= 0):
+        raise BadInput(f"{source}: /axes/slow_time_s: not strictly increasing")
+    dr = np.diff(range_m)
+    if np.any(dr <= 0) or np.ptp(dr) > 1e-6 * abs(dr[0]):
+        raise BadInput(f"{source}: /axes/range_m: not uniformly increasing")
+    radar_grp = f.get("radar")
+    if not isinstance(radar_grp, h5py.Group):
+        raise BadInput(f"{source}: /radar: group missing")
+    radar = {}
+    for key in RADAR_KEYS:
+        if key not in radar_grp.attrs:
+            raise BadInput(f"{source}: /radar attribute {key}: missing; required: {', '.join(RADAR_KEYS)}")
+        value = radar_grp.attrs[key]
+        try:
+            value = float(value)
+        except (TypeError, ValueError):
+            raise BadInput(f"{source}: /radar attribute {key} = {value!r}: expected a number") from None
+        if not np.isfinite(value) or value <= 0:
+            raise BadInput(f"{source}: /radar attribute {key} = {value!r}: must be a positive number")
+        radar[key] = value
+    for key, value in radar_grp.attrs.items():
+        if key not in radar:
+            radar[key] = value.decode() if isinstance(value, bytes) else _plain(value)
+    prf_from_axis = 1.0 / float(np.median(dt))
+    if abs(prf_from_axis - radar["prf_hz"]) > 1e-6 * radar["prf_hz"]:
+        raise BadInput(f"{source}: /radar attribute prf_hz = {radar['prf_hz']:g}: /axes/slow_time_s "
+                       f"is sampled at {prf_from_axis:g} Hz")
+    antenna = {}
+    if isinstance(f.get("antenna"), h5py.Group):
+        antenna = {k: _plain(v) for k, v in f["antenna"].attrs.items()}
+    noise = {k[len("noise_"):]: _plain(v) for k, v in f["echo"].attrs.items() if k.startswith("noise_")}
+    truth = None
+    tg = f.get("truth/targets")
+    if isinstance(tg, h5py.Group):
+        n_t = None
+        truth = {}
+        for key in ("x_m", "y_m", "z_m", "amplitude"):
+            ds = _need(f, f"truth/targets/{key}", source)
+            n_t = ds.shape[0] if n_t is None else n_t
+            truth[key] = _array(f, f"truth/targets/{key}", source, kind=np.float64, shape=(n_t,))
+        for key in sorted(set(tg) - set(TRUTH_KEYS)):  # extra per-target truth: 1-D, same length
+            ds = tg[key]
+            if isinstance(ds, h5py.Dataset) and ds.shape == (n_t,) and ds.dtype.kind == "f":
+                truth[key] = _array(f, f"truth/targets/{key}", source, kind=np.float64, shape=(n_t,))
+    scenario = f.attrs.get("scenario")
+    if scenario is None and isinstance(f.get("scenario"), h5py.Dataset):
+        scenario = f["scenario"][()]
+    if isinstance(scenario, bytes):
+        scenario = scenario.decode()
+    attrs = {k: _plain(v) for k, v in f.attrs.items() if k not in ("scenario",)}
+    return RawCube(sum=echo_sum, diff=echo_diff, slow_time_s=slow_time_s, range_m=range_m,
+                   scan_angle_deg=scan, position_m=position, velocity_mps=velocity, radar=radar,
+                   antenna=antenna, truth=truth, scenario_yaml=scenario, noise=noise, attrs=attrs)

@@ -1,0 +1,116 @@
+"""Stage files: named arrays with dimensions, units and long names (:class:`StageData`), written to and
+read from one HDF5 file per stage with the provenance that made it (settings, input hash, version).
+Coordinates are dimension scales, so xarray (engine h5netcdf) reads a stage file with named axes.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from .h5 import atomic_h5, put
+
+
+@dataclass
+class Var:
+    """One array with its dimension names, units and long name."""
+
+    data: np.ndarray
+    dims: tuple[str, ...]
+    units: str
+    long_name: str
+
+
+@dataclass
+class StageData:
+    """Named arrays (coordinates are 1-D vars whose single dim is their own name) and attributes."""
+
+    vars: dict[str, Var] = field(default_factory=dict)
+    attrs: dict[str, Any] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.vars[name].data
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.vars
+
+    def add(self, name, data, dims, units, long_name) -> "StageData":
+        self.vars[name] = Var(np.asarray(data), tuple(dims), units, long_name)
+        return self
+
+    def copy_vars(self, *names) -> "StageData":
+        """A new StageData sharing (not copying) the named vars and all attrs."""
+        return StageData({n: self.vars[n] for n in names if n in self.vars}, dict(self.attrs))
+
+
+def _canon(value):
+    if isinstance(value, dict):
+        return {str(k): _canon(v) for k, v in sorted(value.items())}
+    if isinstance(value, (list, tuple)):
+        return [_canon(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return hashlib.sha256(np.ascontiguousarray(value).tobytes()).hexdigest()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+PROVENANCE_KEYS = ("format", "stage", "config_sha256", "input_sha256", "settings", "software",
+                   "software_version", "created_utc", "compute_s")
+
+def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key: str, params: dict,
+                extra_attrs: dict | None = None) -> None:
+    with atomic_h5(path) as f:
+        for k, v in {**data.attrs, **(extra_attrs or {})}.items():
+            if k not in PROVENANCE_KEYS:
+                f.attrs[k] = json.dumps(v) if isinstance(v, (dict, list)) else v
+        f.attrs["format"] = "fwdlook-stage"      # provenance last: never taken from carried attrs
+        f.attrs["stage"] = stage
+        f.attrs["config_sha256"] = key
+        f.attrs["input_sha256"] = input_key
+        f.attrs["settings"] = json.dumps(_canon(params), sort_keys=True, default=str)
+        scales = {}
+        for name, var in data.vars.items():  # coordinates first, as dimension scales
+            if var.dims == (name,):
+                ds = put(f, name, var.data, var.units, var.long_name)
+                ds.make_scale(name)
+                scales[name] = ds
+        for name, var in data.vars.items():
+            if var.dims == (name,):
+                continue
+            ds = put(f, name, var.data, var.units, var.long_name)
+            ds.attrs["dims"] = json.dumps(list(var.dims))
+            for axis, dim in enumerate(var.dims):
+                if dim not in scales or scales[dim].shape[0] != var.data.shape[axis]:
+                    raise ValueError(f"stage {stage}: {name} axis {axis} is '{dim}', which has no coordinate "
+                                     f"of length {var.data.shape[axis]} in the stage output")
+                ds.dims[axis].attach_scale(scales[dim])
+
+
+def read_stage(path: Path) -> StageData:
+    out = StageData()
+    with h5py.File(path, "r") as f:
+        for k, v in f.attrs.items():
+            if k in PROVENANCE_KEYS:
+                continue
+            out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+        for name, ds in f.items():
+            if not isinstance(ds, h5py.Dataset):
+                continue
+            dims = tuple(json.loads(ds.attrs["dims"])) if "dims" in ds.attrs else (name,)
+            out.vars[name] = Var(ds[()], dims, str(ds.attrs.get("units", "")),
+                                 str(ds.attrs.get("long_name", "")))
+    return out
+
+
+def stage_file_key(path: Path) -> str | None:
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("config_sha256")
+    except OSError:
+        return None

@@ -1,0 +1,190 @@
+"""Plotting at the edge: quick-look PNGs with labelled axes (matplotlib, Agg backend)."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+from ..io.quicklook import _plt, _save
+
+
+def speed_accuracy_chart(path, rows, grid_keys, *, error_key=None):
+    """Processing time against the worst range error, one marker per run, labelled by grid point.
+
+    The error is over the resolved targets when the runs report it (the full-lattice figure is bounded
+    below by the image's neighbour mixing, the same for every method), else over all detected ones.
+    """
+    plt = _plt()
+    if error_key is None:
+        resolved = any(r.get("max_abs_range_error_resolved_m") is not None for r in rows)
+        error_key = "max_abs_range_error_resolved_m" if resolved else "max_abs_range_error_m"
+    fig, ax = plt.subplots(figsize=(7.0, 4.6), dpi=110)
+    scenarios = sorted({r["scenario"] for r in rows})
+    markers = "osD^v<>"
+    for si, scen in enumerate(scenarios):
+        sel = [r for r in rows if r["scenario"] == scen and r.get(error_key) is not None]
+        ax.scatter([r["total_s"] for r in sel], [r[error_key] for r in sel], marker=markers[si % len(markers)],
+                   label=scen, alpha=0.8)
+        for r in sel:
+            ax.annotate(",".join(str(r[k]) for k in grid_keys), (r["total_s"], r[error_key]), fontsize=6,
+                        xytext=(3, 2), textcoords="offset points")
+    ax.set_xlabel("whole chain time (s), both channels, intermediates written")
+    ax.set_ylabel(error_key.replace("_", " "))
+    ax.set_yscale("log")
+    ax.axhline(0.3, color="k", lw=0.7, ls="--")
+    ax.legend(fontsize=7)
+    ax.set_title("speed against accuracy", fontsize=10)
+    _save(fig, path)
+
+
+def stability_map(path, rows, grid_keys, *, error_key="max_abs_range_error_m"):
+    """Worst range error over a two-key grid (one panel per scenario)."""
+    plt = _plt()
+    k1, k2 = grid_keys
+    scenarios = sorted({r["scenario"] for r in rows})
+    fig, axes = plt.subplots(1, len(scenarios), figsize=(4.2 * len(scenarios), 3.8), dpi=110, squeeze=False)
+    for ax, scen in zip(axes[0], scenarios):
+        sel = [r for r in rows if r["scenario"] == scen]
+        key = lambda v: json.dumps(v)  # noqa: E731  (list values such as accel_mps2 are not hashable)
+        v1 = list(dict.fromkeys(key(r[k1]) for r in sel))
+        v2 = list(dict.fromkeys(key(r[k2]) for r in sel))
+        grid = np.full((len(v2), len(v1)), np.nan)
+        for r in sel:
+            if r.get(error_key) is not None:
+                grid[v2.index(key(r[k2])), v1.index(key(r[k1]))] = r[error_key]
+        mesh = ax.imshow(np.log10(grid), origin="lower", aspect="auto", cmap="magma_r")
+        ax.set_xticks(range(len(v1)), [str(v) for v in v1], rotation=45, fontsize=7)
+        ax.set_yticks(range(len(v2)), [str(v) for v in v2], fontsize=7)
+        for (i, j), val in np.ndenumerate(grid):
+            if np.isfinite(val):
+                ax.text(j, i, f"{val:.2f}", ha="center", va="center", fontsize=6, color="c")
+        ax.set_xlabel(k1)
+        ax.set_ylabel(k2)
+        ax.set_title(scen, fontsize=9)
+        fig.colorbar(mesh, ax=ax, label=f"log10 {error_key}")
+    _save(fig, path)
+
+
+# ----------------------------------------------------------------------------------------------
+# Report and reproduce figures (fwdlook report, python -m fwdlook_cli.reproduce)
+# ----------------------------------------------------------------------------------------------
+def _db(power, ref, dynamic_range_db):
+    p = np.asarray(power, dtype=np.float64)
+    return 10 * np.log10(np.maximum(p / max(float(ref), 1e-300), 10 ** (-dynamic_range_db / 10 - 1)))
+
+
+def image_panels(path, panels, *, ncols=None, dynamic_range_db=40.0, suptitle=None, reference="common",
+                 panel_size=(4.6, 3.9)):
+    """Several (range, angle) power images side by side in dB on ONE colour scale, atomically.
+
+    ``panels``: dicts with ``power`` [len(y), len(x)], ``x`` (deg or m), ``y`` (m), ``title``, ``xlabel``,
+    ``ylabel`` and optional ``markers`` = (x, y) truth positions (open circles).  ``reference="common"``
+    puts 0 dB at the brightest pixel of all panels (focusing losses show as darker panels);
+    ``"each"`` normalises every panel to its own peak.
+    """
+    plt = _plt()
+    n = len(panels)
+    ncols = ncols or n
+    nrows = int(np.ceil(n / ncols))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(panel_size[0] * ncols + 0.8, panel_size[1] * nrows + 0.4),
+                             dpi=110, squeeze=False, layout="constrained")
+    common = max((float(np.max(p["power"])) if np.size(p["power"]) else 0.0) for p in panels) or 1.0
+    mesh = None
+    for ax, p in zip(axes.flat, panels):
+        ref = common if reference == "common" else (float(np.max(p["power"])) or 1.0)
+        mesh = ax.pcolormesh(p["x"], p["y"], _db(p["power"], ref, dynamic_range_db), shading="nearest",
+                             vmin=-dynamic_range_db, vmax=0, cmap="viridis", rasterized=True)
+        if p.get("markers") is not None:
+            ax.plot(p["markers"][0], p["markers"][1], "o", mfc="none", mec="w", ms=5, mew=0.7, label="truth")
+            ax.legend(loc="upper right", fontsize=6)
+        ax.set_xlabel(p.get("xlabel", "azimuth at t_ref (deg)"), fontsize=8)
+        ax.set_ylabel(p.get("ylabel", "slant range at t_ref (m)"), fontsize=8)
+        ax.set_title(p.get("title", ""), fontsize=8)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[n:]:
+        ax.set_visible(False)
+    if mesh is not None:
+        label = "dB re brightest pixel of all panels" if reference == "common" else "dB re panel peak"
+        fig.colorbar(mesh, ax=axes, label=label, shrink=0.85)
+    if suptitle:
+        fig.suptitle(suptitle, fontsize=10)
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".partial.png")
+    fig.savefig(tmp, bbox_inches="tight")
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def range_profile_panels(path, panels, *, xlabel="slant range at t_ref (m)", floor_db=-40.0, suptitle=None):
+    """Normalised range profiles (paper Fig. 7 style), one axes per panel, atomically.
+
+    ``panels``: dicts with ``title``, ``curves`` (dicts with ``x``, ``amplitude`` (linear, any scale;
+    each curve is normalised to its own peak), ``label``, optional ``color``/``ls``) and ``truth``
+    (a list of ranges drawn as vertical dashed lines).
+    """
+    plt = _plt()
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 4.0), dpi=110, squeeze=False)
+    for ax, p in zip(axes[0], panels):
+        for c in p["curves"]:
+            a = np.asarray(c["amplitude"], dtype=np.float64)
+            db = 20 * np.log10(np.maximum(a / max(float(a.max()), 1e-300), 10 ** (floor_db / 20)))
+            ax.plot(c["x"], db, label=c["label"], color=c.get("color"), ls=c.get("ls", "-"), lw=1.2)
+        for i, r in enumerate(p.get("truth") or []):
+            ax.axvline(r, color="k", ls="--", lw=0.8, label="truth" if i == 0 else None)
+        ax.set_ylim(floor_db, 3)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("normalised amplitude (dB)")
+        ax.set_title(p.get("title", ""), fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="lower center")
+    if suptitle:
+        fig.suptitle(suptitle, fontsize=10)
+    _save(fig, path)
+
+
+def error_scatter(path, series, *, title=None):
+    """Range error (m) and azimuth error (deg) per target against ground x, one series per run."""
+    plt = _plt()
+    fig, (ax_r, ax_a) = plt.subplots(2, 1, figsize=(7.5, 6.0), dpi=110, sharex=True)
+    markers = "os^vD<>px*"
+    for i, s in enumerate(series):
+        m = markers[i % len(markers)]
+        ax_r.plot(s["x_m"], s["range_error_m"], m, ms=4, alpha=0.75, label=s["label"])
+        ax_a.plot(s["x_m"], s["azimuth_error_deg"], m, ms=4, alpha=0.75, label=s["label"])
+    for ax in (ax_r, ax_a):
+        ax.axhline(0.0, color="k", lw=0.6)
+        ax.grid(alpha=0.3)
+    ax_r.set_ylabel("range error at t_ref (m)")
+    ax_a.set_ylabel("azimuth error at t_ref (deg)")
+    ax_a.set_xlabel("target ground x (m)")
+    ax_r.legend(fontsize=7)
+    if title:
+        ax_r.set_title(title, fontsize=10)
+    _save(fig, path)
+
+
+def grid_heatmap(path, values, row_labels, col_labels, *, xlabel, ylabel, title, cbar_label,
+                 threshold=None, fmt="{:.2f}"):
+    """A labelled grid of positive values on a log colour scale, the value printed in each cell.
+
+    ``values`` [len(row_labels), len(col_labels)], NaN where missing (drawn blank).  Cells above
+    ``threshold`` (e.g. half a range cell) get a red frame: the method broke down there.
+    """
+    plt = _plt()
+    v = np.asarray(values, dtype=np.float64)
+    fig, ax = plt.subplots(figsize=(1.1 * len(col_labels) + 2.6, 0.55 * len(row_labels) + 1.8), dpi=110)
+    shown = np.log10(np.where(v > 0, v, np.nan))
+    mesh = ax.imshow(shown, origin="lower", aspect="auto", cmap="magma_r")
+    ax.set_xticks(range(len(col_labels)), [str(c) for c in col_labels], fontsize=8)
+    ax.set_yticks(range(len(row_labels)), [str(r) for r in row_labels], fontsize=8)
+    for (i, j), val in np.ndenumerate(v):
+        if np.isfinite(val):
+            ax.text(j, i, fmt.format(val), ha="center", va="center", fontsize=7, color="tab:cyan")
+            if threshold is not None and val > threshold:
+                ax.add_patch(_plt().Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="r", lw=1.2))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(mesh, ax=ax, label=f"log10 {cbar_label}")
+    _save(fig, path)

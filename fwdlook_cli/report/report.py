@@ -1,0 +1,437 @@
+"""``fwdlook report``: figures and tables for one run or several side by side (CONTRACT.md 1, 4, 5).
+
+Reads each run directory's ``metrics.json`` and ``image.h5`` (CONTRACT.md section 4) and writes, into
+the report directory, atomically:
+
+``report.md``
+    per run: method, params, t_ref and the summary metrics; a per-target table (up to
+    :data:`MAX_TARGET_ROWS` targets); the time of every stage.  Every number is read from the run's
+    metrics.json and printed with :data:`SIG_DIGITS` significant digits, never typed by hand.
+``images.png``
+    the monopulse images side by side in dB on one colour scale (0 dB = brightest pixel of all
+    runs), truth markers, axes in deg and m.
+``real_beam.png``
+    the first run's real-beam image (sum power against beam angle) beside its monopulse image: the
+    angular-resolution gain.
+``range_profiles.png``
+    paper Fig. 7 style: normalised range profiles through one target (default the target nearest
+    ground (x, y) = (-300, 1700) m when truth exists) for every run overlaid, interpolated x5, truth
+    range marked.
+``errors.png``
+    range and azimuth error per detected target against ground x, one series per run.
+
+Plotting stays at this edge (``plots.py``); this module only reads files and arranges numbers.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BadInput
+from ..io.h5 import atomic_write_text
+
+MAX_TARGET_ROWS = 70
+SIG_DIGITS = 6
+DEFAULT_TARGET_XY_M = (-300.0, 1700.0)      # paper Fig. 7: azimuth distance -300 m, ground range 1700 m
+PROFILE_HALF_WINDOW_M = 15.0                # half the paper lattice spacing: the next row stays out
+PROFILE_ANGLE_HALF_DEG = 0.25               # columns summed into the range cut (as evaluate.py does)
+PROFILE_INTERP = 5                          # paper Sec. 4.1: "interpolated by five times"
+TARGET_COLUMNS = ("id", "x_m", "y_m", "true_range_m", "meas_range_m", "range_error_m", "true_azimuth_deg",
+                  "meas_azimuth_deg", "azimuth_error_deg", "islr_db", "pslr_db", "detected")
+
+
+@dataclass
+class Run:
+    """One run directory: its metrics and (when it is a forward-looking image) the image arrays."""
+
+    path: Path
+    label: str
+    metrics: dict
+    image: dict | None          # range_m, angle_deg, image, and real_beam, range_native_m when present
+    image_note: str = ""
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading
+# ----------------------------------------------------------------------------------------------
+def read_metrics(run_dir: str | Path) -> dict:
+    """The run's metrics.json; BadInput (one line naming the path) when missing or malformed."""
+    path = Path(run_dir) / "metrics.json"
+    if not Path(run_dir).is_dir():
+        raise BadInput(f"{run_dir}: not a run directory (no such directory)")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise BadInput(f"{path}: metrics.json not found; expected a run directory written by "
+                       f"fwdlook run or fwdlook process") from None
+    try:
+        metrics = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise BadInput(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(metrics, dict):
+        raise BadInput(f"{path}: top level: expected a JSON object")
+    for key in ("method", "summary", "timing_s"):
+        if key not in metrics:
+            raise BadInput(f"{path}: {key}: missing; required: method, summary, timing_s (CONTRACT.md 5)")
+    return metrics
+
+
+def read_image(run_dir: str | Path) -> tuple[dict | None, str]:
+    """(arrays of image.h5, note): None and a note when the run has no forward-looking image."""
+    import h5py
+
+    path = Path(run_dir) / "image.h5"
+    if not path.exists():
+        raise BadInput(f"{path}: image.h5 not found; expected a run directory written by fwdlook run "
+                       f"or fwdlook process")
+    try:
+        with h5py.File(path, "r") as f:
+            if not all(isinstance(f.get(k), h5py.Dataset) for k in ("image", "range_m", "angle_deg")):
+                return None, f"{path}: no /image, /range_m, /angle_deg datasets; image figures skipped"
+            out = {k: f[k][()] for k in ("image", "range_m", "angle_deg")}
+            for k in ("real_beam", "range_native_m"):
+                if isinstance(f.get(k), h5py.Dataset):
+                    out[k] = f[k][()]
+    except OSError:
+        raise BadInput(f"{path}: not a readable HDF5 file (truncated or not HDF5)") from None
+    img = out["image"]
+    if img.ndim != 2 or img.shape != (len(out["range_m"]), len(out["angle_deg"])):
+        raise BadInput(f"{path}: /image: shape {list(img.shape)}, expected [range_m, angle_deg] = "
+                       f"[{len(out['range_m'])}, {len(out['angle_deg'])}]")
+    return out, ""
+
+
+def run_labels(paths: list[Path]) -> list[str]:
+    """Short unique labels: the directory name, or more of the path where names repeat."""
+    paths = [Path(p).resolve() for p in paths]
+    for depth in range(1, 8):
+        labels = ["/".join(p.parts[-depth:]) for p in paths]
+        if len(set(labels)) == len(labels):
+            return labels
+    return [str(p) for p in paths]
+
+
+def load_runs(run_dirs) -> list[Run]:
+    """Every run directory, validated before anything is written."""
+    paths = [Path(d) for d in run_dirs]
+    if not paths:
+        raise BadInput("report: give at least one RUN_DIR")
+    runs = []
+    for path, label in zip(paths, run_labels(paths)):
+        metrics = read_metrics(path)
+        image, note = read_image(path)
+        runs.append(Run(path, label, metrics, image, note))
+    return runs
+
+
+# ----------------------------------------------------------------------------------------------
+# Numbers and tables
+# ----------------------------------------------------------------------------------------------
+def fmt_value(value) -> str:
+    """A metrics.json value as printed in report.md (numbers to SIG_DIGITS significant digits)."""
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return "nan" if not math.isfinite(value) else f"{value:.{SIG_DIGITS}g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(fmt_value(v) for v in value) + "]"
+    return str(value).replace("|", "/")
+
+
+def parse_value(text: str):
+    """Inverse of :func:`fmt_value` for scalars (what a reader or a test gets back from report.md)."""
+    text = text.strip()
+    if text == "-":
+        return None
+    if text in ("yes", "no"):
+        return text == "yes"
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def md_table(heads, rows) -> str:
+    lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def parse_md_table(lines: list[str]) -> list[list[str]]:
+    """Cells of a markdown table's body rows (header and rule skipped)."""
+    rows = [[c.strip() for c in ln.strip().strip("|").split("|")] for ln in lines if ln.strip().startswith("|")]
+    return rows[2:]
+
+
+def summary_rows(metrics: dict) -> list[tuple[str, str]]:
+    """(key, printed value) for method, scenario, params.*, t_ref_s and summary.* of one run."""
+    rows = [("scenario", fmt_value(metrics.get("scenario"))), ("method", fmt_value(metrics["method"]))]
+    params = metrics.get("params") or {}
+    rows += [(f"params.{k}", fmt_value(v)) for k, v in params.items()]
+    rows.append(("t_ref_s", fmt_value(metrics.get("t_ref_s"))))
+    rows += [(f"summary.{k}", fmt_value(v)) for k, v in metrics["summary"].items()]
+    return rows
+
+
+def target_columns(metrics: dict) -> tuple[str, ...]:
+    """TARGET_COLUMNS, plus ``resolved`` when the run's metrics flag it."""
+    targets = metrics.get("targets") or []
+    return TARGET_COLUMNS + (("resolved",) if any("resolved" in t for t in targets) else ())
+
+
+def target_rows(metrics: dict) -> list[list[str]]:
+    cols = target_columns(metrics)
+    return [[fmt_value(t.get(c)) for c in cols] for t in metrics.get("targets") or []]
+
+
+def timing_table(runs: list[Run]) -> str:
+    stages = []
+    for run in runs:
+        for k in run.metrics["timing_s"]:
+            if k not in stages and k != "total":
+                stages.append(k)
+    stages.append("total")
+    rows = [[s] + [fmt_value(run.metrics["timing_s"].get(s)) for run in runs] for s in stages]
+    return md_table(["stage"] + [f"`{run.label}`" for run in runs], rows)
+
+
+# ----------------------------------------------------------------------------------------------
+# Image geometry helpers (shared with reproduce.py)
+# ----------------------------------------------------------------------------------------------
+def truth_markers(metrics: dict):
+    targets = metrics.get("targets") or []
+    if not targets:
+        return None
+    return (np.array([t["true_azimuth_deg"] for t in targets]), np.array([t["true_range_m"] for t in targets]))
+
+
+def crop_image(image: dict, metrics: dict, *, key="image", range_key="range_m", margin_m=30.0,
+               margin_deg=4.0):
+    """(power, angle_deg, range_m) cropped to the truth extent plus margins, or to the lit pixels."""
+    power, angle, rng = image[key], image["angle_deg"], image[range_key]
+    markers = truth_markers(metrics)
+    if markers is not None:
+        r0, r1 = markers[1].min() - margin_m, markers[1].max() + margin_m
+        a0, a1 = markers[0].min() - margin_deg, markers[0].max() + margin_deg
+    else:
+        lit_r = np.nonzero(np.any(power > 0, axis=1))[0]
+        lit_a = np.nonzero(np.any(power > 0, axis=0))[0]
+        if len(lit_r) == 0 or len(lit_a) == 0:
+            return power, angle, rng
+        r0, r1 = rng[lit_r[0]] - margin_m, rng[lit_r[-1]] + margin_m
+        a0, a1 = angle[lit_a[0]], angle[lit_a[-1]]
+    ri = (rng >= r0) & (rng <= r1)
+    ai = (angle >= a0) & (angle <= a1)
+    if not ri.any() or not ai.any():
+        return power, angle, rng
+    return power[np.ix_(ri, ai)], angle[ai], rng[ri]
+
+
+def fill_beam_gaps(real_beam):
+    """The real-beam image holds one column per CPI beam angle (a CPI step is several angle bins):
+    fill the empty bins between them with a running maximum over one CPI step, for display only."""
+    from scipy.ndimage import maximum_filter1d
+
+    lit = np.nonzero(np.any(real_beam > 0, axis=0))[0]
+    if len(lit) < 2:
+        return real_beam
+    gaps = np.diff(lit)
+    n_groups = 1 + int(np.count_nonzero(gaps > 1))     # one group of adjacent bins per CPI beam angle
+    if n_groups < 2:
+        return real_beam
+    step = int(np.ceil((lit[-1] - lit[0]) / (n_groups - 1))) + 1
+    return maximum_filter1d(real_beam, size=max(1, step), axis=1, mode="nearest") if step > 1 else real_beam
+
+
+def nearest_target(metrics: dict, xy_m) -> dict | None:
+    targets = metrics.get("targets") or []
+    if not targets:
+        return None
+    d = [math.hypot(t["x_m"] - xy_m[0], t["y_m"] - xy_m[1]) for t in targets]
+    return targets[int(np.argmin(d))]
+
+
+def range_profile(image: dict, *, centre_range_m: float, azimuth_deg: float,
+                  half_window_m: float = PROFILE_HALF_WINDOW_M, angle_half_deg: float = PROFILE_ANGLE_HALF_DEG,
+                  interp: int = PROFILE_INTERP):
+    """Range profile through (centre_range_m, azimuth_deg) of a (range, angle) power image.
+
+    The power of the columns within +-``angle_half_deg`` is summed (as evaluate.py's range cut),
+    the amplitude (square root) taken over +-``half_window_m`` and interpolated ``interp`` times by a
+    cubic spline on the image's range sampling.  Returns (range_m, amplitude), amplitude >= 0.
+    """
+    from scipy.interpolate import CubicSpline
+
+    rng, ang, power = image["range_m"], image["angle_deg"], image["image"]
+    cols = np.abs(ang - azimuth_deg) <= max(angle_half_deg, 0.5 * abs(float(ang[1] - ang[0])))
+    rows = np.abs(rng - centre_range_m) <= half_window_m
+    if cols.sum() == 0 or rows.sum() < 4:
+        return np.array([]), np.array([])
+    cut = power[np.ix_(rows, cols)].sum(axis=1).astype(np.float64)
+    r = rng[rows]
+    amp = np.sqrt(np.maximum(cut, 0.0))
+    fine = np.linspace(r[0], r[-1], (len(r) - 1) * interp + 1)
+    return fine, np.maximum(CubicSpline(r, amp)(fine), 0.0)
+
+
+def profile_through_target(run: Run, xy_m):
+    """(range, amplitude, target row or None) of a run's range profile through the target nearest xy_m;
+    without truth, through the image's brightest pixel."""
+    target = nearest_target(run.metrics, xy_m)
+    if target is not None:
+        az = target["meas_azimuth_deg"] if target.get("meas_azimuth_deg") is not None else target["true_azimuth_deg"]
+        r, a = range_profile(run.image, centre_range_m=target["true_range_m"], azimuth_deg=az)
+        return r, a, target
+    i, j = np.unravel_index(np.argmax(run.image["image"]), run.image["image"].shape)
+    r, a = range_profile(run.image, centre_range_m=float(run.image["range_m"][i]),
+                         azimuth_deg=float(run.image["angle_deg"][j]))
+    return r, a, None
+
+
+# ----------------------------------------------------------------------------------------------
+# Figures
+# ----------------------------------------------------------------------------------------------
+def _run_title(run: Run) -> str:
+    p = run.metrics.get("params") or {}
+    bits = [run.metrics["method"]]
+    if run.metrics["method"] == "decimation":
+        bits.append(f"Q={p.get('q')}")
+    if "range_curvature" in p:
+        bits.append("curv. on" if p["range_curvature"] else "curv. off")
+    if "t_ref" in p:
+        bits.append(f"t_ref={p['t_ref']}")
+    return f"{run.label}\n{', '.join(str(b) for b in bits)}"
+
+
+def write_figures(runs: list[Run], out: Path, *, target_xy=DEFAULT_TARGET_XY_M) -> tuple[dict, list[str]]:
+    """Write the report's PNGs; returns ({name: caption}, notes)."""
+    from .plots import error_scatter, image_panels, range_profile_panels
+
+    figures, notes = {}, [r.image_note for r in runs if r.image_note]
+    imaged = [r for r in runs if r.image is not None]
+    if imaged:
+        panels = []
+        for run in imaged:
+            power, ang, rng = crop_image(run.image, run.metrics)
+            panels.append({"power": power, "x": ang, "y": rng, "title": _run_title(run),
+                           "markers": truth_markers(run.metrics)})
+        image_panels(out / "images.png", panels, ncols=min(len(panels), 3),
+                     suptitle="monopulse images (truth: open circles)")
+        figures["images.png"] = ("monopulse images side by side, dB on one colour scale (0 dB = brightest "
+                                 "pixel of all runs), truth at t_ref as open circles")
+        first = imaged[0]
+        if "real_beam" in first.image:
+            rb, rb_ang, rb_rng = crop_image(first.image, first.metrics, key="real_beam", range_key="range_native_m")
+            rb = fill_beam_gaps(rb)
+            mp, mp_ang, mp_rng = crop_image(first.image, first.metrics)
+            mk = truth_markers(first.metrics)
+            image_panels(out / "real_beam.png", [
+                {"power": rb, "x": rb_ang, "y": rb_rng, "markers": mk,
+                 "title": f"{first.label}: real beam (sum power vs beam angle)"},
+                {"power": mp, "x": mp_ang, "y": mp_rng, "markers": mk,
+                 "title": f"{first.label}: monopulse image"}], reference="each",
+                suptitle="angular resolution: real beam against monopulse")
+            figures["real_beam.png"] = (f"real-beam image of `{first.label}` beside its monopulse image "
+                                        f"(each normalised to its own peak)")
+        else:
+            notes.append(f"{first.path}/image.h5: no /real_beam; real_beam.png skipped")
+        curves, truths, chosen = [], [], None
+        for run in imaged:
+            r, a, target = profile_through_target(run, target_xy)
+            if len(r) == 0:
+                notes.append(f"{run.label}: the range profile window is outside the image; not drawn")
+                continue
+            curves.append({"x": r, "amplitude": a, "label": run.label, "target": target})
+            if target is not None:
+                truths.append(target["true_range_m"])
+                chosen = target
+        if curves:
+            relative = len(truths) == len(curves) and np.ptp(truths) > 1e-6
+            if relative:      # different t_ref: plot the offset from each run's own truth
+                for c in curves:
+                    c["x"] = c["x"] - c["target"]["true_range_m"]
+                truth_lines, xlabel = [0.0], "slant range minus true range at t_ref (m)"
+            else:
+                truth_lines, xlabel = (truths[:1] if truths else []), "slant range at t_ref (m)"
+            where = (f"target {chosen['id']} at ground (x, y) = ({chosen['x_m']:g}, {chosen['y_m']:g}) m"
+                     if chosen is not None else "the brightest pixel of each image (no truth)")
+            range_profile_panels(out / "range_profiles.png",
+                                 [{"title": f"range profiles through {where}", "curves": curves,
+                                   "truth": truth_lines}], xlabel=xlabel)
+            figures["range_profiles.png"] = (f"normalised range profiles through {where}, every run overlaid, "
+                                             f"interpolated x{PROFILE_INTERP} (cubic), truth dashed")
+    series = []
+    for run in runs:
+        det = [t for t in run.metrics.get("targets") or [] if t.get("detected") and t.get("range_error_m") is not None]
+        if det:
+            series.append({"label": run.label, "x_m": [t["x_m"] for t in det],
+                           "range_error_m": [t["range_error_m"] for t in det],
+                           "azimuth_error_deg": [t["azimuth_error_deg"] for t in det]})
+    if series:
+        error_scatter(out / "errors.png", series, title="per-target errors against truth at t_ref (detected)")
+        figures["errors.png"] = "range and azimuth error of every detected target against its ground x"
+    else:
+        notes.append("no run has detected targets with truth: errors.png skipped")
+    return figures, notes
+
+
+# ----------------------------------------------------------------------------------------------
+# The report
+# ----------------------------------------------------------------------------------------------
+def report_markdown(runs: list[Run], figures: dict, notes: list[str]) -> str:
+    out = ["# fwdlook report", "",
+           f"Generated by `fwdlook report` from {len(runs)} run director{'y' if len(runs) == 1 else 'ies'}. "
+           f"Every number below is read from the run's `metrics.json` (CONTRACT.md section 5), printed to "
+           f"{SIG_DIGITS} significant digits; none is typed by hand.", "",
+           "## Runs", "",
+           md_table(["run", "directory", "scenario", "method", "t_ref", "t_ref_s"],
+                    [[f"`{r.label}`", f"`{r.path}`", fmt_value(r.metrics.get("scenario")),
+                      fmt_value(r.metrics["method"]), fmt_value((r.metrics.get("params") or {}).get("t_ref")),
+                      fmt_value(r.metrics.get("t_ref_s"))] for r in runs])]
+    if figures:
+        out += ["## Figures", ""]
+        out += [f"- [{name}]({name}): {caption}" for name, caption in figures.items()]
+        out += [""] + [f"![{name}]({name})" for name in figures] + [""]
+    for run in runs:
+        out += [f"## Run `{run.label}`", "", "### Summary", "",
+                md_table(["key", "value"], summary_rows(run.metrics))]
+        targets = run.metrics.get("targets") or []
+        if targets and len(targets) <= MAX_TARGET_ROWS:
+            out += ["### Targets", "", "Errors are measured minus true, at t_ref (m, deg); ISLR and PSLR in dB.",
+                    "", md_table(target_columns(run.metrics), target_rows(run.metrics))]
+        elif targets:
+            out += ["### Targets", "", f"{len(targets)} targets (over {MAX_TARGET_ROWS}): see "
+                    f"`{run.path / 'metrics.json'}`.", ""]
+    out += ["## Timing per stage (s)", "", timing_table(runs)]
+    if notes:
+        out += ["## Notes", ""] + [f"- {n}" for n in notes] + [""]
+    return "\n".join(out).rstrip("\n") + "\n"
+
+
+def default_report_dir(run_dirs) -> Path:
+    run_dirs = list(run_dirs)
+    return Path(run_dirs[0]) / "report" if len(run_dirs) == 1 else Path("reports") / "compare"
+
+
+def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M) -> Path:
+    """Write the report of ``run_dirs`` into ``out_dir`` (default :func:`default_report_dir`); returns
+    the path of report.md.  Raises BadInput before writing anything when a run directory is bad."""
+    runs = load_runs(run_dirs)
+    out = Path(out_dir) if out_dir else default_report_dir(run_dirs)
+    out.mkdir(parents=True, exist_ok=True)
+    figures, notes = write_figures(runs, out, target_xy=target_xy)
+    path = out / "report.md"
+    atomic_write_text(path, report_markdown(runs, figures, notes))
+    return path

@@ -1,0 +1,154 @@
+"""Leaf validators of scenario keys: each returns the coerced value or raises ValueError(reason).
+
+PyYAML follows YAML 1.1: ``18e9`` (no dot) is read as a string and ``on``/``off`` as booleans, so
+every numeric leaf is coerced and checked here explicitly rather than trusted to the parser.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Field:
+    """One scenario key: a checker that returns the coerced value or raises ValueError(reason)."""
+
+    check: Callable[[Any], Any]
+    default: Any
+    doc: str
+
+
+class _Required:
+    def __repr__(self):
+        return "<required>"
+
+
+REQUIRED = _Required()
+
+
+def _as_float(value: Any) -> float:
+    if isinstance(value, bool) or value is None:
+        raise ValueError("expected a number")
+    if isinstance(value, (int, float)):
+        out = float(value)
+    elif isinstance(value, str):
+        try:
+            out = float(value.strip())  # YAML 1.1 reads '18e9' as a string
+        except ValueError:
+            raise ValueError("expected a number") from None
+    else:
+        raise ValueError("expected a number")
+    if not math.isfinite(out):
+        raise ValueError("expected a finite number")
+    return out
+
+
+def num(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
+        hi_open: bool = False) -> Callable[[Any], float]:
+    """A finite real number inside [lo, hi] (open ends where asked)."""
+
+    def check(value):
+        out = _as_float(value)
+        if lo is not None and (out < lo or (lo_open and out == lo)):
+            raise ValueError(f"must be {'>' if lo_open else '>='} {lo:g}")
+        if hi is not None and (out > hi or (hi_open and out == hi)):
+            raise ValueError(f"must be {'<' if hi_open else '<='} {hi:g}")
+        return out
+
+    check.kind = "number"
+    return check
+
+
+def integer(lo: int | None = None, hi: int | None = None) -> Callable[[Any], int]:
+    def check(value):
+        if isinstance(value, bool):
+            raise ValueError("expected an integer")
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, str):
+            try:
+                value = int(value.strip())
+            except ValueError:
+                raise ValueError("expected an integer") from None
+        if not isinstance(value, int):
+            raise ValueError("expected an integer")
+        if lo is not None and value < lo:
+            raise ValueError(f"must be >= {lo}")
+        if hi is not None and value > hi:
+            raise ValueError(f"must be <= {hi}")
+        return value
+
+    return check
+
+
+def boolean(value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError("expected true or false")
+    return value
+
+
+def choice(*allowed: str) -> Callable[[Any], str]:
+    def check(value):
+        if not isinstance(value, str) or value not in allowed:
+            raise ValueError(f"allowed: {', '.join(allowed)}")
+        return value
+
+    check.allowed = allowed
+    return check
+
+
+def text(value: Any) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise ValueError("expected a non-empty string")
+    return value
+
+
+def vector(n: int, elem: Callable[[Any], float] = num()) -> Callable[[Any], list]:
+    def check(value):
+        if not isinstance(value, (list, tuple)) or len(value) != n:
+            raise ValueError(f"expected a list of {n} numbers")
+        return [elem(v) for v in value]
+
+    return check
+
+
+def auto_or(inner: Callable[[Any], Any]) -> Callable[[Any], Any]:
+    def check(value):
+        if value == "auto":
+            return "auto"
+        try:
+            return inner(value)
+        except ValueError as exc:
+            raise ValueError(f"{exc} or 'auto'") from None
+
+    return check
+
+
+def optional(inner: Callable[[Any], Any]) -> Callable[[Any], Any]:
+    def check(value):
+        return None if value is None else inner(value)
+
+    return check
+
+
+def range_window(value: Any):
+    out = vector(2, num(0.0))(value)
+    if out[1] <= out[0]:
+        raise ValueError("expected [near, far] with far > near")
+    return out
+
+
+def points_list(value: Any):
+    if not isinstance(value, (list, tuple)) or not value:
+        raise ValueError("expected a non-empty list of [x, y] ground points")
+    return [vector(2)(p) for p in value]
+
+
+def amplitude(value: Any):
+    if isinstance(value, (list, tuple)):
+        if not value:
+            raise ValueError("expected a positive number or a non-empty list of them")
+        return [num(0.0, lo_open=True)(v) for v in value]
+    return num(0.0, lo_open=True)(value)

@@ -1,0 +1,188 @@
+"""The forward-looking scenario kind: its schema beside its defaults, derived quantities, cross-field checks."""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..dsp.antenna import MonopulseAntenna
+from ..dsp.geometry import platform_state, slant_range_m
+from ..errors import BadInput
+from .fields import Field, amplitude, auto_or, boolean, choice, integer, num, optional, points_list, range_window, text, vector
+
+
+# ----------------------------------------------------------------------------------------------
+# The schema: every key, its default and meaning (the one documented place for defaults)
+# ----------------------------------------------------------------------------------------------
+FORWARD_SCHEMA: dict[str, Any] = {
+    "name": Field(text, "scenario", "scenario name, copied into outputs"),
+    "kind": Field(choice("forward", "isar"), "forward",
+                  "forward: forward-looking scanning monopulse radar; isar: stationary radar, moving object"),
+    "radar": {
+        "fc_hz": Field(num(1e6, 1e12), 18.0e9, "carrier frequency"),
+        "bandwidth_hz": Field(num(0.0, lo_open=True), 50.0e6, "transmitted LFM bandwidth"),
+        "pulse_width_s": Field(num(0.0, 1e-3, lo_open=True), 1.0e-6,
+                               "LFM pulse width; the compressed pulse spans +-pulse_width"),
+        "prf_hz": Field(num(0.0, lo_open=True), 2500.0, "pulse repetition frequency"),
+        "fs_hz": Field(num(0.0, lo_open=True), 60.0e6,
+                       "complex sampling rate of the range-compressed data (range sample c/(2 fs))"),
+        "range_window_m": Field(auto_or(range_window), "auto",
+                                "[near, far] slant range recorded, or auto: sized from scene and motion"),
+        "n_pulses": Field(auto_or(integer(2, 10_000_000)), "auto",
+                          "pulses recorded; auto: scan duration x PRF"),
+        "range_weighting": Field(choice("none", "hamming", "hann", "taylor"), "none",
+                                 "amplitude weighting of the matched filter (range sidelobes)"),
+    },
+    "antenna": {
+        "beamwidth_3db_deg": Field(num(0.1, 90.0), 6.0, "one-way 3 dB width of the SUM beam"),
+        "squint_deg": Field(num(0.0, 45.0, lo_open=True), 1.5,
+                            "squint of each of the two Gaussian beams from the boresight"),
+        "scan_start_deg": Field(num(-89.0, 89.0), -15.0, "beam azimuth at the first pulse"),
+        "scan_stop_deg": Field(num(-89.0, 89.0), 15.0, "beam azimuth at the end of the scan"),
+        "scan_rate_dps": Field(num(0.0, 1e4, lo_open=True), 30.0, "scan rate (deg/s)"),
+    },
+    "platform": {
+        "speed_mps": Field(num(0.0, 1e4), 240.0, "initial forward speed v (along +y)"),
+        "accel_mps2": Field(vector(3, num(-1e3, 1e3)), [0.0, 0.0, 0.0],
+                            "[a_x transverse, a_y forward, a_z vertical] (paper Fig. 1)"),
+        "height_m": Field(num(0.0, 1e5), 50.0, "antenna height at t = 0 (NOTES.md: 50 m)"),
+    },
+    "scene": {
+        "kind": Field(choice("lattice", "points"), "lattice", "lattice | points"),
+        "center_m": Field(vector(2), [0.0, 1700.0], "ground (x, y) of the lattice centre"),
+        "lattice": {
+            "nx": Field(integer(1, 10_000), 21, "points across x"),
+            "ny": Field(integer(1, 10_000), 3, "points along y"),
+            "spacing_m": Field(num(0.0, lo_open=True), 30.0, "lattice spacing"),
+            "x_stride": Field(integer(1, 10_000), 1, "keep every x_stride-th column (isolation runs)"),
+            "x_offset": Field(integer(0, 10_000), 0, "first column kept (0 <= x_offset < x_stride)"),
+        },
+        "points_m": Field(optional(points_list), None, "kind: points, ground (x, y) list, z = 0"),
+        "amplitude": Field(amplitude, 1.0, "common amplitude, or one per point"),
+    },
+    "noise": {
+        "snr_db": Field(optional(num(-100.0, 300.0)), 20.0,
+                        "peak SNR of a unit target at beam centre, per range-compressed sample; null: no noise"),
+        "seed": Field(integer(0), 1, "seed of the noise generator"),
+    },
+    "simulation": {
+        "gain_threshold_db": Field(num(-1000.0, 0.0), -60.0,
+                                   "skip a target-pulse pair whose two-way power gain is below this"),
+    },
+    "processing": {
+        "method": Field(choice("none", "bulk", "beam", "traditional", "decimation", "tracking", "auto"),
+                        "decimation", "motion-compensation method"),
+        "q": Field(integer(1), 25, "decimation factor (must divide the pulse count)"),
+        "keystone": Field(choice("czt", "dft", "sinc"), "czt", "keystone implementation"),
+        "range_curvature": Field(boolean, True, "eq. (12) range-curvature compensation"),
+        "curvature_model": Field(choice("auto", "eq12", "beam"), "auto",
+                                 "eq12: the paper's a_y cos(phi_0) t^2 / 2; beam: the exact residual a keystone "
+                                 "leaves for each pulse's beam-centre point; auto: eq12 for the paper's methods "
+                                 "(traditional, decimation), beam for tracking"),
+        "doppler_centroid": Field(boolean, True, "eq. (23)-(26) per-CPI Doppler-centroid compensation"),
+        "cpi": Field(integer(2), 32, "pulses per CPI for monopulse imaging"),
+        "ambiguity_speed": Field(choice("t_ref", "initial"), "t_ref",
+                                 "speed of the boresight Doppler that fixes the ambiguity number F (eq. 16-17): "
+                                 "at t_ref, or the initial v of the paper (the same for t_ref = start)"),
+        "t_ref": Field(choice("start", "centre"), "centre", "time the corrected image refers to"),
+        "n_doppler": Field(integer(4, 4096), 64, "zoomed Doppler cells per CPI over the main-beam band"),
+        "doppler_window": Field(choice("none", "hamming", "hann", "taylor"), "none",
+                                "slow-time window of each CPI before the Doppler zoom"),
+        "range_oversample": Field(integer(1, 16), 4, "band-limited range oversampling of the image"),
+        "angle_step_deg": Field(num(1e-4, 1.0), 0.05, "angle bin of the monopulse image"),
+        "threshold_db": Field(num(-50.0, 100.0), 12.0,
+                              "Doppler cells projected only above this many dB over the CPI noise floor"),
+    },
+}
+
+# ----------------------------------------------------------------------------------------------
+# Derived quantities and cross-field checks (forward-looking)
+# ----------------------------------------------------------------------------------------------
+def scan_duration_s(scn: dict) -> float:
+    ant = scn["antenna"]
+    return abs(ant["scan_stop_deg"] - ant["scan_start_deg"]) / ant["scan_rate_dps"]
+
+
+def n_pulses(scn: dict) -> int:
+    """Pulse count: explicit, or the scan duration times the PRF (paper: 1 s x 2500 Hz = 2500)."""
+    value = scn["radar"]["n_pulses"]
+    if value != "auto":
+        return int(value)
+    return max(2, int(round(scan_duration_s(scn) * scn["radar"]["prf_hz"])))
+
+
+def scene_points(scn: dict):
+    """Ground (x, y) of every scene point and its amplitude, as two lists."""
+    sc = scn["scene"]
+    if sc["kind"] == "lattice":
+        lat = sc["lattice"]
+        cx, cy = sc["center_m"]
+        xs = [cx + (i - (lat["nx"] - 1) / 2) * lat["spacing_m"] for i in range(lat["nx"])
+              if i % lat["x_stride"] == lat["x_offset"]]
+        ys = [cy + (j - (lat["ny"] - 1) / 2) * lat["spacing_m"] for j in range(lat["ny"])]
+        pts = [[x, y] for y in ys for x in xs]
+    else:
+        pts = sc["points_m"]
+    amp = sc["amplitude"]
+    amps = list(amp) if isinstance(amp, list) else [amp] * len(pts)
+    return pts, amps
+
+
+def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None:
+    radar, ant, sc, proc = scn["radar"], scn["antenna"], scn["scene"], scn["processing"]
+    if radar["fs_hz"] < radar["bandwidth_hz"]:
+        raise BadInput(f"{source}: radar.fs_hz = {radar['fs_hz']:g}: must be >= radar.bandwidth_hz "
+                       f"= {radar['bandwidth_hz']:g} (complex sampling of the compressed pulse)")
+    if ant["scan_stop_deg"] <= ant["scan_start_deg"]:
+        raise BadInput(f"{source}: antenna.scan_stop_deg = {ant['scan_stop_deg']:g}: must be > "
+                       f"antenna.scan_start_deg = {ant['scan_start_deg']:g}")
+    lat = sc["lattice"]
+    if sc["kind"] == "lattice" and (lat["x_offset"] >= lat["x_stride"] or lat["x_offset"] >= lat["nx"]):
+        raise BadInput(f"{source}: scene.lattice.x_offset = {lat['x_offset']}: must be below x_stride "
+                       f"({lat['x_stride']}) and nx ({lat['nx']})")
+    if sc["kind"] == "points" and sc["points_m"] is None:
+        raise BadInput(f"{source}: scene.points_m: required when scene.kind is points")
+    try:
+        MonopulseAntenna(ant["beamwidth_3db_deg"], ant["squint_deg"])
+    except ValueError as exc:
+        raise BadInput(f"{source}: antenna.squint_deg = {ant['squint_deg']:g}: {exc}") from None
+    pts, amps = scene_points(scn)
+    if isinstance(sc["amplitude"], list) and len(sc["amplitude"]) != len(pts):
+        raise BadInput(f"{source}: scene.amplitude: list of {len(sc['amplitude'])} values; "
+                       f"allowed: one number or one per point ({len(pts)})")
+    m = n_pulses(scn)
+    if radar["n_pulses"] != "auto":
+        needed = scan_duration_s(scn) * radar["prf_hz"]
+        if m > needed + 1.0 + 1e-9:
+            raise BadInput(f"{source}: radar.n_pulses = {m}: the scan lasts {scan_duration_s(scn):g} s, "
+                           f"at most {int(needed) + 1} pulses fit it at prf_hz = {radar['prf_hz']:g}")
+    if check_pulses and m % proc["q"]:
+        raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the pulse count {m}")
+    if check_pulses and proc["cpi"] > m:
+        raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the {m} pulses")
+    if radar["range_window_m"] != "auto":
+        near, far = radar["range_window_m"]
+        r_min, r_max = scene_range_extent_m(scn)
+        if r_min < near or r_max > far:
+            raise BadInput(f"{source}: radar.range_window_m = [{near:g}, {far:g}]: the scene spans "
+                           f"slant ranges {r_min:.1f} to {r_max:.1f} m over the scan; widen the window "
+                           f"or use auto")
+
+
+def scene_geometry(scn: dict):
+    """Slow time, platform state and target positions of a resolved forward-looking scenario."""
+    radar, plat = scn["radar"], scn["platform"]
+    m = n_pulses(scn)
+    slow_time_s = np.arange(m, dtype=np.float64) / radar["prf_hz"]
+    position_m, velocity_mps = platform_state(slow_time_s, plat["speed_mps"], plat["accel_mps2"],
+                                              plat["height_m"])
+    pts, amps = scene_points(scn)
+    targets_m = np.column_stack([np.asarray(pts, dtype=np.float64), np.zeros(len(pts))])
+    return slow_time_s, position_m, velocity_mps, targets_m, np.asarray(amps, dtype=np.float64)
+
+
+def scene_range_extent_m(scn: dict):
+    """Smallest and largest slant range of any scene point over the whole scan."""
+    _, position_m, _, targets_m, _ = scene_geometry(scn)
+    r = slant_range_m(position_m, targets_m)
+    return float(r.min()), float(r.max())

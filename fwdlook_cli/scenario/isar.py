@@ -1,0 +1,132 @@
+"""The ISAR scenario kind: its schema beside its defaults, cross-field checks and derived geometry.
+
+Geometry and conventions: ``fwdlook_cli.isar`` (package docstring, Serafin et al. eq. 6-9).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..dsp.geometry import C_MPS
+from ..errors import BadInput
+from .fields import REQUIRED, Field, amplitude, auto_or, choice, integer, num, optional, range_window, text, vector
+
+CORRECTIONS = ("none", "keystone1", "keystone2", "keystone2_n0", "keystone2_n0_est")
+
+
+# ----------------------------------------------------------------------------------------------
+# Scenario schema (kind: isar)
+# ----------------------------------------------------------------------------------------------
+def _offsets(value):
+    if not isinstance(value, (list, tuple)) or not value:
+        raise ValueError("expected a non-empty list of [dx, dy, dz] offsets")
+    return [vector(3)(p) for p in value]
+
+
+ISAR_SCHEMA: dict = {
+    "name": Field(text, "isar", "scenario name, copied into outputs"),
+    "kind": Field(choice("isar"), REQUIRED, "isar: stationary radar at the origin, moving object"),
+    "radar": {
+        "fc_hz": Field(num(1e6, 1e12), 3.0e9, "carrier frequency f0"),
+        "bandwidth_hz": Field(num(0.0, lo_open=True), 300.0e6, "transmitted LFM bandwidth"),
+        "pulse_width_s": Field(num(0.0, 1e-3, lo_open=True), 0.1e-6,
+                               "LFM pulse width; the compressed pulse spans +-pulse_width"),
+        "prf_hz": Field(num(0.0, lo_open=True), 3000.0, "pulse repetition frequency F_p"),
+        "fs_hz": Field(num(0.0, lo_open=True), 360.0e6,
+                       "complex sampling rate of the range-compressed data (range cell c/(2 fs))"),
+        "range_window_m": Field(auto_or(range_window), "auto",
+                                "[near, far] slant range recorded, or auto: the dwell's ranges, the "
+                                "closest-approach range and the compressed pulse's reach"),
+        "n_pulses": Field(integer(16, 10_000_000), 6000, "pulses in the observation (the dwell)"),
+        "range_weighting": Field(choice("none", "hamming", "hann", "taylor"), "none",
+                                 "amplitude weighting of the matched filter (range sidelobes)"),
+    },
+    "target": {
+        "range_m": Field(num(0.0, lo_open=True), 1100.0,
+                         "R0: distance to the object at the middle of the observation"),
+        "theta0_deg": Field(num(-89.0, 89.0), 3.0,
+                            "middle observation angle, from +x (normal to a +y track) towards -y"),
+        "velocity_mps": Field(vector(3, num(-1e5, 1e5)), [0.0, 40.0, 0.0], "object velocity [vx, vy, vz]"),
+        "points_m": Field(_offsets, [[0.0, 0.0, 0.0]],
+                          "offsets [dx, dy, dz] of rigidly moving scatterers; the first is the reference"),
+        "amplitude": Field(amplitude, 1.0, "common amplitude, or one per point"),
+    },
+    "noise": {
+        "snr_db": Field(optional(num(-100.0, 300.0)), 20.0,
+                        "peak SNR of the strongest scatterer per range-compressed sample; null: no noise"),
+        "seed": Field(integer(0), 1, "seed of the noise generator"),
+    },
+    "processing": {
+        "correction": Field(choice(*CORRECTIONS), "keystone2_n0", "range-cell-migration correction"),
+        "keystone": Field(choice("czt", "dft"), "czt", "keystone implementation (dft: O(N^2) reference)"),
+        "ambiguity": Field(auto_or(integer(-100_000, 100_000)), "auto",
+                           "Doppler ambiguity number F; auto: per range-frequency row from the geometry"),
+        "n0_pulses": Field(auto_or(num(-1e9, 1e9)), "auto",
+                           "shift of the range minimum for keystone2_n0; auto: eq. (13) from the truth"),
+        "azimuth_phase": Field(choice("model", "none"), "model",
+                               "azimuth compression: model = straight-line range-model phase, then FFT"),
+        "n0_search": {
+            "half_span_lobes": Field(num(0.5, 1e4), 4.0,
+                                     "half-width of the first search grid, in sharpness lobes"),
+            "points_per_lobe": Field(integer(2, 1000), 6, "grid points per sharpness lobe"),
+            "passes": Field(integer(1, 10), 2, "search passes, each followed by a Doppler refinement"),
+        },
+    },
+}
+
+
+def isar_checks(scn: dict, source: str) -> None:
+    radar, tg = scn["radar"], scn["target"]
+    if radar["fs_hz"] < radar["bandwidth_hz"]:
+        raise BadInput(f"{source}: radar.fs_hz = {radar['fs_hz']:g}: must be >= radar.bandwidth_hz "
+                       f"= {radar['bandwidth_hz']:g} (complex sampling of the compressed pulse)")
+    if not any(tg["velocity_mps"]):
+        raise BadInput(f"{source}: target.velocity_mps = [0, 0, 0]: must be non-zero (ISAR images a "
+                       f"moving object)")
+    n_pts = len(tg["points_m"])
+    if isinstance(tg["amplitude"], list) and len(tg["amplitude"]) != n_pts:
+        raise BadInput(f"{source}: target.amplitude: list of {len(tg['amplitude'])} values; allowed: one "
+                       f"number or one per point ({n_pts})")
+    t, pos0, vel, _ = isar_geometry(scn)
+    r = scatterer_ranges_m(pos0, vel, t)
+    reach = C_MPS * radar["pulse_width_s"] / 2.0
+    if r.min() <= reach:
+        raise BadInput(f"{source}: target.range_m = {tg['range_m']:g}: the object comes within "
+                       f"{r.min():.1f} m of the radar, inside the compressed pulse's reach ({reach:.1f} m)")
+    if radar["range_window_m"] != "auto":
+        near, far = radar["range_window_m"]
+        if r.min() < near or r.max() > far:
+            raise BadInput(f"{source}: radar.range_window_m = [{near:g}, {far:g}]: the object spans slant "
+                           f"ranges {r.min():.1f} to {r.max():.1f} m over the dwell; widen the window or "
+                           f"use auto")
+
+
+# ----------------------------------------------------------------------------------------------
+# Geometry
+# ----------------------------------------------------------------------------------------------
+def isar_geometry(scn: dict):
+    """Slow time, initial (t = 0) scatterer positions, velocity and amplitudes of a resolved scenario.
+
+    Returns ``slow_time_s`` [N], ``pos0_m`` [K, 3], ``velocity_mps`` [3], ``amplitudes`` [K].
+    """
+    radar, tg = scn["radar"], scn["target"]
+    n = int(radar["n_pulses"])
+    slow_time_s = np.arange(n, dtype=np.float64) / radar["prf_hz"]
+    t_mid = (n - 1) / (2.0 * radar["prf_hz"])
+    th = math.radians(tg["theta0_deg"])
+    p_mid = tg["range_m"] * np.array([math.cos(th), -math.sin(th), 0.0])  # reference scatterer at t_mid
+    vel = np.asarray(tg["velocity_mps"], dtype=np.float64)
+    offsets = np.asarray(tg["points_m"], dtype=np.float64).reshape(-1, 3)
+    pos0 = p_mid[None, :] + offsets - vel[None, :] * t_mid
+    amp = tg["amplitude"]
+    amps = np.asarray(amp if isinstance(amp, list) else [amp] * len(offsets), dtype=np.float64)
+    return slow_time_s, pos0, vel, amps
+
+
+def scatterer_ranges_m(pos0_m, velocity_mps, slow_time_s):
+    """Exact range (eq. 6-7) of every scatterer at every time, radar at the origin: [K, N] float64."""
+    p = (np.asarray(pos0_m, dtype=np.float64)[:, None, :]
+         + np.asarray(velocity_mps, dtype=np.float64)[None, None, :]
+         * np.asarray(slow_time_s, dtype=np.float64)[None, :, None])
+    return np.sqrt(np.einsum("kni,kni->kn", p, p))

@@ -1,0 +1,132 @@
+"""Scenario files: strict loading, ``--set`` overrides, resolution against the schema, canonical hash.
+
+The schemas (``forward.py``, ``isar.py`` beside this module) are the ONE place where every scenario key, its type, its default and its allowed
+values are written down (CONTRACT.md section 2 fixes the names; the README's scenario table is this
+file in prose).  ``load_scenario`` reads a YAML file, applies ``--set key.path=value`` overrides,
+rejects duplicate keys, unknown keys, wrong types and impossible values with :class:`BadInput`, fills
+the defaults, runs the cross-field checks and returns a plain nested dict (the *resolved* scenario).
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, Callable
+
+import yaml
+
+
+from ..errors import BadInput
+from .forward import FORWARD_SCHEMA, forward_checks
+from .isar import ISAR_SCHEMA, isar_checks
+from .yamlio import yaml_load
+from .fields import REQUIRED
+
+SCHEMAS = {"forward": FORWARD_SCHEMA, "isar": ISAR_SCHEMA}
+CROSS_CHECKS: dict[str, Callable[..., None]] = {"forward": forward_checks, "isar": isar_checks}
+
+
+# ----------------------------------------------------------------------------------------------
+# Resolution
+# ----------------------------------------------------------------------------------------------
+def _resolve(raw: Any, schema: dict, path: str, source: str) -> dict:
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise BadInput(f"{source}: {path or 'top level'}: expected a mapping, got {_show(raw)}")
+    unknown = [k for k in raw if k not in schema]
+    if unknown:
+        key = unknown[0]
+        where = f"{path}.{key}" if path else str(key)
+        raise BadInput(f"{source}: {where}: unknown key; allowed: {', '.join(schema)}")
+    out = {}
+    for key, spec in schema.items():
+        where = f"{path}.{key}" if path else key
+        if isinstance(spec, dict):
+            out[key] = _resolve(raw.get(key), spec, where, source)
+            continue
+        if key not in raw:
+            if spec.default is REQUIRED:
+                raise BadInput(f"{source}: {where}: required key missing")
+            out[key] = copy.deepcopy(spec.default)
+            continue
+        try:
+            out[key] = spec.check(raw[key])
+        except ValueError as exc:
+            raise BadInput(f"{source}: {where} = {_show(raw[key])}: {exc}") from None
+    return out
+
+
+def _show(value: Any) -> str:
+    shown = json.dumps(value, default=str) if not isinstance(value, str) else repr(value)
+    return shown if len(shown) <= 60 else shown[:57] + "..."
+
+
+def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...], source: str) -> dict:
+    """Apply ``--set a.b.c=value`` (value parsed as YAML) to the raw scenario mapping."""
+    raw = copy.deepcopy(raw) if raw is not None else {}
+    for item in overrides or ():
+        if "=" not in item:
+            raise BadInput(f"{source}: --set {item!r}: expected KEY.PATH=VALUE")
+        key, value_text = item.split("=", 1)
+        parts = [p for p in key.strip().split(".") if p]
+        if not parts:
+            raise BadInput(f"{source}: --set {item!r}: empty key path")
+        value = yaml_load(value_text, f"{source}: --set {key}")
+        node = raw
+        for i, part in enumerate(parts[:-1]):
+            child = node.get(part)
+            if child is None:
+                child = node[part] = {}
+            if not isinstance(child, dict):
+                raise BadInput(f"{source}: --set {key}: {'.'.join(parts[:i + 1])} is not a mapping")
+            node = child
+        node[parts[-1]] = value
+    return raw
+
+
+def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, check_pulses: bool = True) -> dict:
+    """Validate a raw scenario mapping (plus overrides) and return the resolved scenario.
+
+    ``check_pulses=False`` leaves out the checks against the scenario's own pulse count (Q divides it,
+    the CPI fits it): for settings that will process a recorded cube, which is checked instead.
+    """
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
+    raw = apply_overrides(raw, overrides, source)
+    kind = raw.get("kind", "forward")
+    if kind not in SCHEMAS:
+        raise BadInput(f"{source}: kind = {_show(kind)}: allowed: {', '.join(SCHEMAS)}")
+    resolved = _resolve(raw, SCHEMAS[kind], "", source)
+    if kind == "forward":
+        CROSS_CHECKS[kind](resolved, source, check_pulses=check_pulses)
+    else:
+        CROSS_CHECKS[kind](resolved, source)
+    return resolved
+
+
+def load_scenario(path: str | Path, overrides=()) -> dict:
+    """Read, validate and resolve a scenario file."""
+    path = Path(path)
+    source = str(path)
+    try:
+        text_ = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise BadInput(f"{source}: scenario file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BadInput(f"{source}: cannot read scenario file ({exc.__class__.__name__})") from None
+    return resolve_scenario(yaml_load(text_, source), source, overrides)
+
+
+def scenario_hash(resolved: dict) -> str:
+    """SHA-256 of the canonical JSON form of a resolved scenario (sorted keys, floats repr'd)."""
+    blob = json.dumps(resolved, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def dump_scenario(resolved: dict) -> str:
+    """Re-loadable YAML of a resolved scenario (not a dict repr)."""
+    return yaml.safe_dump(resolved, sort_keys=False, default_flow_style=None, width=100)
