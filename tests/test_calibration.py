@@ -175,7 +175,8 @@ def test_calibration_from_antenna_groups():
 
 
 def test_own_simulated_imbalance_is_undone_from_the_cube(tmp_path):
-    """fwdlook's simulator writes the imbalance in /antenna; auto takes it and the chain divides it out."""
+    """fwdlook's simulator writes the imbalance in /antenna; auto takes it and the chain divides it out:
+    noiseless, the corrected ratio is the balanced one up to float32 rounding, so the images agree."""
     from fwdlook_cli.config import resolve_scenario
     from fwdlook_cli.io import write_raw
     from fwdlook_cli.process import process_cube
@@ -184,7 +185,7 @@ def test_own_simulated_imbalance_is_undone_from_the_cube(tmp_path):
     pts = _points([-2.1, -0.7, 0.7, 2.1]).tolist()
     base = {"antenna": {"scan_start_deg": -8.0, "scan_stop_deg": 8.0, "scan_rate_dps": 60.0},
             "platform": {"accel_mps2": [0.0, 10.0, 0.0]}, "scene": {"kind": "points", "points_m": pts},
-            "radar": {"n_pulses": 650}, "noise": {"snr_db": 20.0, "seed": 2}}
+            "radar": {"n_pulses": 650}, "noise": {"snr_db": None}}
     res = {}
     for tag, ant in (("balanced", {}), ("imbalanced", {"diff_gain_db": 3.0, "diff_phase_deg": 20.0})):
         raw = dict(base, antenna=dict(base["antenna"], **ant))
@@ -198,5 +199,5 @@ def test_own_simulated_imbalance_is_undone_from_the_cube(tmp_path):
         res[tag] = process_cube(back, scn, tmp_path / tag, quiet=True, png=False)
     az0 = np.array([r["meas_azimuth_deg"] for r in res["balanced"]["targets"]])
     az1 = np.array([r["meas_azimuth_deg"] for r in res["imbalanced"]["targets"]])
-    assert np.max(np.abs(az1 - az0)) < 0.01
+    assert np.max(np.abs(az1 - az0)) < 1e-3
     assert res["imbalanced"]["calibration"]["diff_gain_db"] == 3.0
