@@ -4,7 +4,7 @@ The writer (``independent_writer.py``) shares no code with fwdlook's simulator: 
 two Gaussian beams crossing at their half-power points, band-limited noise, the CONTRACT.md section 3
 layout.  Two radars: the paper's (18 GHz, 6 deg sum beam) and an X-band one (10 GHz, 4 deg).
 Tolerances: the issue's (0.3 m, 0.05 deg RMS, slope 2 %, phase 2 deg); the slope's estimated 1-sigma
-is 1.2 % (paper) and 1.9 % (X band) for these scenes (README), so 2 % is not generous.
+is 1.2 % (paper) and 1.3 % (X band) for these scenes (README), so 2 % is not generous.
 """
 import json
 import sys
