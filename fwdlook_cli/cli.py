@@ -220,7 +220,7 @@ def report(run_dirs, output, target, quiet):
 @click.argument("path")
 def info(path):
     """Describe a raw cube, a stage file or an image (FILE.h5)."""
-    from .io.info import describe
+    from .report.info import describe
 
     click.echo(describe(path))
 

@@ -27,7 +27,8 @@ from ..dsp.geometry import C_MPS, ambiguity_number
 from ..dsp.keystone_czt import KeystonePlan
 from ..dsp.keystone import keystone_dft, keystone_sinc
 from ..dsp.keystone_common import _cis as _cis_cycles
-from .motion import DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector
+from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion,
+                     keystone_residual_envelope_m, reference_depression_deg, unit_vector)
 from ..runner import Stage
 from ..io.stagefile import StageData
 
@@ -312,11 +313,15 @@ def azimuth_at_t_ref(range_m, azimuth_deg, position_at_measure_m, position_ref_m
 
 def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: float, angle_step_deg: float,
                     range_oversample: int, threshold_db: float, dynamic_range_db: float,
-                    position_ref_m: list, max_offset_beamwidths: float = 0.5) -> StageData:
+                    position_ref_m: list, max_offset_beamwidths: float = 0.5, ratio_model: str = "tanh",
+                    ratio_offset_deg=None, ratio=None, boresight_offset_deg: float = 0.0,
+                    diff_gain_db: float = 0.0, diff_phase_deg: float = 0.0) -> StageData:
     """Monopulse imaging from sum/difference Doppler estimates (Sec. 3.2 end; NOTES.md).
 
-    Per CPI, Doppler cell and range: offset d = atanh(Re(diff/sum))/k (exact for the Gaussian beams),
-    angle = CPI beam angle + d, moved to the t_ref frame; the sum power is accumulated in a
+    Per CPI, Doppler cell and range: the difference channel is divided by the calibration's imbalance
+    10^(g/20) exp(j phi), and the offset is d = R^-1(Re(diff/sum)) + b with R the ratio curve in use
+    (``ratio_model`` tanh: atanh(.)/k, exact for Gaussian beams; table: the monotone table
+    ``ratio_offset_deg``, ``ratio``) and b the boresight offset; angle = CPI beam angle + d, moved to the t_ref frame; the sum power is accumulated in a
     (range, angle) image.  Cells below ``threshold_db`` over the CPI's median power (noise floor) or
     more than ``dynamic_range_db`` under its peak, or with |d| beyond ``max_offset_beamwidths`` x the
     beamwidth, are not projected.  The real-beam image (CPI sum power at the beam angle) is made too.
@@ -327,14 +332,32 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     dr = (range_m[1] - range_m[0]) / range_oversample
     range_os = range_m[0] + dr * np.arange(s.shape[2])
     power = (s.real**2 + s.imag**2).astype(np.float32)
-    ratio = (dz.real * s.real + dz.imag * s.imag) / np.maximum(power, 1e-30)
+    table = None if ratio is None else (np.asarray(ratio_offset_deg, np.float64), np.asarray(ratio, np.float64))
+    # Re(diff conj(sum) / gamma) / |sum|^2, gamma = 10^(g/20) exp(j phi): the calibrated ratio
+    c, sn = np.cos(np.radians(diff_phase_deg)), np.sin(np.radians(diff_phase_deg))
+    inv_gain = 10.0 ** (-diff_gain_db / 20.0)
+    re_q = dz.real * s.real + dz.imag * s.imag
+    im_q = dz.imag * s.real - dz.real * s.imag
+    ratio = (inv_gain * (c * re_q + sn * im_q)) / np.maximum(power, 1e-30)
+    del re_q, im_q
     floor = np.median(power.reshape(power.shape[0], -1), axis=1)
     peak = power.reshape(power.shape[0], -1).max(axis=1)
     level = np.maximum(floor * 10 ** (threshold_db / 10), peak * 10 ** (-dynamic_range_db / 10))
-    max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
-    keep = (power > level[:, None, None]) & (np.abs(ratio) < max_ratio)
+    half = max_offset_beamwidths * beamwidth_deg
+    if ratio_model == "tanh":
+        max_ratio = np.tanh(slope_per_deg * half)
+        keep = (power > level[:, None, None]) & (np.abs(ratio) < max_ratio)
+        offset = np.arctanh(ratio[keep]) / slope_per_deg
+    elif ratio_model == "table":
+        tab_d, tab_r = table
+        lo = float(np.interp(-half, tab_d, tab_r))
+        hi = float(np.interp(half, tab_d, tab_r))
+        keep = (power > level[:, None, None]) & (ratio > lo) & (ratio < hi)
+        offset = np.interp(ratio[keep], tab_r, tab_d)
+    else:
+        raise ValueError(f"ratio model {ratio_model!r}; allowed: tanh, table")
+    offset = offset + boresight_offset_deg
     i_cpi, _, i_r = np.nonzero(keep)
-    offset = np.arctanh(ratio[keep]) / slope_per_deg
     beam = data["cpi_beam_deg"][i_cpi]
     p_ref = np.asarray(position_ref_m, dtype=np.float64)
     az_ref, gx, gy = azimuth_at_t_ref(range_os[i_r], beam + offset, data["cpi_position_m"][i_cpi], p_ref)
@@ -406,18 +429,22 @@ def chain_geometry(cube, proc: dict) -> dict:
 
 
 def monopulse_slope(cube) -> float:
-    """The cube's monopulse slope, or the one of the default squint (1.5 deg) for a foreign cube."""
-    if cube.antenna and "monopulse_slope_per_deg" in cube.antenna:
-        return float(cube.antenna["monopulse_slope_per_deg"])
-    from ..dsp.antenna import MonopulseAntenna
+    """The monopulse slope of ``processing.monopulse_calibration: auto`` (the cube's /antenna, else the
+    data's); see :func:`calibration.calibration_for_cube`."""
+    from .calibration import calibration_for_cube
 
-    bw = cube.radar["beamwidth_3db_deg"]
-    return MonopulseAntenna(bw, min(1.5, 0.24 * bw)).slope_per_deg
+    return calibration_for_cube(cube, "auto").slope_per_deg
 
 
 def build_forward_stages(cube, proc: dict):
     """(source StageData, [Stage]) for a raw cube and resolved ``processing`` settings."""
+    from .calibration import calibration_for_cube
+
     geo = chain_geometry(cube, proc)
+    m_ref = int(round((geo["t_ref_s"] - cube.slow_time_s[0]) * cube.radar["prf_hz"]))
+    geo["calibration"] = calibration_for_cube(cube, proc.get("monopulse_calibration", "auto"),
+                                              t_ref_index=min(max(m_ref, 0), cube.n_pulses - 1),
+                                              model=proc.get("calibration_model", "auto"))
     method = proc["method"]
     q = proc["q"] if method == "decimation" else 1
     prf = cube.radar["prf_hz"]
@@ -456,9 +483,9 @@ def build_forward_stages(cube, proc: dict):
             "beamwidth_deg": cube.radar["beamwidth_3db_deg"], "depression_deg": geo["depression_deg"],
             "prf_hz": prf, "follow_speed": bool(proc["doppler_centroid"])}),
         Stage("monopulse_image", monopulse_image, {
-            "slope_per_deg": monopulse_slope(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
+            "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
             "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
             "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
-            "position_ref_m": [float(v) for v in geo["p_ref"]]}),
+            "position_ref_m": [float(v) for v in geo["p_ref"]], **geo["calibration"].stage_params()}),
     ]
     return src, stages, geo

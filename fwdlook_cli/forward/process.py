@@ -48,6 +48,21 @@ def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_
         put(f, "ground_image", ground, "1", "monopulse image projected on the ground (y, x)", dims=(gy, gx), **z)
 
 
+def _two_way_beamwidth_deg(cube) -> float:
+    """Two-way 3 dB width of the cube's antenna (/antenna when it names a two-beam design, else two
+    Gaussian beams crossing at -3 dB with the cube's sum beamwidth)."""
+    from ..dsp.antenna import AntennaDesignError, MonopulseAntenna
+
+    bw = float(cube.radar["beamwidth_3db_deg"])
+    a = cube.antenna or {}
+    try:
+        if a.get("pattern", "gaussian2") in ("gaussian2", "sinc2") and np.isfinite(float(a.get("squint_deg", np.nan))):
+            return MonopulseAntenna(bw, float(a["squint_deg"]), pattern=a.get("pattern", "gaussian2")).two_way_3db_width_deg()
+    except (AntennaDesignError, TypeError, ValueError):
+        pass
+    return MonopulseAntenna(bw).two_way_3db_width_deg()
+
+
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
                  png=True, source: str = "raw cube") -> dict:
     """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics.
@@ -93,21 +108,19 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     if truth is not None:
         rows = target_metrics(final["image"], final["range_m"], final["angle_deg"], truth,
                               cube.truth["amplitude"], geo["p_ref"], bandwidth_hz=cube.radar["bandwidth_hz"])
-        from ..dsp.antenna import MonopulseAntenna
         from .evaluate import resolved_flags
 
-        bw = cube.radar["beamwidth_3db_deg"]
-        squint = float(cube.antenna.get("squint_deg", min(1.5, 0.24 * bw))) if cube.antenna else min(1.5, 0.24 * bw)
+        two_way_deg = _two_way_beamwidth_deg(cube)
         flags = resolved_flags([r["true_range_m"] for r in rows], [r["true_azimuth_deg"] for r in rows],
                                bandwidth_hz=cube.radar["bandwidth_hz"], wavelength_m=299_792_458.0 / cube.radar["fc_hz"],
                                speed_mps=float(np.linalg.norm(geo["v_ref"])), prf_hz=cube.radar["prf_hz"],
                                cpi=proc["cpi"], depression_deg=geo["depression_deg"],
-                               beamwidth_two_way_deg=MonopulseAntenna(bw, squint).two_way_3db_width_deg())
+                               beamwidth_two_way_deg=two_way_deg)
         for row, flag in zip(rows, flags):
             row["resolved"] = bool(flag)
         spectra = read_stage(run_dir / "stages" / f"{len(stages) - 1:02d}_doppler_spectra.h5")
         beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
-        if np.isfinite(beta):
+        if np.isfinite(beta) and cube.antenna.get("pattern", "gaussian2") == "gaussian2":
             dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
                                           float(cube.antenna["monopulse_slope_per_deg"]), beta, geo["p_ref"])
             for row, extra in zip(rows, dwell):
@@ -128,6 +141,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                    "boresight_doppler_hz": geo["f_dc0_hz"], "depression_deg": geo["depression_deg"],
                    "radial_accel_mps2": geo["radial_accel_mps2"]},
         "t_ref_s": geo["t_ref_s"],
+        "calibration": geo["calibration"].to_json(),
         "scenario_sha256": scenario_hash(scn),
         "stage_sha256": keys,
         "targets": rows,

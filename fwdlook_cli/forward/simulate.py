@@ -26,11 +26,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..dsp.antenna import MonopulseAntenna
+from ..dsp.antenna import MonopulseAntenna, antenna_from_scenario
 from ..dsp.geometry import C_MPS, azimuth_deg, scan_angle_deg, slant_range_m
 from ..scenario.forward import scene_geometry
 from ..dsp.pulse import CompressedPulse
 from ..dsp.pulse import auto_range_axis_m, noise_sigma_for
+
+RANGE_GUARD_SAMPLES = 8
+
 
 @dataclass(frozen=True)
 class SimulationStats:
@@ -42,7 +45,8 @@ class SimulationStats:
 
 def simulate_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, amplitudes, *, fc_hz,
                   pulse: CompressedPulse, antenna: MonopulseAntenna, gain_threshold_db=-60.0,
-                  noise_sigma=0.0, seed=None, max_chunk_samples=4_000_000):
+                  noise_sigma=0.0, seed=None, max_chunk_samples=4_000_000, diff_gain_db=0.0,
+                  diff_phase_deg=0.0):
     """Sum and difference channel echoes, complex64 [n_pulses, n_range] each, and work statistics.
 
     Parameters
@@ -52,6 +56,9 @@ def simulate_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, amplitu
     beam_deg : (n_pulses,) beam pointing azimuth.
     range_m : (n_range,) uniformly spaced slant-range axis.
     targets_m : (n_targets, 3) target positions; amplitudes : (n_targets,).
+    antenna : any antenna model of ``antenna.py`` (``two_way_gains``).
+    diff_gain_db, diff_phase_deg : receiver imbalance; the difference channel's echo is multiplied by
+        10^(g/20) exp(j phi) (noise is added after, at the same level in both channels).
     """
     n_p, n_r = len(slow_time_s), len(range_m)
     dr = float(range_m[1] - range_m[0])
@@ -65,7 +72,8 @@ def simulate_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, amplitu
     # eq. (5): carrier phase -4 pi fc R / c, reduced in float64 before it is used in float32
     phasor = np.exp(-2j * np.pi * np.mod(2.0 * r * fc_hz / C_MPS, 1.0))
     c_sum = (amp * g_sum[k_idx, n_idx] * phasor).astype(np.complex64)
-    c_diff = (amp * g_diff[k_idx, n_idx] * phasor).astype(np.complex64)
+    imbalance = 10.0 ** (diff_gain_db / 20.0) * np.exp(1j * np.radians(diff_phase_deg))
+    c_diff = (amp * g_diff[k_idx, n_idx] * phasor * imbalance).astype(np.complex64)
 
     half = int(np.ceil(C_MPS * pulse.support_s / 2.0 / dr))
     width = 2 * half + 1
@@ -101,6 +109,19 @@ def simulate_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, amplitu
     return echo_sum, echo_diff, stats
 
 
+def antenna_group(antenna, diff_gain_db=0.0, diff_phase_deg=0.0) -> dict:
+    """The cube's /antenna group (CONTRACT.md section 3): the model's attributes, its monotone ratio
+    table over the main lobe (datasets ``ratio_offset_deg``, ``ratio``) and the channel imbalance."""
+    out = antenna.to_attrs()
+    offset, ratio = antenna.ratio_table
+    step = max(1, len(offset) // 400)
+    out["ratio_offset_deg"] = np.asarray(offset[::step], dtype=np.float64)
+    out["ratio"] = np.asarray(ratio[::step], dtype=np.float64)
+    out["diff_gain_db"] = float(diff_gain_db)
+    out["diff_phase_deg"] = float(diff_phase_deg)
+    return out
+
+
 def simulate_scenario(scn: dict):
     """Simulate a resolved forward-looking scenario: returns (RawCube, SimulationStats)."""
     from ..scenario.loader import dump_scenario, scenario_hash
@@ -110,7 +131,7 @@ def simulate_scenario(scn: dict):
     slow_time_s, position_m, velocity_mps, targets_m, amps = scene_geometry(scn)
     pulse = CompressedPulse(radar["bandwidth_hz"], radar["pulse_width_s"], radar["fs_hz"],
                             radar["range_weighting"])
-    antenna = MonopulseAntenna(ant["beamwidth_3db_deg"], ant["squint_deg"])
+    antenna = antenna_from_scenario(ant)
     beam_deg = scan_angle_deg(slow_time_s, ant["scan_start_deg"], ant["scan_rate_dps"])
     if radar["range_window_m"] == "auto":
         r = slant_range_m(position_m, targets_m)
@@ -123,15 +144,15 @@ def simulate_scenario(scn: dict):
     echo_sum, echo_diff, stats = simulate_echo(
         slow_time_s, position_m, beam_deg, range_m, targets_m, amps, fc_hz=radar["fc_hz"],
         pulse=pulse, antenna=antenna, gain_threshold_db=scn["simulation"]["gain_threshold_db"],
-        noise_sigma=sigma, seed=scn["noise"]["seed"])
+        noise_sigma=sigma, seed=scn["noise"]["seed"], diff_gain_db=ant["diff_gain_db"],
+        diff_phase_deg=ant["diff_phase_deg"])
     cube = RawCube(
         sum=echo_sum, diff=echo_diff, slow_time_s=slow_time_s, range_m=range_m,
         scan_angle_deg=beam_deg, position_m=position_m, velocity_mps=velocity_mps,
         radar={"fc_hz": radar["fc_hz"], "bandwidth_hz": radar["bandwidth_hz"], "fs_hz": radar["fs_hz"],
                "prf_hz": radar["prf_hz"], "beamwidth_3db_deg": ant["beamwidth_3db_deg"],
                "pulse_width_s": radar["pulse_width_s"], "range_weighting": radar["range_weighting"]},
-        antenna={"squint_deg": ant["squint_deg"], "monopulse_slope_per_deg": antenna.slope_per_deg,
-                 "beta_per_deg2": antenna.beta_per_deg2},
+        antenna=antenna_group(antenna, ant["diff_gain_db"], ant["diff_phase_deg"]),
         truth={"x_m": targets_m[:, 0].copy(), "y_m": targets_m[:, 1].copy(),
                "z_m": targets_m[:, 2].copy(), "amplitude": amps.astype(np.float64)},
         scenario_yaml=dump_scenario(scn),

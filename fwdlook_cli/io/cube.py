@@ -26,7 +26,7 @@ class RawCube:
     position_m: np.ndarray       # float64 [n_pulses, 3], antenna phase centre (INS)
     velocity_mps: np.ndarray     # float64 [n_pulses, 3]
     radar: dict                  # RADAR_KEYS (+ pulse_width_s where known)
-    antenna: dict = field(default_factory=dict)   # squint_deg, monopulse_slope_per_deg if known
+    antenna: dict = field(default_factory=dict)   # /antenna: pattern, squint_deg, slope, ratio table, imbalance
     truth: dict | None = None    # x_m, y_m, z_m, amplitude (1-D float64)
     scenario_yaml: str | None = None
     noise: dict = field(default_factory=dict)     # snr_db, sigma, seed (simulated data)

@@ -22,7 +22,6 @@ RAW_FORMAT = "fwdlook-raw"
 RAW_FORMAT_VERSION = 1
 
 
-
 # ----------------------------------------------------------------------------------------------
 # Raw cube
 # ----------------------------------------------------------------------------------------------
@@ -57,7 +56,11 @@ def write_raw(path: str | Path, cube: RawCube) -> None:
         if cube.antenna:
             ant = f.create_group("antenna")
             for key, value in cube.antenna.items():
-                ant.attrs[key] = value
+                if key in ANTENNA_DATASETS:
+                    put(ant, key, np.asarray(value, dtype=np.float64), ANTENNA_DATASETS[key][0],
+                        ANTENNA_DATASETS[key][1])
+                else:
+                    ant.attrs[key] = value
         plat = f.create_group("platform")
         put(plat, "position_m", cube.position_m.astype(np.float64), "m",
             "antenna phase centre (x, y, z) per pulse (INS)", dims=(t, None))
@@ -73,6 +76,8 @@ def write_raw(path: str | Path, cube: RawCube) -> None:
 
 
 TRUTH_KEYS = ("x_m", "y_m", "z_m", "amplitude")
+ANTENNA_DATASETS = {"ratio_offset_deg": ("deg", "angle offset from the beam axis of the ratio table"),
+                    "ratio": ("1", "monopulse ratio Re(diff/sum), monotone over the main lobe")}
 _UNIT_SUFFIXES = (("_mps", "m/s"), ("_deg", "deg"), ("_m", "m"), ("_s", "s"))
 
 
@@ -183,9 +188,7 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     if abs(prf_from_axis - radar["prf_hz"]) > 1e-6 * radar["prf_hz"]:
         raise BadInput(f"{source}: /radar attribute prf_hz = {radar['prf_hz']:g}: /axes/slow_time_s "
                        f"is sampled at {prf_from_axis:g} Hz")
-    antenna = {}
-    if isinstance(f.get("antenna"), h5py.Group):
-        antenna = {k: _plain(v) for k, v in f["antenna"].attrs.items()}
+    antenna = _read_antenna(f, source)
     noise = {k[len("noise_"):]: _plain(v) for k, v in f["echo"].attrs.items() if k.startswith("noise_")}
     truth = None
     tg = f.get("truth/targets")
@@ -209,3 +212,38 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     return RawCube(sum=echo_sum, diff=echo_diff, slow_time_s=slow_time_s, range_m=range_m,
                    scan_angle_deg=scan, position_m=position, velocity_mps=velocity, radar=radar,
                    antenna=antenna, truth=truth, scenario_yaml=scenario, noise=noise, attrs=attrs)
+
+
+def _read_antenna(f: h5py.File, source: str) -> dict:
+    """The optional /antenna group: attrs as they are, the ratio table checked (finite, same length,
+    offsets increasing, ratio strictly increasing)."""
+    grp = f.get("antenna")
+    if not isinstance(grp, h5py.Group):
+        return {}
+    antenna = {k: _plain(v) for k, v in grp.attrs.items()}
+    present = [k for k in ANTENNA_DATASETS if k in grp]
+    if present and len(present) != len(ANTENNA_DATASETS):
+        raise BadInput(f"{source}: /antenna: {present[0]} without "
+                       f"{[k for k in ANTENNA_DATASETS if k not in present][0]}; allowed: both or neither")
+    if present:
+        n = _need(f, "antenna/ratio", source).shape
+        if len(n) != 1 or n[0] < 2:
+            raise BadInput(f"{source}: /antenna/ratio: shape {list(n)}, expected [n] with n >= 2")
+        offset = _array(f, "antenna/ratio_offset_deg", source, kind=np.float64, shape=n)
+        ratio = _array(f, "antenna/ratio", source, kind=np.float64, shape=n)
+        if np.any(np.diff(offset) <= 0) or np.any(np.diff(ratio) <= 0):
+            raise BadInput(f"{source}: /antenna/ratio: not strictly increasing with ratio_offset_deg; allowed: "
+                           f"a ratio curve monotone over the main lobe")
+        antenna["ratio_offset_deg"], antenna["ratio"] = offset, ratio
+    for key in ("monopulse_slope_per_deg", "squint_deg", "diff_gain_db", "diff_phase_deg"):
+        if key in antenna:
+            try:
+                value = float(antenna[key])
+            except (TypeError, ValueError):
+                raise BadInput(f"{source}: /antenna attribute {key} = {antenna[key]!r}: expected a number") from None
+            if key == "monopulse_slope_per_deg" and not value > 0:
+                raise BadInput(f"{source}: /antenna attribute {key} = {value!r}: must be a positive number")
+            antenna[key] = value
+    return antenna
+
+

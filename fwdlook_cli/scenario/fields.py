@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+import json
 from typing import Any, Callable
 
 
@@ -133,6 +134,15 @@ def optional(inner: Callable[[Any], Any]) -> Callable[[Any], Any]:
     return check
 
 
+def calibration_setting(value: Any):
+    if value in ("auto", "cube", "data"):
+        return value
+    try:
+        return num(0.0, 100.0, lo_open=True)(value)
+    except ValueError:
+        raise ValueError("allowed: auto, cube, data, or a slope per degree > 0") from None
+
+
 def range_window(value: Any):
     out = vector(2, num(0.0))(value)
     if out[1] <= out[0]:
@@ -152,3 +162,8 @@ def amplitude(value: Any):
             raise ValueError("expected a positive number or a non-empty list of them")
         return [num(0.0, lo_open=True)(v) for v in value]
     return num(0.0, lo_open=True)(value)
+
+
+def _show(value: Any) -> str:
+    shown = json.dumps(value, default=str) if not isinstance(value, str) else repr(value)
+    return shown if len(shown) <= 60 else shown[:57] + "..."

@@ -1,14 +1,15 @@
 """The forward-looking scenario kind: its schema beside its defaults, derived quantities, cross-field checks."""
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..dsp.antenna import MonopulseAntenna
+from ..dsp.antenna import AntennaDesignError, antenna_from_scenario
 from ..dsp.geometry import platform_state, slant_range_m
 from ..errors import BadInput
-from .fields import Field, amplitude, auto_or, boolean, choice, integer, num, optional, points_list, range_window, text, vector
+from .fields import _show, Field, calibration_setting, amplitude, auto_or, boolean, choice, integer, num, optional, points_list, range_window, text, vector
 
 
 # ----------------------------------------------------------------------------------------------
@@ -35,8 +36,20 @@ FORWARD_SCHEMA: dict[str, Any] = {
     },
     "antenna": {
         "beamwidth_3db_deg": Field(num(0.1, 90.0), 6.0, "one-way 3 dB width of the SUM beam"),
-        "squint_deg": Field(num(0.0, 45.0, lo_open=True), 1.5,
-                            "squint of each of the two Gaussian beams from the boresight"),
+        "pattern": Field(choice("gaussian2", "sinc2", "table"), "gaussian2",
+                         "monopulse pattern family: two squinted Gaussian beams, two squinted uniform-aperture "
+                         "(sinc) beams, or a measured table (antenna.pattern_file)"),
+        "squint_deg": Field(auto_or(num(0.0, 45.0, lo_open=True)), "auto",
+                            "squint of each of the two beams from the boresight; auto: from antenna.crossover_db"),
+        "crossover_db": Field(num(-60.0, 0.0, hi_open=True), -3.0,
+                              "one-way level at which the two beams cross (used when squint_deg is auto)"),
+        "pattern_file": Field(optional(text), None,
+                              "antenna.pattern table: CSV (offset_deg, sum, diff voltage gains) or HDF5 "
+                              "(datasets offset_deg, sum, diff); relative to the scenario file"),
+        "diff_gain_db": Field(num(-40.0, 40.0), 0.0,
+                              "difference/sum channel gain imbalance (the difference channel is x 10^(g/20))"),
+        "diff_phase_deg": Field(num(-180.0, 180.0), 0.0,
+                                "difference/sum channel phase imbalance (the difference channel is x exp(j phi))"),
         "scan_start_deg": Field(num(-89.0, 89.0), -15.0, "beam azimuth at the first pulse"),
         "scan_stop_deg": Field(num(-89.0, 89.0), 15.0, "beam azimuth at the end of the scan"),
         "scan_rate_dps": Field(num(0.0, 1e4, lo_open=True), 30.0, "scan rate (deg/s)"),
@@ -92,6 +105,13 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "angle_step_deg": Field(num(1e-4, 1.0), 0.05, "angle bin of the monopulse image"),
         "threshold_db": Field(num(-50.0, 100.0), 12.0,
                               "Doppler cells projected only above this many dB over the CPI noise floor"),
+        "monopulse_calibration": Field(calibration_setting, "auto",
+                                       "where the monopulse ratio curve and channel imbalance come from: cube "
+                                       "(/antenna), data (estimated from point returns), auto (cube when it has "
+                                       "/antenna, else data), or a slope per degree (tanh curve, no imbalance)"),
+        "calibration_model": Field(choice("auto", "tanh", "table"), "auto",
+                                   "ratio curve fitted by a calibration from the data: tanh (two Gaussian beams), "
+                                   "table (a general monotone curve), auto (tanh unless it misfits grossly)"),
     },
 }
 
@@ -128,6 +148,26 @@ def scene_points(scn: dict):
     return pts, amps
 
 
+def _antenna_checks(ant: dict, source: str) -> None:
+    """The antenna design must be buildable; a pattern file is made absolute (relative to the scenario)."""
+    if ant["pattern"] == "table":
+        if not ant["pattern_file"]:
+            raise BadInput(f"{source}: antenna.pattern_file: required when antenna.pattern is table")
+        pf = Path(ant["pattern_file"]).expanduser()
+        if not pf.is_absolute():
+            base = Path(source).parent if Path(source).is_file() else Path.cwd()
+            pf = (base / pf).resolve()
+        ant["pattern_file"] = str(pf)
+    try:
+        antenna_from_scenario(ant)
+    except AntennaDesignError as exc:
+        value = {"antenna.squint_deg": ant["squint_deg"], "antenna.crossover_db": ant["crossover_db"],
+                 "antenna.pattern_file": ant["pattern_file"]}.get(exc.key, ant.get(exc.key.split(".")[-1]))
+        raise BadInput(f"{source}: {exc.key} = {_show(value)}: {exc}") from None
+
+
+
+
 def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None:
     radar, ant, sc, proc = scn["radar"], scn["antenna"], scn["scene"], scn["processing"]
     if radar["fs_hz"] < radar["bandwidth_hz"]:
@@ -142,10 +182,7 @@ def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None
                        f"({lat['x_stride']}) and nx ({lat['nx']})")
     if sc["kind"] == "points" and sc["points_m"] is None:
         raise BadInput(f"{source}: scene.points_m: required when scene.kind is points")
-    try:
-        MonopulseAntenna(ant["beamwidth_3db_deg"], ant["squint_deg"])
-    except ValueError as exc:
-        raise BadInput(f"{source}: antenna.squint_deg = {ant['squint_deg']:g}: {exc}") from None
+    _antenna_checks(ant, source)
     pts, amps = scene_points(scn)
     if isinstance(sc["amplitude"], list) and len(sc["amplitude"]) != len(pts):
         raise BadInput(f"{source}: scene.amplitude: list of {len(sc['amplitude'])} values; "

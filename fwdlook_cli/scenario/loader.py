@@ -21,7 +21,7 @@ from ..errors import BadInput
 from .forward import FORWARD_SCHEMA, forward_checks
 from .isar import ISAR_SCHEMA, isar_checks
 from .yamlio import yaml_load
-from .fields import REQUIRED
+from .fields import REQUIRED, _show
 
 SCHEMAS = {"forward": FORWARD_SCHEMA, "isar": ISAR_SCHEMA}
 CROSS_CHECKS: dict[str, Callable[..., None]] = {"forward": forward_checks, "isar": isar_checks}
@@ -56,11 +56,6 @@ def _resolve(raw: Any, schema: dict, path: str, source: str) -> dict:
         except ValueError as exc:
             raise BadInput(f"{source}: {where} = {_show(raw[key])}: {exc}") from None
     return out
-
-
-def _show(value: Any) -> str:
-    shown = json.dumps(value, default=str) if not isinstance(value, str) else repr(value)
-    return shown if len(shown) <= 60 else shown[:57] + "..."
 
 
 def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...], source: str) -> dict:

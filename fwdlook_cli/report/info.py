@@ -22,13 +22,13 @@ def describe(path: str) -> str:
         fmt = fmt.decode()
     if fmt == "fwdlook-raw":
         return describe_raw(path)
-    from .describe import describe_h5
+    from ..io.describe import describe_h5
 
     return f"{path}\n" + describe_h5(p)
 
 
 def describe_raw(path: str) -> str:
-    from .raw import read_raw
+    from ..io.raw import read_raw
 
     cube = read_raw(path)
     r, t = cube.radar, cube.slow_time_s
@@ -48,8 +48,20 @@ def describe_raw(path: str) -> str:
                  f"{cube.position_m[0, 2]:.1f} m, travel {np.linalg.norm(cube.position_m[-1] - cube.position_m[0]):.1f} m")
     if cube.antenna:
         a = cube.antenna
-        lines.append(f"  monopulse       squint {a.get('squint_deg', float('nan')):g} deg, slope "
-                     f"{a.get('monopulse_slope_per_deg', float('nan')):.4f} /deg (diff/sum = tanh(k d))")
+        lines.append(f"  antenna         {a.get('pattern', 'gaussian2')}, squint {float(a.get('squint_deg', float('nan'))):g} "
+                     f"deg, slope {float(a.get('monopulse_slope_per_deg', float('nan'))):.4f} /deg, imbalance "
+                     f"{float(a.get('diff_gain_db', 0.0)):+g} dB {float(a.get('diff_phase_deg', 0.0)):+g} deg"
+                     + (f", ratio table of {len(a['ratio'])} points" if "ratio" in a else ""))
+    else:
+        lines.append("  antenna         no /antenna group: the monopulse calibration comes from the data")
+    if cube.diff is not None:
+        from ..forward.calibration import calibration_for_cube
+
+        try:
+            cal = calibration_for_cube(cube, "data")
+            lines.append(f"  calibration     {cal.describe()}")
+        except BadInput as exc:
+            lines.append(f"  calibration     data: not possible ({str(exc).split(';')[0]})")
     snr = cube.noise.get("snr_db")
     lines.append(f"  SNR             {'noiseless' if snr is None or not np.isfinite(snr) else f'{snr:g} dB'}"
                  " (peak sample, unit target at beam centre)" if snr is not None else

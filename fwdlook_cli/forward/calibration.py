@@ -1,0 +1,481 @@
+"""Monopulse calibration: the ratio curve, boresight offset and channel imbalance in use.
+
+A recorded cube may not say its antenna (CONTRACT.md section 3: ``/antenna`` is optional).  The
+calibration then comes from the data: a stationary point scatterer P seen across the scan returns, at
+pulse n, ``diff/sum = gamma R(delta_n - b)`` with
+
+* ``delta_n = az(P from p_n) - scan_n`` its angle offset from the beam axis, from the INS position p_n;
+* ``R`` the ratio curve (``tanh(k d)`` for two Gaussian beams, NOTES.md), ``b`` the boresight offset
+  of the difference null from the sum-beam axis;
+* ``gamma = 10^(g/20) exp(j phi)`` the difference/sum channel imbalance (its phase shows in
+  Im(diff/sum), its amplitude in the ratio's scale).
+
+The sum-beam axis is found from the sum channel alone: the two-way sum power of a point is symmetric
+in ``delta``, so its power-weighted centroid over the dwell is zero; that fixes each scatterer's
+azimuth without the difference channel, and ``b``, ``k``, ``g``, ``phi`` are then fitted to the pooled
+(delta_n, diff/sum) of every isolated scatterer.  Uncertainties are jackknife over scatterers
+(3 or more) or from the fit's covariance.
+
+Everything here is a pure function on arrays; :func:`calibration_for_cube` picks the source that
+``processing.monopulse_calibration`` asks for.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import BadInput
+
+RATIO_TABLE_POINTS = 401
+# ``auto`` takes the general curve only when tanh misfits grossly: at SNR 20 dB the chi^2 drop measured
+# 26-28 for cubes of Gaussian AND of sinc beams alike (a small systematic misfit beyond noise), so the
+# 99.9 % point of chi^2 (16) would reject the true model; 100 keeps tanh for both (README)
+AUTO_TABLE_CHI2_DROP = 100.0
+
+
+@dataclass
+class Calibration:
+    """The monopulse ratio curve in use: ``Re(diff / (gamma sum)) = R(d - b)``."""
+
+    source: str                        # cube | data | setting
+    model: str                         # tanh (exact atanh inverse) | table (monotone table)
+    slope_per_deg: float               # dR/dd on the axis
+    boresight_offset_deg: float = 0.0  # b: the difference null relative to the sum-beam axis
+    diff_gain_db: float = 0.0          # channel imbalance, amplitude
+    diff_phase_deg: float = 0.0        # channel imbalance, phase
+    ratio_offset_deg: np.ndarray | None = None   # model table: offset from the null ...
+    ratio: np.ndarray | None = None              # ... and R there (strictly increasing)
+    sigma: dict = field(default_factory=dict)    # 1-sigma of each estimated quantity
+    stats: dict = field(default_factory=dict)    # scatterers, samples, residual, notes
+    pattern: str | None = None
+
+    def offset_deg(self, ratio):
+        """Offset from the sum-beam axis of a corrected ratio: R^-1(ratio) + b."""
+        r = np.asarray(ratio, dtype=np.float64)
+        if self.model == "tanh":
+            d = np.arctanh(np.clip(r, -0.999, 0.999)) / self.slope_per_deg
+        else:
+            d = np.interp(r, self.ratio, self.ratio_offset_deg)
+        return d + self.boresight_offset_deg
+
+    @property
+    def imbalance(self) -> complex:
+        return complex(10.0 ** (self.diff_gain_db / 20.0) * np.exp(1j * np.radians(self.diff_phase_deg)))
+
+    def stage_params(self) -> dict:
+        """The settings of the ``monopulse_image`` stage (hashed with the stage)."""
+        out = {"slope_per_deg": float(self.slope_per_deg), "ratio_model": self.model,
+               "boresight_offset_deg": float(self.boresight_offset_deg),
+               "diff_gain_db": float(self.diff_gain_db), "diff_phase_deg": float(self.diff_phase_deg)}
+        if self.model == "table":
+            out["ratio_offset_deg"] = [float(v) for v in self.ratio_offset_deg]
+            out["ratio"] = [float(v) for v in self.ratio]
+        return out
+
+    def to_json(self) -> dict:
+        out = {"source": self.source, "model": self.model, "pattern": self.pattern,
+               "slope_per_deg": float(self.slope_per_deg),
+               "boresight_offset_deg": float(self.boresight_offset_deg),
+               "diff_gain_db": float(self.diff_gain_db), "diff_phase_deg": float(self.diff_phase_deg),
+               "uncertainty": {k: float(v) for k, v in self.sigma.items()}}
+        out.update({k: v for k, v in self.stats.items()})
+        return _finite(out)
+
+    def describe(self) -> str:
+        s = self.sigma
+
+        def pm(key):
+            return f" +- {s[key]:.4g}" if key in s and np.isfinite(s[key]) else ""
+
+        line = (f"{self.source} ({self.model}): slope {self.slope_per_deg:.4f}{pm('slope_per_deg')} /deg, "
+                f"boresight {self.boresight_offset_deg:+.4f}{pm('boresight_offset_deg')} deg, imbalance "
+                f"{self.diff_gain_db:+.2f}{pm('diff_gain_db')} dB {self.diff_phase_deg:+.2f}"
+                f"{pm('diff_phase_deg')} deg")
+        if "n_scatterers" in self.stats:
+            line += f" ({self.stats['n_scatterers']} scatterers, {self.stats['n_samples']} samples)"
+        return line
+
+
+def _finite(obj):
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+# ----------------------------------------------------------------------------------------------
+# from the cube's /antenna group, or a plain slope
+# ----------------------------------------------------------------------------------------------
+def calibration_from_antenna(antenna: dict, beamwidth_deg: float) -> Calibration | None:
+    """The /antenna group as a calibration (None when it does not fix the ratio curve)."""
+    if not antenna:
+        return None
+    pattern = antenna.get("pattern")
+    gain = float(antenna.get("diff_gain_db", 0.0))
+    phase = float(antenna.get("diff_phase_deg", 0.0))
+    slope = antenna.get("monopulse_slope_per_deg")
+    if slope is not None and (pattern == "gaussian2" or (pattern is None and "ratio" not in antenna)):
+        # a Gaussian pair (or a cube of the former layout, slope only): exact tanh
+        return Calibration("cube", "tanh", float(slope), diff_gain_db=gain, diff_phase_deg=phase,
+                           pattern=pattern or "gaussian2")
+    if "ratio" in antenna:
+        d = np.asarray(antenna["ratio_offset_deg"], dtype=np.float64)
+        r = np.asarray(antenna["ratio"], dtype=np.float64)
+        k = float(slope) if slope is not None else float(np.gradient(r, d)[np.argmin(np.abs(d))])
+        return Calibration("cube", "table", k, diff_gain_db=gain, diff_phase_deg=phase, ratio_offset_deg=d,
+                           ratio=r, pattern=pattern)
+    if pattern in ("gaussian2", "sinc2") and "squint_deg" in antenna:
+        from ..dsp.antenna import MonopulseAntenna
+
+        model = MonopulseAntenna(beamwidth_deg, float(antenna["squint_deg"]), pattern=pattern)
+        d, r = model.ratio_table
+        return Calibration("cube", "table" if pattern == "sinc2" else "tanh", model.slope_per_deg,
+                           diff_gain_db=gain, diff_phase_deg=phase, ratio_offset_deg=d, ratio=r, pattern=pattern)
+    return None
+
+
+# ----------------------------------------------------------------------------------------------
+# from the data
+# ----------------------------------------------------------------------------------------------
+def _ground_point(position_m, range_m, azimuth_deg, target_height_m=0.0):
+    """Ground point at slant ``range_m`` from ``position_m`` along ground azimuth ``azimuth_deg``."""
+    dz = position_m[..., 2] - target_height_m
+    g = np.sqrt(np.maximum(np.asarray(range_m) ** 2 - dz**2, 0.0))
+    az = np.radians(azimuth_deg)
+    return np.stack([position_m[..., 0] + g * np.sin(az), position_m[..., 1] + g * np.cos(az),
+                     np.full_like(g, target_height_m)], axis=-1)
+
+
+def _azimuth_deg(position_m, point_m):
+    d = point_m - position_m
+    return np.degrees(np.arctan2(d[..., 0], d[..., 1]))
+
+
+def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, beamwidth_deg, t_ref_index=None,
+                  threshold_db=13.0, max_scatterers=24, n_iter=4):
+    """Strong isolated point-like returns seen across the scan, and their samples.
+
+    Returns a dict of pooled per-pulse samples (``scatterer``, ``pulse``, ``offset_deg`` = delta_n,
+    ``z`` = diff/sum, ``weight``) and per-scatterer ``x_m``, ``y_m``, ``peak_snr_db``, plus the
+    per-sample noise power ``noise_power``.  Targets are taken on the ground (z = 0).
+    """
+    s = np.asarray(echo_sum)
+    dz = np.asarray(echo_diff)
+    n_p, n_r = s.shape
+    dr = float(range_m[1] - range_m[0])
+    p = (s.real.astype(np.float32) ** 2 + s.imag.astype(np.float32) ** 2)
+    # noise power per sample: the lower quartile of |s|^2 is sigma^2 ln(4/3) for noise alone, and
+    # barely moved by the returns' range sidelobes (which lift the median)
+    noise = float(np.percentile(p, 25.0)) / np.log(4.0 / 3.0)
+    if not noise > 0:
+        noise = float(np.mean(p)) * 1e-6 + 1e-30
+    thr = noise * 10.0 ** (threshold_db / 10.0)
+    loc = np.zeros_like(p, dtype=bool)
+    loc[:, 1:-1] = (p[:, 1:-1] > thr) & (p[:, 1:-1] >= p[:, :-2]) & (p[:, 1:-1] > p[:, 2:])
+    n_idx, i_idx = np.nonzero(loc)
+    empty = {"scatterer": np.zeros(0, int), "pulse": np.zeros(0, int), "offset_deg": np.zeros(0),
+             "z": np.zeros(0, complex), "weight": np.zeros(0), "x_m": np.zeros(0), "y_m": np.zeros(0),
+             "peak_snr_db": np.zeros(0), "noise_power": noise, "n_candidates": 0, "rejected": {}}
+    if len(n_idx) < 10:
+        return empty
+    m_ref = n_p // 2 if t_ref_index is None else int(t_ref_index)
+    p_ref = position_m[m_ref]
+    # peak range, parabolic interpolation on |s|
+    a, b, c = np.sqrt(p[n_idx, i_idx - 1]), np.sqrt(p[n_idx, i_idx]), np.sqrt(p[n_idx, i_idx + 1])
+    frac = 0.5 * (a - c) / np.where(np.abs(a - 2 * b + c) > 0, a - 2 * b + c, 1.0)
+    r_meas = range_m[0] + dr * (i_idx + np.clip(frac, -0.5, 0.5))
+    # coarse point along the beam centre: its range from the t_ref antenna barely depends on the azimuth
+    coarse = _ground_point(position_m[n_idx], r_meas, scan_angle_deg[n_idx])
+    rho = np.linalg.norm(coarse - p_ref, axis=1)
+    scan = scan_angle_deg[n_idx]
+    scan_step = beamwidth_deg / 40.0
+    from scipy import ndimage
+
+    ir = np.floor((rho - rho.min()) / dr).astype(np.int64)
+    ia = np.floor((scan - scan.min()) / scan_step).astype(np.int64)
+    grid = np.zeros((ir.max() + 1, ia.max() + 1), dtype=bool)
+    grid[ir, ia] = True
+    labels, n_lab = ndimage.label(grid, structure=np.ones((3, 3)))
+    lab = labels[ir, ia] - 1
+    counts = np.bincount(lab, minlength=n_lab)
+    pw = p[n_idx, i_idx]
+    peak = np.full(n_lab, 0.0)
+    np.maximum.at(peak, lab, pw)
+    scan_lo, scan_hi = np.full(n_lab, np.inf), np.full(n_lab, -np.inf)
+    np.minimum.at(scan_lo, lab, scan)
+    np.maximum.at(scan_hi, lab, scan)
+    rho_c = np.bincount(lab, weights=rho * pw, minlength=n_lab) / np.bincount(lab, weights=pw, minlength=n_lab)
+    peak_db = 10 * np.log10(peak / noise)
+    # a lone point stays above the threshold over 2 x (bw/2) sqrt(L / 6.02 dB), L = peak - threshold
+    # (two-way Gaussian-like beam); longer: several scatterers merged
+    expect = beamwidth_deg * np.sqrt(np.maximum(peak_db - threshold_db, 0.0) / 6.02)
+    extent = scan_hi - scan_lo
+    scan_all_lo, scan_all_hi = scan_angle_deg.min(), scan_angle_deg.max()
+    rejected = {"weak": 0, "extended": 0, "scan_edge": 0, "neighbour": 0, "residual": 0}
+    ok = np.ones(n_lab, bool)
+    weak = (counts < 16) | (peak_db < threshold_db + 6.0)
+    rejected["weak"] = int(np.sum(weak))
+    ok &= ~weak
+    extended = ok & (extent > 1.3 * expect + 4 * scan_step)
+    rejected["extended"] = int(np.sum(extended))
+    ok &= ~extended
+    edge = ok & ((scan_lo - scan_all_lo < 2 * scan_step) | (scan_all_hi - scan_hi < 2 * scan_step))
+    rejected["scan_edge"] = int(np.sum(edge))
+    ok &= ~edge
+    # any other strong return (kept or not) near in range while the beam sees both: not isolated
+    strong = np.nonzero(~weak | (peak_db > threshold_db + 3.0))[0]
+    near = np.zeros(n_lab, bool)
+    for j in np.nonzero(ok)[0]:
+        other = strong[strong != j]
+        close = (np.abs(rho_c[other] - rho_c[j]) < 4.0 * dr) & (scan_lo[other] < scan_hi[j]) \
+            & (scan_hi[other] > scan_lo[j])
+        near[j] = bool(np.any(close))
+    rejected["neighbour"] = int(np.sum(near & ok))
+    ok &= ~near
+    keep = np.nonzero(ok)[0]
+    keep = keep[np.argsort(-peak[keep])][:max_scatterers]
+    if not len(keep):
+        out = dict(empty)
+        out.update(n_candidates=int(n_lab), rejected=rejected)
+        return out
+
+    # each scatterer's first position: the median of its beam-centre points
+    n_s = len(keep)
+    pt = np.zeros((n_s, 3))
+    for j, k in enumerate(keep):
+        pt[j] = np.median(coarse[lab == k], axis=0)
+    # then sample every pulse on the scatterer's PREDICTED track (INS geometry), never on the detections
+    # (a sample kept because it is above a threshold is biased high), and put the sum-beam axis where
+    # the sum power envelope is symmetric: its power-weighted centroid in delta is zero
+    window = 0.6 * beamwidth_deg
+    pos = position_m[None, :, :]
+    taps = np.arange(-1, 2)
+    for it in range(n_iter + 1):
+        az = _azimuth_deg(pos, pt[:, None, :])                     # [n_s, n_p]
+        delta = az - scan_angle_deg[None, :]
+        r = np.linalg.norm(pt[:, None, :] - pos, axis=2)
+        idx = np.rint((r - range_m[0]) / dr).astype(np.int64)
+        inside = (np.abs(delta) < window) & (idx >= 1) & (idx < n_r - 1)
+        j_i, n_i = np.nonzero(inside)
+        cols = idx[j_i, n_i][:, None] + taps[None, :]
+        s3 = s[n_i[:, None], cols].astype(np.complex128)
+        pow3 = np.sum(np.abs(s3) ** 2, axis=1)
+        w_env = pow3 / 3.0 - noise                                  # unbiased signal power
+        d_i = delta[j_i, n_i]
+        centre = np.bincount(j_i, weights=w_env * d_i, minlength=n_s) / np.maximum(
+            np.bincount(j_i, weights=w_env, minlength=n_s), 1e-30)
+        if it == n_iter:
+            break
+        az_ref = _azimuth_deg(p_ref, pt) - centre
+        rho_j = np.linalg.norm(pt - p_ref, axis=1)
+        pt = _ground_point(np.broadcast_to(p_ref, (n_s, 3)), rho_j, az_ref)
+    # envelope model (two-way, Gaussian-like) for the weights and the sample selection: not the data
+    peak_pow = peak[keep] - noise
+    model_pow = peak_pow[j_i] * 2.0 ** (-2.0 * (2.0 * d_i / beamwidth_deg) ** 2)
+    d3 = dz[n_i[:, None], cols].astype(np.complex128)
+    num = np.sum(np.conj(s3) * d3, axis=1)
+    den = pow3 - 3.0 * noise
+    good = (model_pow > 10.0 * noise) & (den > 0.2 * pow3)
+    # z = num / den is biased at low SNR (by more than noise/den: the samples' noise is correlated), but
+    # num - m den is not (E num = m E den for the model ratio m): the fit's residual is (z - m) den,
+    # so its weight is den^2 / var(num - m den), var = noise P3 (1 + |m|^2) with P3 the model power
+    z = num[good] / den[good]
+    sc, ni, delta = j_i[good], n_i[good], d_i[good]
+    weight = den[good] ** 2 / (noise * 3.0 * model_pow[good])
+    return {"scatterer": sc, "pulse": ni, "offset_deg": delta, "z": z, "weight": weight,
+            "x_m": pt[:, 0], "y_m": pt[:, 1], "peak_snr_db": peak_db[keep], "noise_power": noise,
+            "n_candidates": int(n_lab), "rejected": rejected}
+
+
+def _tanh_over_k(k, u):
+    """tanh(k u) / k, continuous through k = 0 (where it is u)."""
+    k = float(k)
+    return u if abs(k) < 1e-9 else np.tanh(k * u) / k
+
+
+def _fit_tanh(delta, z, weight, k0, sc=None):
+    """Weighted least squares of z = exp(j phi) S tanh(k (delta - b_j)) / k.
+
+    S is the effective slope of Re(diff/sum) on the null (the receiver gain included), k the curve's
+    own curvature scale: the amplitude imbalance is S / k, seen only through the tanh's bend.  Each
+    scatterer j has its own null offset b_j (its azimuth from the sum envelope has an error of its
+    own); the boresight offset is their mean.  Returns [S, phi, k, mean b], the b_j, the covariance
+    of the first four (scaled by the reduced chi^2), chi^2 and dof.
+    """
+    from scipy.optimize import least_squares
+
+    sc = np.zeros(len(z), np.int64) if sc is None else sc
+    labels, sc = np.unique(sc, return_inverse=True)
+    n_s = len(labels)
+    rot = np.sum(weight * z * np.sign(delta))
+    phi0 = float(np.angle(rot))
+
+    def model(p):
+        s_eff, phi, k = p[:3]
+        return np.exp(1j * phi) * s_eff * _tanh_over_k(k, delta - p[3:][sc])
+
+    def resid(p):
+        m = model(p)
+        e = (z - m) * np.sqrt(2.0 * weight / (1.0 + np.abs(m) ** 2))
+        return np.concatenate([e.real, e.imag])
+
+    x = np.real(z * np.exp(-1j * phi0))
+    inner = np.abs(delta) < 0.5 / max(k0, 1e-6)
+    if inner.sum() > 10:
+        s0 = float(np.sum(weight[inner] * x[inner] * delta[inner]) / np.sum(weight[inner] * delta[inner] ** 2))
+    else:
+        s0 = k0
+    res = least_squares(resid, x0=np.r_[s0, phi0, s0, np.zeros(n_s)], method="lm", x_scale="jac")
+    p = res.x.copy()
+    p[2] = abs(p[2])
+    if p[0] < 0:
+        p[0], p[1] = -p[0], p[1] + np.pi
+    p[1] = float(np.angle(np.exp(1j * p[1])))
+    dof = max(2 * len(z) - len(p), 1)
+    chi2 = float(np.sum(res.fun ** 2))
+    try:
+        cov_all = np.linalg.inv(res.jac.T @ res.jac) * chi2 / dof
+    except np.linalg.LinAlgError:
+        cov_all = np.full((len(p), len(p)), np.nan)
+    # the mean null offset and its variance (the b_j block averaged)
+    avg = np.r_[np.zeros(3), np.full(n_s, 1.0 / n_s)]
+    tr = np.vstack([np.eye(len(p))[:3], avg])
+    cov = tr @ cov_all @ tr.T
+    b_j = p[3:]
+    return np.r_[p[:3], b_j.mean()], b_j, cov, chi2, dof
+
+
+def _fit_poly(delta, z, weight, params, b_j, sc, degree=5):
+    """The general ratio curve: a degree-5 polynomial through Re(z e^{-j phi}) against delta - b_j,
+    with the tanh fit's weights (so that the two chi^2 compare); returns it and its chi^2."""
+    s_eff, phi, k, _b = params
+    _, sc = np.unique(sc, return_inverse=True)
+    u = delta - b_j[sc]
+    m = s_eff * _tanh_over_k(k, u)
+    sw = np.sqrt(2.0 * weight / (1.0 + m**2))
+    zr = z * np.exp(-1j * phi)
+    poly = np.polynomial.Polynomial.fit(u, zr.real, degree, w=sw)
+    chi2 = float(np.sum((sw * (zr.real - poly(u))) ** 2) + np.sum((sw * zr.imag) ** 2))
+    return poly, chi2
+
+
+def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "auto") -> Calibration:
+    """Fit the ratio curve, boresight offset and imbalance to the pooled point-return samples.
+
+    ``model``: ``tanh`` (two Gaussian beams), ``table`` (a degree-5 curve, inverted through a monotone
+    table), ``auto`` (tanh unless the general curve's chi^2 is lower by more than
+    ``AUTO_TABLE_CHI2_DROP`` in units of the residual variance).
+    """
+    sc, delta, z, w = samples["scatterer"], samples["offset_deg"], samples["z"], samples["weight"]
+    n_s = int(sc.max()) + 1 if len(sc) else 0
+    if n_s == 0 or len(z) < 30:
+        raise BadInput("monopulse calibration from the data: no strong isolated point-like returns "
+                       f"({samples.get('n_candidates', 0)} candidates, rejected {samples.get('rejected', {})}); "
+                       "allowed: processing.monopulse_calibration = cube (with /antenna) or a slope per degree")
+    k0 = 2.0 / beamwidth_deg
+    use = np.abs(delta) < 0.6 * beamwidth_deg
+    # iterate: fit, drop scatterers whose own residual is far above the others' (mixed returns)
+    keep_s = np.ones(n_s, bool)
+    for _ in range(3):
+        m = use & keep_s[sc]
+        params, b_j, cov, chi2, dof = _fit_tanh(delta[m], z[m], w[m], k0, sc[m])
+        s_eff, phi, k, b = params
+        b_all = np.full(n_s, b)
+        b_all[np.unique(sc[m])] = b_j
+        mod = np.exp(1j * phi) * s_eff * _tanh_over_k(k, delta - b_all[sc])
+        e2 = np.abs(z - mod) ** 2 * 2.0 * w / (1.0 + np.abs(mod) ** 2)
+        per = np.bincount(sc[use], weights=e2[use], minlength=n_s) / np.maximum(
+            2.0 * np.bincount(sc[use], minlength=n_s), 1)
+        med = np.median(per[keep_s])
+        bad = keep_s & (per > 4.0 * med)
+        if not bad.any() or keep_s.sum() - bad.sum() < 1:
+            break
+        keep_s &= ~bad
+    m = use & keep_s[sc]
+    poly, chi2_poly = _fit_poly(delta[m], z[m], w[m], params, b_j, sc[m])
+    s2 = chi2_poly / max(2 * m.sum() - 7 - n_s, 1)
+    drop = (chi2 - chi2_poly) / s2
+    chosen = "table" if (model == "table" or (model == "auto" and drop > AUTO_TABLE_CHI2_DROP)) else "tanh"
+
+    def pack(p):
+        s_eff_, phi_, k_, b_ = p
+        gain = 20.0 * np.log10(s_eff_ / k_) if k_ > 1e-9 else np.inf
+        return np.array([s_eff_, k_, b_, gain, np.degrees(phi_)])
+
+    names = ("effective_slope_per_deg", "slope_per_deg", "boresight_offset_deg", "diff_gain_db", "diff_phase_deg")
+    est = pack(params)
+    sig = np.sqrt(np.abs(np.diag(cov)))
+    corr = cov[0, 2] / (sig[0] * sig[2]) if sig[0] > 0 and sig[2] > 0 else 0.0
+    rel_gain = np.sqrt((sig[0] / params[0]) ** 2 + (sig[2] / max(params[2], 1e-12)) ** 2
+                       - 2 * corr * sig[0] * sig[2] / (params[0] * max(params[2], 1e-12)))
+    sigma = dict(zip(names, (sig[0], sig[2], sig[3], 20.0 / np.log(10.0) * rel_gain, np.degrees(sig[1]))))
+    idx = np.nonzero(keep_s)[0]
+    if len(idx) >= 3:   # jackknife over scatterers: includes each scatterer's azimuth error
+        reps = []
+        for j in idx:
+            mj = m & (sc != j)
+            pj, _, _, _, _ = _fit_tanh(delta[mj], z[mj], w[mj], k0, sc[mj])
+            pj[1] = params[1] + np.angle(np.exp(1j * (pj[1] - params[1])))
+            reps.append(pack(pj))
+        reps = np.array(reps)
+        n = len(idx)
+        jk = np.sqrt((n - 1) / n * np.sum((reps - reps.mean(axis=0)) ** 2, axis=0))
+        for key, v_jk in zip(names, jk):
+            sigma[key] = float(max(v_jk, sigma[key])) if np.isfinite(v_jk) else float("inf")
+    stats = {"n_scatterers": int(keep_s.sum()), "n_samples": int(m.sum()),
+             "effective_slope_per_deg": float(est[0]),
+             "reduced_chi2": float(chi2 / dof), "model_test_chi2_drop": float(drop),
+             "scatterers_m": [[float(x), float(y)] for x, y, kk in zip(samples["x_m"], samples["y_m"], keep_s) if kk],
+             "rejected": dict(samples.get("rejected", {}), residual=int(n_s - keep_s.sum()))}
+    cal = Calibration("data", "tanh", float(est[1]), boresight_offset_deg=float(est[2]),
+                      diff_gain_db=float(est[3]), diff_phase_deg=float(est[4]), sigma=sigma, stats=stats)
+    if chosen == "table" or not np.isfinite(est[3]):
+        # the general curve: the amplitude imbalance is part of it (not separable), the phase is removed
+        span = float(min(np.max(np.abs(delta[m] - params[3])), 0.6 * beamwidth_deg))
+        d = np.linspace(-span, span, RATIO_TABLE_POINTS)
+        r = poly(d)
+        inc = np.nonzero(np.diff(r) <= 0)[0]
+        if len(inc):   # keep the monotone stretch about the null
+            c = RATIO_TABLE_POINTS // 2
+            lo = inc[inc < c].max() + 1 if np.any(inc < c) else 0
+            hi = inc[inc >= c].min() + 1 if np.any(inc >= c) else len(d)
+            d, r = d[lo:hi], r[lo:hi]
+        cal.model = "table"
+        cal.ratio_offset_deg, cal.ratio = d, r
+        cal.slope_per_deg = float(poly.deriv()(0.0))
+        cal.diff_gain_db = 0.0
+        cal.sigma["diff_gain_db"] = float("nan")
+        cal.sigma["slope_per_deg"] = cal.sigma["effective_slope_per_deg"]
+        cal.stats["effective_slope_per_deg"] = cal.slope_per_deg
+        cal.stats["note"] = ("general ratio curve (tanh rejected by the model test): the amplitude imbalance "
+                             "is part of the curve and not reported apart")
+    return cal
+
+
+def calibration_for_cube(cube, setting, *, t_ref_index=None, model: str = "auto") -> Calibration:
+    """The calibration ``processing.monopulse_calibration`` asks for (auto | cube | data | slope)."""
+    bw = float(cube.radar["beamwidth_3db_deg"])
+    if isinstance(setting, (int, float)) and not isinstance(setting, bool):
+        return Calibration("setting", "tanh", float(setting))
+    from_cube = calibration_from_antenna(cube.antenna, bw)
+    if setting == "cube":
+        if from_cube is None:
+            raise BadInput("processing.monopulse_calibration = 'cube': the cube has no /antenna group that "
+                           "fixes the ratio curve; allowed: auto, data, or a slope per degree")
+        return from_cube
+    if setting == "auto" and from_cube is not None:
+        return from_cube
+    samples = point_returns(cube.sum, cube.diff, cube.range_m, cube.scan_angle_deg, cube.position_m,
+                            beamwidth_deg=bw, t_ref_index=t_ref_index)
+    cal = estimate_calibration(samples, beamwidth_deg=bw, model=model)
+    if from_cube is not None:  # a check on the cube's own antenna
+        cal.stats["cube_slope_per_deg"] = float(from_cube.slope_per_deg)
+        cal.stats["cube_diff_gain_db"] = float(from_cube.diff_gain_db)
+        cal.stats["cube_diff_phase_deg"] = float(from_cube.diff_phase_deg)
+    return cal

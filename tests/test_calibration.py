@@ -1,0 +1,203 @@
+"""Monopulse calibration from the data, on cubes written by an independent writer (no /antenna).
+
+The writer (``independent_writer.py``) shares no code with fwdlook's simulator: exact range of eq. (1),
+two Gaussian beams crossing at their half-power points, band-limited noise, the CONTRACT.md section 3
+layout.  Two radars: the paper's (18 GHz, 6 deg sum beam) and an X-band one (10 GHz, 4 deg).
+Tolerances: the issue's (0.3 m, 0.05 deg RMS, slope 2 %, phase 2 deg); the slope's estimated 1-sigma
+is 1.2 % (paper) and 1.3 % (X band) for these scenes (README), so 2 % is not generous.
+"""
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fwdlook_cli.forward.calibration import Calibration, calibration_for_cube, calibration_from_antenna
+from fwdlook_cli.cli import main
+from fwdlook_cli.io.raw import read_raw
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import independent_writer as writer  # noqa: E402
+
+C = 299_792_458.0
+SCENES = {
+    # azimuths inside the scan by more than the detection reach, ranges 70 m apart (isolated)
+    "paper": dict(az_deg=[-3.5, -2.1, -0.7, 0.7, 2.1, 3.5], kw=dict(n_pulses=650)),
+    "xband": dict(az_deg=[-2.5, -1.5, -0.5, 0.5, 1.5, 2.5],
+                  kw=dict(scan_start_deg=-6.0, scan_stop_deg=6.0, scan_rate_dps=40.0, n_pulses=600)),
+}
+
+
+def _cli(argv):
+    try:
+        main([str(a) for a in argv])
+    except SystemExit as exc:
+        return exc.code
+    return 0
+
+
+def _points(az_deg):
+    az = np.radians(az_deg)
+    r = 1650.0 + 70.0 * np.arange(len(az))
+    return np.column_stack([r * np.sin(az), r * np.cos(az)])
+
+
+def _write_and_process(tmp, name, radar, extra_writer=(), extra_set=()):
+    scene = SCENES[radar]
+    raw = tmp / f"{name}.h5"
+    info = writer.write_cube(raw, radar, _points(scene["az_deg"]), **dict(scene["kw"], **dict(extra_writer)))
+    sets = []
+    for s in extra_set:
+        sets += ["--set", s]
+    code = _cli(["process", raw, "-o", tmp / f"run_{name}", "-q", *sets])
+    assert code == 0
+    metrics = json.loads((tmp / f"run_{name}" / "metrics.json").read_text())
+    return raw, info, metrics
+
+
+def _isolated(metrics, bandwidth_hz, beamwidth_deg):
+    """Targets with no other target in their range cell (c / 2B) within a beamwidth."""
+    rng = np.array([r["true_range_m"] for r in metrics["targets"]])
+    az = np.array([r["true_azimuth_deg"] for r in metrics["targets"]])
+    cell = C / (2.0 * bandwidth_hz)
+    near = (np.abs(rng[:, None] - rng[None, :]) < cell) & (np.abs(az[:, None] - az[None, :]) < beamwidth_deg)
+    return near.sum(axis=1) == 1
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("independent")
+    out = {}
+    for radar in SCENES:
+        out[radar] = _write_and_process(tmp, radar, radar)
+    out["imbalance"] = _write_and_process(tmp, "imbalance", "paper",
+                                          extra_writer={"diff_gain_db": 3.0, "diff_phase_deg": 20.0})
+    # the same imbalanced cube processed with the true slope but no imbalance correction
+    raw = out["imbalance"][0]
+    code = _cli(["process", raw, "-o", tmp / "run_uncorrected", "-q", "--set",
+                 f"processing.monopulse_calibration={out['imbalance'][1]['slope_per_deg']}"])
+    assert code == 0
+    out["uncorrected"] = (raw, out["imbalance"][1], json.loads((tmp / "run_uncorrected" / "metrics.json").read_text()))
+    return out
+
+
+@pytest.mark.parametrize("radar", list(SCENES))
+def test_independent_cube_images_within_resolution_with_data_calibration(runs, radar):
+    _raw, _info, m = runs[radar]
+    rd = writer.RADARS[radar]
+    assert m["calibration"]["source"] == "data"
+    assert m["summary"]["detected"] == m["summary"]["n_targets"] == len(SCENES[radar]["az_deg"])
+    err_r = np.array([abs(r["range_error_m"]) for r in m["targets"]])
+    assert np.all(err_r <= 0.3), err_r
+    iso = _isolated(m, rd["bandwidth_hz"], rd["beamwidth_deg"])
+    assert iso.sum() >= 4
+    err_a = np.array([r["azimuth_error_deg"] for r in m["targets"]])[iso]
+    assert np.sqrt(np.mean(err_a**2)) <= 0.05, err_a
+
+
+@pytest.mark.parametrize("radar", list(SCENES))
+def test_slope_and_phase_from_the_data_match_the_truth(runs, radar):
+    _raw, info, m = runs[radar]
+    cal = m["calibration"]
+    truth = info["slope_per_deg"]            # the writer's own central difference of its beams
+    assert cal["effective_slope_per_deg"] == pytest.approx(truth, rel=0.02)
+    assert cal["slope_per_deg"] == pytest.approx(truth, rel=3 * cal["uncertainty"]["slope_per_deg"] / truth)
+    assert abs(cal["diff_phase_deg"]) <= 2.0
+    assert abs(cal["diff_gain_db"]) <= 3 * cal["uncertainty"]["diff_gain_db"]
+    assert abs(cal["boresight_offset_deg"]) <= 3 * cal["uncertainty"]["boresight_offset_deg"]
+    # a 3-sigma band that holds the truth also stays small: the estimate is informative
+    assert cal["uncertainty"]["effective_slope_per_deg"] / truth < 0.03
+
+
+def test_channel_imbalance_is_estimated_and_corrected(runs):
+    _raw, info, m = runs["imbalance"]
+    cal = m["calibration"]
+    assert cal["diff_phase_deg"] == pytest.approx(20.0, abs=2.0)
+    assert cal["diff_gain_db"] == pytest.approx(3.0, abs=3 * cal["uncertainty"]["diff_gain_db"])
+    k_eff = info["slope_per_deg"] * 10 ** (3.0 / 20)
+    assert cal["effective_slope_per_deg"] == pytest.approx(k_eff, rel=0.02)
+    # the image is as good as without the imbalance: same detections, errors inside the same bounds
+    # (the control below shows the bounds fail without the correction)
+    _r, _i, m0 = runs["paper"]
+    assert m["summary"]["detected"] == m0["summary"]["detected"] == m["summary"]["n_targets"]
+    assert m["summary"]["max_abs_range_error_m"] <= 0.3
+    assert m["summary"]["rms_azimuth_error_deg"] <= 0.05
+
+
+def test_uncorrected_imbalance_degrades_the_image(runs):
+    """Control: the true slope without the imbalance correction reads every offset 1.41 x too large
+    (and the 20 deg phase costs cos 20): the azimuth errors grow beyond the bound above."""
+    _raw, _info, m = runs["uncorrected"]
+    assert m["calibration"]["source"] == "setting"
+    assert m["summary"]["rms_azimuth_error_deg"] > 0.05
+
+
+def test_info_reports_the_data_calibration(runs, capsys):
+    raw = runs["paper"][0]
+    capsys.readouterr()
+    assert _cli(["info", raw]) == 0
+    out = capsys.readouterr().out
+    assert "no /antenna group" in out
+    assert "calibration     data (tanh): slope" in out
+
+
+def test_cube_calibration_is_refused_without_antenna(runs, tmp_path, capsys):
+    raw = runs["paper"][0]
+    code = _cli(["process", raw, "-o", tmp_path / "r", "-q", "--set", "processing.monopulse_calibration=cube"])
+    assert code == 2
+    assert "monopulse_calibration" in capsys.readouterr().err
+
+
+def test_noise_only_cube_cannot_be_calibrated_from_data(tmp_path, capsys):
+    raw = tmp_path / "empty.h5"
+    writer.write_cube(raw, "xband", np.array([[0.0, 1700.0]]), snr_db=-20.0, scan_start_deg=-3.0,
+                      scan_stop_deg=3.0, n_pulses=200)
+    code = _cli(["process", raw, "-o", tmp_path / "r", "-q", "--set", "processing.q=8"])
+    assert code == 2
+    assert "no strong isolated point-like returns" in capsys.readouterr().err
+
+
+def test_calibration_from_antenna_groups():
+    # the former layout (slope only): tanh with that slope
+    cal = calibration_from_antenna({"squint_deg": 1.5, "monopulse_slope_per_deg": 0.2}, 6.0)
+    assert (cal.source, cal.model, cal.slope_per_deg) == ("cube", "tanh", 0.2)
+    # a tabulated curve inverts through the table
+    d = np.linspace(-3, 3, 61)
+    cal = calibration_from_antenna({"pattern": "table", "ratio_offset_deg": d, "ratio": 0.3 * d + 0.01 * d**3,
+                                    "diff_phase_deg": 5.0}, 6.0)
+    assert cal.model == "table" and cal.diff_phase_deg == 5.0
+    np.testing.assert_allclose(cal.offset_deg(0.3 * d + 0.01 * d**3), d, atol=1e-12)
+    assert calibration_from_antenna({}, 6.0) is None
+    # tanh inverse is exact, the boresight offset adds
+    c = Calibration("data", "tanh", 0.36, boresight_offset_deg=0.1)
+    assert c.offset_deg(np.tanh(0.36 * 1.0)) == pytest.approx(1.1, abs=1e-12)
+
+
+def test_own_simulated_imbalance_is_undone_from_the_cube(tmp_path):
+    """fwdlook's simulator writes the imbalance in /antenna; auto takes it and the chain divides it out:
+    noiseless, the corrected ratio is the balanced one up to float32 rounding, so the images agree."""
+    from fwdlook_cli.scenario.loader import resolve_scenario
+    from fwdlook_cli.io.raw import write_raw
+    from fwdlook_cli.forward.process import process_cube
+    from fwdlook_cli.forward.simulate import simulate_scenario
+
+    pts = _points([-2.1, -0.7, 0.7, 2.1]).tolist()
+    base = {"antenna": {"scan_start_deg": -8.0, "scan_stop_deg": 8.0, "scan_rate_dps": 60.0},
+            "platform": {"accel_mps2": [0.0, 10.0, 0.0]}, "scene": {"kind": "points", "points_m": pts},
+            "radar": {"n_pulses": 650}, "noise": {"snr_db": None}}
+    res = {}
+    for tag, ant in (("balanced", {}), ("imbalanced", {"diff_gain_db": 3.0, "diff_phase_deg": 20.0})):
+        raw = dict(base, antenna=dict(base["antenna"], **ant))
+        scn = resolve_scenario(raw, "<t>")
+        cube, _ = simulate_scenario(scn)
+        write_raw(tmp_path / f"{tag}.h5", cube)
+        back = read_raw(tmp_path / f"{tag}.h5")
+        assert back.antenna["diff_gain_db"] == ant.get("diff_gain_db", 0.0)
+        cal = calibration_for_cube(back, "auto")
+        assert cal.source == "cube" and cal.diff_phase_deg == ant.get("diff_phase_deg", 0.0)
+        res[tag] = process_cube(back, scn, tmp_path / tag, quiet=True, png=False)
+    az0 = np.array([r["meas_azimuth_deg"] for r in res["balanced"]["targets"]])
+    az1 = np.array([r["meas_azimuth_deg"] for r in res["imbalanced"]["targets"]])
+    assert np.max(np.abs(az1 - az0)) < 1e-3
+    assert res["imbalanced"]["calibration"]["diff_gain_db"] == 3.0
