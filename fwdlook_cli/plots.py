@@ -2,8 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
-from pathlib import Path
 
 import numpy as np
 
@@ -38,21 +36,25 @@ def save_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
     ax.set_aspect(aspect)
     fig.colorbar(mesh, ax=ax, label="dB")
     fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    from .outputs import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:          # partial removed and OSError one line on failure
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
 
 
 def _save(fig, path):
     plt = _plt()
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".partial.png")
+    from .outputs import atomic_path
+
     fig.tight_layout()
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
 
 
 def speed_accuracy_chart(path, rows, grid_keys, *, error_key=None):
@@ -155,11 +157,13 @@ def image_panels(path, panels, *, ncols=None, dynamic_range_db=40.0, suptitle=No
         fig.colorbar(mesh, ax=axes, label=label, shrink=0.85)
     if suptitle:
         fig.suptitle(suptitle, fontsize=10)
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp, bbox_inches="tight")
-    plt.close(fig)
-    os.replace(tmp, path)
+    from .outputs import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, bbox_inches="tight")
+    finally:
+        plt.close(fig)
 
 
 def range_profile_panels(path, panels, *, xlabel="slant range at t_ref (m)", floor_db=-40.0, suptitle=None):

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .config import dump_scenario, resolve_scenario, scenario_hash, yaml_load
+from .config import dump_scenario, resolve_scenario, scenario_hash
 from .errors import BadInput
 from .io import atomic_h5, atomic_write_text, put, put_scale
 
@@ -18,12 +18,9 @@ def load_config_overlay(path: str | None) -> dict:
     """A processing preset (configs/*.yaml): a mapping with a ``processing:`` section."""
     if not path:
         return {}
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise BadInput(f"{path}: config file not found") from None
-    raw = yaml_load(text, str(p)) or {}
+    from .config import read_yaml_file
+
+    raw = read_yaml_file(path, "config") or {}
     if not isinstance(raw, dict) or set(raw) - {"processing", "name"}:
         extra = sorted(set(raw) - {"processing", "name"}) if isinstance(raw, dict) else ["<not a mapping>"]
         raise BadInput(f"{path}: {extra[0]}: unknown key in a processing preset; allowed: processing")

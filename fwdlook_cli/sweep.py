@@ -26,7 +26,7 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from .config import scenario_hash, yaml_load
+from .config import read_scenario_raw, read_yaml_file, scenario_hash
 from .errors import BadInput
 
 SUMMARY_KEYS = ("detected", "n_targets", "max_abs_range_error_m", "median_abs_range_error_m",
@@ -36,10 +36,7 @@ SUMMARY_KEYS = ("detected", "n_targets", "max_abs_range_error_m", "median_abs_ra
 
 def load_sweep(path: str) -> dict:
     p = Path(path)
-    try:
-        raw = yaml_load(p.read_text(encoding="utf-8"), str(p))
-    except FileNotFoundError:
-        raise BadInput(f"{path}: sweep file not found") from None
+    raw = read_yaml_file(p, "sweep")
     if not isinstance(raw, dict):
         raise BadInput(f"{path}: top level: expected a mapping")
     allowed = {"name", "scenarios", "set", "grid", "config", "combine", "keep_stages"}
@@ -77,10 +74,7 @@ def plan_runs(sweep: dict, out_dir: Path) -> list[dict]:
     keys = list(sweep["grid"])
     runs = []
     for scen_path in sweep["scenarios"]:
-        try:
-            raw = yaml_load(Path(scen_path).read_text(encoding="utf-8"), scen_path) or {}
-        except FileNotFoundError:
-            raise BadInput(f"{scen_path}: scenario file not found") from None
+        raw = read_scenario_raw(scen_path)
         for values in itertools.product(*(sweep["grid"][k] for k in keys)):
             point = dict(zip(keys, values))
             sets = list(sweep["set"]) + [f"{k}={json.dumps(v)}" for k, v in point.items()]
