@@ -24,6 +24,7 @@ import h5py
 import numpy as np
 
 from .errors import BadInput
+from .integrity import DATASETS_ATTR, declare, load_verified
 from .io import atomic_h5, put
 
 
@@ -79,7 +80,7 @@ def _canon(value):
 
 
 PROVENANCE_KEYS = ("format", "stage", "config_sha256", "input_sha256", "settings", "software",
-                   "software_version", "created_utc", "compute_s")
+                   "software_version", "created_utc", "compute_s", "stage_datasets")
 
 
 def stage_key(name: str, params: dict, previous_key: str) -> str:
@@ -102,16 +103,19 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
         f.attrs["config_sha256"] = key
         f.attrs["input_sha256"] = input_key
         f.attrs["settings"] = json.dumps(_canon(params), sort_keys=True, default=str)
+        f.attrs[DATASETS_ATTR] = json.dumps(list(data.vars))    # integrity.py: what the file declares
         scales = {}
         for name, var in data.vars.items():  # coordinates first, as dimension scales
             if var.dims == (name,):
                 ds = put(f, name, var.data, var.units, var.long_name)
+                declare(ds, var.data)
                 ds.make_scale(name)
                 scales[name] = ds
         for name, var in data.vars.items():
             if var.dims == (name,):
                 continue
             ds = put(f, name, var.data, var.units, var.long_name)
+            declare(ds, var.data)
             ds.attrs["dims"] = json.dumps(list(var.dims))
             for axis, dim in enumerate(var.dims):
                 if dim not in scales or scales[dim].shape[0] != var.data.shape[axis]:
@@ -159,16 +163,22 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
         key = stage_key(st.name, st.params, key)
         keys.append(key)
         paths.append(stage_dir / f"{i + 1:02d}_{st.name}.h5")
-    # the first stage that must run: forced, missing, or stale
+    # the first stage that must run: forced, missing, stale or damaged (integrity.py: every reused
+    # stage is read and checked against its declared datasets, dtypes, shapes and sha256 digests)
     first = recompute_from
-    for i, path in enumerate(paths):
-        if i >= first:
-            break
-        if stage_file_key(path) != keys[i]:
+    data = source
+    for i in range(first):
+        loaded, damage = load_verified(paths[i], keys[i])
+        if loaded is None:
+            if damage:
+                print(f"[{i + 1}/{len(stages)}] {stages[i].name}: stage file {paths[i]} is damaged ({damage}); "
+                      f"recomputing it, not reusing it", file=sys.stderr)
             first = i
             break
+        data = loaded
+    if first == 0:
+        data = source
     timings: dict[str, float] = {}
-    data = source if first == 0 else read_stage(paths[first - 1])
     for i, st in enumerate(stages):
         if i < first:
             timings[st.name] = 0.0
@@ -184,8 +194,6 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
                   f"{(timings[st.name] - t_compute) * 1e3:6.1f} ms write", file=sys.stderr)
     if first == len(stages) and not quiet:
         print(f"all {len(stages)} stages up to date (reused)", file=sys.stderr)
-    if first == len(stages):
-        data = read_stage(paths[-1])
-    elif first > 0 and not quiet:
+    if first < len(stages) and first > 0 and not quiet:
         print(f"reused stages 1-{first} ({', '.join(names[:first])})", file=sys.stderr)
     return data, timings, dict(zip(names, keys))
