@@ -57,6 +57,7 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _c
 def yaml_load(text: str, source: str) -> Any:
     """Parse YAML text strictly; a syntax error or a duplicate key becomes one BadInput line."""
     try:
+        _check_depth(text, source)               # on the event stream: no recursion, stops early
         loader = _StrictLoader(text)
         try:
             node = loader.get_single_node()
@@ -130,6 +131,18 @@ def check_yaml_graph(root, source: str) -> None:
         if len(on_path) > MAX_YAML_DEPTH + 1:
             raise BadInput(f"{source}: line {node.start_mark.line + 1}: nesting deeper than "
                            f"{MAX_YAML_DEPTH} levels; a scenario is a few levels deep")
+
+
+def _check_depth(text: str, source: str) -> None:
+    depth = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                raise BadInput(f"{source}: line {event.start_mark.line + 1}: nesting deeper than "
+                               f"{MAX_YAML_DEPTH} levels; a scenario is a few levels deep")
+        elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+            depth -= 1
 
 
 def _children(node):
@@ -239,6 +252,8 @@ def integer(lo: int | None = None, hi: int | None = None) -> Callable[[Any], int
             raise ValueError(f"must be >= {lo}")
         if hi is not None and value > hi:
             raise ValueError(f"must be <= {hi}")
+        if hi is None and value >= 2**63:     # stored as HDF5/NumPy int64 attributes
+            raise ValueError("must be < 2**63")
         return value
 
     return check

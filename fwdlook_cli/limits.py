@@ -161,12 +161,6 @@ def forward_sizes_check(scn: dict, source: str) -> None:
     dr = C_MPS / (2.0 * radar["fs_hz"])
     if radar["range_window_m"] == "auto":
         r_min, r_max = _range_extent_estimate_m(scn, m, n_targets)
-        unambiguous_m = C_MPS / (2.0 * radar["prf_hz"])
-        if r_max > unambiguous_m:
-            what = "scene.points_m" if sc["kind"] == "points" else "scene.center_m"
-            raise BadInput(f"{source}: {what}: the scene reaches a slant range of {r_max:.6g} m, beyond the "
-                           f"unambiguous range c / (2 radar.prf_hz) = {unambiguous_m:.6g} m: its echo would "
-                           f"arrive after the next pulse; allowed: targets within {unambiguous_m:.6g} m")
         reach = C_MPS * radar["pulse_width_s"] / 2.0 + 10 * dr
         n_range = (r_max - r_min + 2 * reach) / dr + 1
         key = (f"radar.range_window_m = auto: the scene spans slant ranges {r_min:.6g} to {r_max:.6g} m, "
@@ -179,6 +173,12 @@ def forward_sizes_check(scn: dict, source: str) -> None:
     if not math.isfinite(cube_bytes) or cube_bytes > limit:
         raise BadInput(f"{source}: {key}: {n_range:,.0f} range samples x {m:,} pulses = {gib(cube_bytes)} of "
                        f"echo (two complex64 channels); over {where} = {gib(limit)}")
+    unambiguous_m = C_MPS / (2.0 * radar["prf_hz"])
+    if radar["range_window_m"] == "auto" and r_max > unambiguous_m:
+        what = "scene.points_m" if sc["kind"] == "points" else "scene.center_m"
+        raise BadInput(f"{source}: {what}: the scene reaches a slant range of {r_max:.6g} m, beyond the "
+                       f"unambiguous range c / (2 radar.prf_hz) = {unambiguous_m:.6g} m: its echo would "
+                       f"arrive after the next pulse; allowed: targets within {unambiguous_m:.6g} m")
 
 
 def _range_extent_estimate_m(scn: dict, m: int, n_targets: int):
