@@ -435,7 +435,7 @@ def _resolve(raw: Any, schema: dict, path: str, source: str) -> dict:
         raise BadInput(f"{source}: {path or 'top level'}: expected a mapping, got {_show(raw)}")
     unknown = [k for k in raw if k not in schema]
     if unknown:
-        key = unknown[0]
+        key = unknown[0] if len(str(unknown[0])) <= 60 else _show(unknown[0])   # a 1 MB key, cut
         where = f"{path}.{key}" if path else str(key)
         raise BadInput(f"{source}: {where}: unknown key; allowed: {', '.join(schema)}")
     out = {}

@@ -41,9 +41,12 @@ def max_cube_bytes(setting="auto") -> int:
 
 
 def limit_source(setting="auto") -> str:
+    """Where the limit came from; ``setting=None``: a kind with no such scenario key (ISAR)."""
     if setting not in (None, "auto"):
         return "simulation.max_cube_bytes"
-    return f"${ENV_VAR}" if os.environ.get(ENV_VAR, "").strip() else "simulation.max_cube_bytes (default)"
+    if os.environ.get(ENV_VAR, "").strip():
+        return f"${ENV_VAR}"
+    return "the default limit" if setting is None else "simulation.max_cube_bytes (default)"
 
 
 def check_declared_dataset(source: str, name: str, shape, itemsize: int, limit: int | None = None) -> None:
@@ -56,6 +59,17 @@ def check_declared_dataset(source: str, name: str, shape, itemsize: int, limit: 
         dims = " x ".join(f"{int(s):,}" for s in shape)
         raise BadInput(f"{source}: /{name}: declares shape [{dims}] = {gib(n * itemsize)}; over the limit "
                        f"of {gib(limit)} (set ${ENV_VAR} to raise it)")
+
+
+def check_cube_bytes(source: str, key: str, n_range: float, n_pulses: int, *, channels: int,
+                     setting="auto") -> None:
+    """Refuse an echo of ``n_range`` x ``n_pulses`` complex64 samples per channel over the limit."""
+    limit, where = max_cube_bytes(setting), limit_source(setting)
+    cube_bytes = channels * 8 * float(n_range) * n_pulses
+    if not math.isfinite(cube_bytes) or cube_bytes > limit:
+        what = "two complex64 channels" if channels == 2 else "one complex64 channel"
+        raise BadInput(f"{source}: {key}: {n_range:,.0f} range samples x {n_pulses:,} pulses = {gib(cube_bytes)} "
+                       f"of echo ({what}); over {where} = {gib(limit)}")
 
 
 def shown(value, limit: int = SHOW_CHARS) -> str:
@@ -169,10 +183,7 @@ def forward_sizes_check(scn: dict, source: str) -> None:
         near, far = radar["range_window_m"]
         n_range = (far - near) / dr + 1
         key = f"radar.range_window_m = [{near:g}, {far:g}] at radar.fs_hz = {radar['fs_hz']:g}"
-    cube_bytes = 2 * 8 * float(n_range) * m                       # sum + diff, complex64
-    if not math.isfinite(cube_bytes) or cube_bytes > limit:
-        raise BadInput(f"{source}: {key}: {n_range:,.0f} range samples x {m:,} pulses = {gib(cube_bytes)} of "
-                       f"echo (two complex64 channels); over {where} = {gib(limit)}")
+    check_cube_bytes(source, key, n_range, m, channels=2, setting=setting)
     unambiguous_m = C_MPS / (2.0 * radar["prf_hz"])
     if radar["range_window_m"] == "auto" and r_max > unambiguous_m:
         what = "scene.points_m" if sc["kind"] == "points" else "scene.center_m"

@@ -442,6 +442,15 @@ def test_derived_size_refused_before_allocation(tmp_path, capsys, case, command)
     assert not (tmp_path / "raw.h5").exists()
 
 
+@pytest.mark.parametrize("sets", [["radar.fs_hz=1.0e13"], ["radar.range_window_m=[100.0, 1.0e8]"]])
+def test_isar_derived_size_refused(capsys, sets):
+    path = ROOT / "scenarios" / "isar_theta3.yaml"
+    t0 = time.perf_counter()
+    code, out, err = run_cli(["validate", path] + [a for s in sets for a in ("--set", s)], capsys)
+    assert time.perf_counter() - t0 < 10.0
+    assert_refused(code, out, err, path, "radar.range_window_m", "one complex64 channel", "the default limit")
+
+
 def test_size_limit_from_environment(capsys, monkeypatch):
     monkeypatch.setenv("FWDLOOK_MAX_CUBE_BYTES", "100000")
     code, out, err = run_cli(["validate", TINY], capsys)
@@ -673,6 +682,14 @@ def test_huge_yaml_value_is_cut_in_the_message(tmp_path, capsys):
     code, out, err = run_cli(["validate", path], capsys)
     line = assert_refused(code, out, err, path, "radar.prf_hz", "expected a number")
     assert len(line) < 300
+
+
+def test_huge_unknown_key_is_cut_in_the_message(tmp_path, capsys):
+    path = tmp_path / "S.yaml"
+    path.write_text(TINY.read_text() + "? " + "k" * 1_000_000 + "\n: 1\n")   # explicit key: no 1024 limit
+    code, out, err = run_cli(["validate", path], capsys)
+    line = assert_refused(code, out, err, path, "unknown key", "allowed: name, kind, radar")
+    assert len(line) < 400
 
 
 def test_shown_is_bounded_on_shared_structures():
