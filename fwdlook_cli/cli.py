@@ -67,7 +67,7 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
     ``before_cube(scn)`` runs once the scenario is resolved, before a cube is simulated or read
     (where the outputs are prepared, so that a refused output costs no work).
     """
-    from .config import read_scenario_raw
+    from .readers import read_scenario_raw
     from .io import read_raw
     from .process import resolve_with_config
 

@@ -18,7 +18,7 @@ def load_config_overlay(path: str | None) -> dict:
     """A processing preset (configs/*.yaml): a mapping with a ``processing:`` section."""
     if not path:
         return {}
-    from .config import read_yaml_file
+    from .readers import read_yaml_file
 
     raw = read_yaml_file(path, "config") or {}
     if not isinstance(raw, dict) or set(raw) - {"processing", "name"}:

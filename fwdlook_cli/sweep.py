@@ -26,7 +26,8 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from .config import read_scenario_raw, read_yaml_file, scenario_hash
+from .config import scenario_hash
+from .readers import read_scenario_raw, read_yaml_file
 from .errors import BadInput
 
 SUMMARY_KEYS = ("detected", "n_targets", "max_abs_range_error_m", "median_abs_range_error_m",
