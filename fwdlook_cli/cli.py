@@ -80,7 +80,7 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
         if cube.diff is None or cube.attrs.get("scenario_kind") == "isar":
             raw_scn = {"kind": "isar"}
     else:
-        raw_scn, name = read_scenario_raw(source), None   # the one scenario reader (config.py)
+        raw_scn, name = read_scenario_raw(source), None   # the one scenario reader (readers.py)
     if raw_scn is not None and not isinstance(raw_scn, dict):
         raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
     if name is not None:
