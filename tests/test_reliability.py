@@ -316,6 +316,26 @@ def test_real_full_tmpfs(mount_tmpfs, tiny_raw, command):
     assert not any((mnt / name).exists() for name in names)
 
 
+def test_report_on_a_nearly_full_tmpfs(mount_tmpfs, base_run, capsys):
+    """PNGs (matplotlib) and report.md on a disk with 40 KiB free: one line, no partial, the user's
+    file on that disk untouched."""
+    mnt = mount_tmpfs("nearly_full")
+    filler = mnt / "users_data.bin"
+    with open(filler, "wb", buffering=0) as fh:      # fill the disk, 4 KiB at a time
+        try:
+            while fh.write(b"u" * 4096):
+                pass
+        except OSError:
+            pass
+    size = filler.stat().st_size
+    filler.write_bytes(b"u" * (size - 40 * 1024))
+    before = snapshot(filler)
+    code, out, err = run_cli(["report", base_run, "-o", mnt / "rep", "-q"], capsys)
+    assert_refused(code, out, err, "cannot write", mnt / "rep", "No space left on device")
+    assert not (mnt / "rep" / "report.md").exists() and list(mnt.rglob("*.partial*")) == []
+    assert snapshot(filler) == before
+
+
 # ----------------------------------------------------------------------------------------------
 # 3. Output paths that cannot be written
 # ----------------------------------------------------------------------------------------------
