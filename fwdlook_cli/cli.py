@@ -26,20 +26,27 @@ def _log(quiet: bool, message: str) -> None:
         click.echo(message, err=True)
 
 
+overwrite_option = click.option("--overwrite", is_flag=True,
+                                help="Write over an existing output that fwdlook did not write (never over an input).")
+
+
 @cli.command()
 @click.argument("scenario")
 @click.option("-o", "--output", "output", required=True, help="Raw cube HDF5 to write.")
 @set_option
+@overwrite_option
 @quiet_option
-def simulate(scenario, output, overrides, quiet):
+def simulate(scenario, output, overrides, overwrite, quiet):
     """Synthesise the range-compressed sum/difference echo cube of SCENARIO.yaml."""
     import time
 
     from .scenario.loader import load_scenario
     from .io.raw import write_raw
+    from .io.outputs import prepare_file
     from .forward.simulate import simulate_scenario
 
     scn = load_scenario(scenario, overrides)
+    prepare_file(output, inputs=[scenario], overwrite=overwrite)
     if scn["kind"] != "forward":
         from .isar.simulate import simulate_isar_scenario  # noqa: F401  (ISAR scenario kind)
 
@@ -54,9 +61,13 @@ def simulate(scenario, output, overrides, quiet):
     _log(quiet, f"wrote {output}")
 
 
-def _scenario_and_cube(source, raw, config, overrides, quiet):
-    """(resolved scenario, cube): simulate a scenario, or load RAW (given, or as the source)."""
-    from .scenario.yamlio import yaml_load
+def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
+    """(resolved scenario, cube): simulate a scenario, or load RAW (given, or as the source).
+
+    ``before_cube(scn)`` runs once the scenario is resolved, before a cube is simulated or read
+    (where the outputs are prepared, so that a refused output costs no work).
+    """
+    from .scenario.readers import read_scenario_raw
     from .io.raw import read_raw
     from .scenario.overlay import resolve_with_config
 
@@ -65,20 +76,18 @@ def _scenario_and_cube(source, raw, config, overrides, quiet):
         if raw:
             raise BadInput(f"{source}: give either a raw cube or --raw, not both")
         raw, raw_scn, name = source, {}, src.stem
-        cube = read_raw(raw)
+        cube = read_raw(raw)          # read first: its channels decide the scenario kind
         if cube.diff is None or cube.attrs.get("scenario_kind") == "isar":
             raw_scn = {"kind": "isar"}
     else:
-        try:
-            text = src.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise BadInput(f"{source}: scenario file not found") from None
-        raw_scn, name = (yaml_load(text, source) or {}), None
+        raw_scn, name = read_scenario_raw(source), None   # the one scenario reader (readers.py)
     if raw_scn is not None and not isinstance(raw_scn, dict):
         raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
     if name is not None:
         raw_scn = {**raw_scn, "name": name}
     scn = resolve_with_config(raw_scn, source, config, overrides, check_pulses=not (raw or name))
+    if before_cube is not None:
+        before_cube(scn)
     if name is not None:
         pass                          # the source itself is the cube, already read
     elif raw:
@@ -134,10 +143,16 @@ output_dir_option = click.option("-o", "--output", "output", default=None, metav
 @set_option
 @click.option("--from-stage", "from_stage", default=None, help="Recompute from this stage on.")
 @click.option("--force", is_flag=True, help="Recompute every stage.")
+@overwrite_option
 @quiet_option
-def process(source, output, config, raw, overrides, from_stage, force, quiet):
+def process(source, output, config, raw, overrides, from_stage, force, overwrite, quiet):
     """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
-    scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet)
+    from .io.outputs import prepare_run_dir
+
+    def prepare(scn):
+        prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
+
+    scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
     run_dir = _default_run_dir(scn, output)
     metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source)
     _print_summary(metrics, run_dir, quiet)
@@ -150,15 +165,22 @@ def process(source, output, config, raw, overrides, from_stage, force, quiet):
 @raw_option
 @set_option
 @click.option("--force", is_flag=True, help="Recompute every stage.")
+@overwrite_option
 @quiet_option
-def run(scenario, output, config, raw, overrides, force, quiet):
+def run(scenario, output, config, raw, overrides, force, overwrite, quiet):
     """The main job: simulate (or load --raw), process and report into RUN_DIR."""
     from .io.raw import write_raw
+    from .io.outputs import prepare_run_dir
 
-    scn, cube = _scenario_and_cube(scenario, raw, config, overrides, quiet)
+    writes_raw = not raw and Path(scenario).suffix.lower() not in (".h5", ".hdf5", ".hdf")
+
+    def prepare(scn):
+        prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config], overwrite=overwrite,
+                        writes_raw=writes_raw)
+
+    scn, cube = _scenario_and_cube(scenario, raw, config, overrides, quiet, before_cube=prepare)
     run_dir = _default_run_dir(scn, output)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    if not raw:
+    if writes_raw:
         write_raw(run_dir / "raw.h5", cube)
     metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario)
     _print_summary(metrics, run_dir, quiet)
@@ -206,12 +228,14 @@ def sweep(sweep_file, output, workers, scheduler, quiet):
               help="Report folder (default RUN_DIR/report for one run, reports/compare for several).")
 @click.option("--target", "target", nargs=2, type=float, default=None, metavar="X_M Y_M",
               help="Ground (x, y) of the target whose range profile is drawn (default: nearest -300 1700).")
+@overwrite_option
 @quiet_option
-def report(run_dirs, output, target, quiet):
+def report(run_dirs, output, target, overwrite, quiet):
     """Figures and tables for one run or several side by side (report.md and PNGs)."""
     from .report.report import DEFAULT_TARGET_XY_M, make_report
 
-    path = make_report(run_dirs, output, target_xy=tuple(target) if target else DEFAULT_TARGET_XY_M)
+    path = make_report(run_dirs, output, target_xy=tuple(target) if target else DEFAULT_TARGET_XY_M,
+                       overwrite=overwrite)
     _log(quiet, f"wrote {path.parent}/ (report.md and figures)")
     click.echo(str(path))
 

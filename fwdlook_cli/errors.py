@@ -10,4 +10,10 @@ class BadInput(Exception):
     """Bad input: exit code 2, one plain line, no traceback."""
 
     def __init__(self, message: str):
-        super().__init__(" ".join(str(message).split()))  # always one line
+        text = " ".join(str(message).split())  # always one line
+        if len(text) > MAX_MESSAGE_CHARS:       # a safety net: values are cut where they are shown
+            text = text[:700] + " [...] " + text[-250:]
+        super().__init__(text)
+
+
+MAX_MESSAGE_CHARS = 1000

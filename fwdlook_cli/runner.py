@@ -22,7 +22,7 @@ from typing import Callable
 
 
 from .errors import BadInput
-from .io.stagefile import StageData, _canon, read_stage, stage_file_key, write_stage
+from .io.stagefile import StageData, _canon, load_verified, write_stage
 
 @dataclass
 class Stage:
@@ -56,16 +56,22 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
         key = stage_key(st.name, st.params, key)
         keys.append(key)
         paths.append(stage_dir / f"{i + 1:02d}_{st.name}.h5")
-    # the first stage that must run: forced, missing, or stale
+    # the first stage that must run: forced, missing, stale or damaged (integrity.py: every reused
+    # stage is read and checked against its declared datasets, dtypes, shapes and sha256 digests)
     first = recompute_from
-    for i, path in enumerate(paths):
-        if i >= first:
-            break
-        if stage_file_key(path) != keys[i]:
+    data = source
+    for i in range(first):
+        loaded, damage = load_verified(paths[i], keys[i])
+        if loaded is None:
+            if damage:
+                print(f"[{i + 1}/{len(stages)}] {stages[i].name}: stage file {paths[i]} is damaged ({damage}); "
+                      f"recomputing it, not reusing it", file=sys.stderr)
             first = i
             break
+        data = loaded
+    if first == 0:
+        data = source
     timings: dict[str, float] = {}
-    data = source if first == 0 else read_stage(paths[first - 1])
     for i, st in enumerate(stages):
         if i < first:
             timings[st.name] = 0.0
@@ -81,8 +87,6 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
                   f"{(timings[st.name] - t_compute) * 1e3:6.1f} ms write", file=sys.stderr)
     if first == len(stages) and not quiet:
         print(f"all {len(stages)} stages up to date (reused)", file=sys.stderr)
-    if first == len(stages):
-        data = read_stage(paths[-1])
-    elif first > 0 and not quiet:
+    if first < len(stages) and first > 0 and not quiet:
         print(f"reused stages 1-{first} ({', '.join(names[:first])})", file=sys.stderr)
     return data, timings, dict(zip(names, keys))

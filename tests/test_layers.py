@@ -30,7 +30,7 @@ ALLOWED = {
     "report": {"base", "dsp", "io", "scenario", "runner", "forward", "isar"},
     "cli": {"base", "dsp", "io", "scenario", "runner", "forward", "isar", "report"},
 }
-TOP_LEVEL = {"errors": "base", "runner": "runner", "testing": "testing", "cli": "cli", "options": "cli",
+TOP_LEVEL = {"errors": "base", "limits": "base", "runner": "runner", "testing": "testing", "cli": "cli", "options": "cli",
              "__init__": "base"}
 
 

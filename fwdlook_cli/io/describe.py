@@ -6,6 +6,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from ..limits import shown
+
 
 def _plain(value):
     if isinstance(value, bytes):
@@ -21,7 +23,9 @@ def describe_h5(path: str | Path) -> str:
     with h5py.File(path, "r") as f:
         for key in ("format", "stage", "software_version", "config_sha256", "input_sha256"):
             if key in f.attrs:
-                lines.append(f"{key}: {_plain(f.attrs[key])}")
+                value = _plain(f.attrs[key])
+                text = value if isinstance(value, str) else shown(value, 200)
+                lines.append(f"{key}: {text if len(text) <= 200 else text[:197] + '...'}")
 
         def visit(name, obj):
             if isinstance(obj, h5py.Dataset):

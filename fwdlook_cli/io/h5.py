@@ -17,29 +17,63 @@ from .. import __version__
 
 @contextlib.contextmanager
 def atomic_h5(path: str | Path):
-    """Open ``path.partial`` for writing; rename to ``path`` only if the block succeeds."""
+    """Open ``path.partial`` for writing; rename to ``path`` only if the block succeeds.
+
+    HDF5 writes through :class:`outputs.FailSafeSink`, so a full disk or any refused write never
+    reaches HDF5 (which cannot close a file whose flush failed); the partial file is removed and the
+    OS's error becomes one line, ``cannot write PATH: No space left on device`` (exit 2).
+    """
+    from .outputs import FailSafeSink, make_parent, write_error
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_parent(path)
     tmp = path.with_name(path.name + ".partial")
     try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["software"] = "fwdlook"
-            f.attrs["software_version"] = __version__
-            f.attrs["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-            yield f
-        os.replace(tmp, path)
+        sink = FailSafeSink(tmp)
+    except OSError as exc:
+        raise write_error(path, exc) from None
+    done = False
+    try:
+        try:
+            with h5py.File(sink, "w") as f:
+                f.attrs["software"] = "fwdlook"
+                f.attrs["software_version"] = __version__
+                f.attrs["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+                yield f
+        finally:
+            sink.close()
+        if sink.error is not None:
+            raise write_error(path, sink.error)
+        try:
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise write_error(path, exc) from None
+        done = True
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+        if sink.error is not None and not done:      # a refused write explains whatever followed
+            with contextlib.suppress(FileNotFoundError, OSError):
+                tmp.unlink()
+            raise write_error(path, sink.error) from None
         raise
+    finally:
+        if not done:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
+    from .outputs import make_parent, write_error
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_parent(path)
     tmp = path.with_name(path.name + ".partial")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise write_error(path, exc) from None
 
 
 def put(group: h5py.Group, name: str, data, units: str, long_name: str, *, dims=(), **kw):

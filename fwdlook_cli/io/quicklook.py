@@ -1,10 +1,10 @@
 """Quick-look PNGs of images (dB scale, labelled axes; matplotlib, Agg backend)."""
 from __future__ import annotations
 
-import os
-from pathlib import Path
 
 import numpy as np
+
+from .outputs import atomic_path
 
 
 def _plt():
@@ -37,18 +37,18 @@ def save_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
     ax.set_aspect(aspect)
     fig.colorbar(mesh, ax=ax, label="dB")
     fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path) as tmp:          # partial removed and OSError one line on failure
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
 
 
 def _save(fig, path):
     plt = _plt()
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".partial.png")
     fig.tight_layout()
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)

@@ -17,6 +17,7 @@ from .cube import RADAR_KEYS, RawCube
 from ..errors import BadInput
 from .describe import _plain
 from .h5 import atomic_h5, put, put_scale
+from ..limits import check_declared_dataset, shown
 
 RAW_FORMAT = "fwdlook-raw"
 RAW_FORMAT_VERSION = 1
@@ -106,6 +107,7 @@ def _array(f, path, source, *, kind, shape, complex_ok=False):
     if ds.shape != shape:
         want = "[" + ", ".join(str(s) for s in shape) + "]"
         raise BadInput(f"{source}: /{path}: shape {list(ds.shape)}, expected {want}")
+    check_declared_dataset(source, path, ds.shape, dt.itemsize)   # before the read allocates it
     data = ds[()]
     if not np.all(np.isfinite(data)):
         bad = int(np.size(data) - np.count_nonzero(np.isfinite(data)))
@@ -128,7 +130,7 @@ def read_raw(path: str | Path) -> RawCube:
             return _read_raw_open(f, source)
     except (OSError, KeyError, RuntimeError) as exc:
         raise BadInput(f"{source}: HDF5 read failed ({exc.__class__.__name__}: "
-                       f"{str(exc).splitlines()[0] if str(exc) else ''}); the file may be truncated") from None
+                       f"{str(exc).splitlines()[0][:200] if str(exc) else ''}); the file may be truncated") from None
 
 
 def _read_raw_open(f: h5py.File, source: str) -> RawCube:
@@ -136,19 +138,20 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     if isinstance(fmt, bytes):
         fmt = fmt.decode()
     if fmt != RAW_FORMAT:
-        raise BadInput(f"{source}: / attribute format = {fmt!r}; allowed: {RAW_FORMAT!r}")
+        raise BadInput(f"{source}: / attribute format = {shown(fmt)}; allowed: {RAW_FORMAT!r}")
     try:
         version = int(f.attrs.get("format_version", -1))
     except (TypeError, ValueError):
         version = None
     if version != RAW_FORMAT_VERSION:
-        raise BadInput(f"{source}: / attribute format_version = {f.attrs.get('format_version')!r}; "
+        raise BadInput(f"{source}: / attribute format_version = {shown(f.attrs.get('format_version'))}; "
                        f"allowed: {RAW_FORMAT_VERSION}")
     echo_sum_ds = _need(f, "echo/sum", source)
     if echo_sum_ds.ndim != 2 or min(echo_sum_ds.shape) < 2:
         raise BadInput(f"{source}: /echo/sum: shape {list(echo_sum_ds.shape)}, expected "
                        f"[n_pulses, n_range] with both >= 2")
     n_p, n_r = echo_sum_ds.shape
+    check_declared_dataset(source, "echo/sum", (n_p, n_r), 8 * (1 if "diff" not in f["echo"] else 2))
     echo_sum = _array(f, "echo/sum", source, kind=np.complex64, shape=(n_p, n_r), complex_ok=True)
     channels = _plain(f.attrs.get("channels", "sum,diff"))
     if channels == "sum" and "diff" not in f["echo"]:
@@ -177,9 +180,9 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
         try:
             value = float(value)
         except (TypeError, ValueError):
-            raise BadInput(f"{source}: /radar attribute {key} = {value!r}: expected a number") from None
+            raise BadInput(f"{source}: /radar attribute {key} = {shown(value)}: expected a number") from None
         if not np.isfinite(value) or value <= 0:
-            raise BadInput(f"{source}: /radar attribute {key} = {value!r}: must be a positive number")
+            raise BadInput(f"{source}: /radar attribute {key} = {shown(value)}: must be a positive number")
         radar[key] = value
     for key, value in radar_grp.attrs.items():
         if key not in radar:

@@ -14,6 +14,7 @@ import h5py
 import numpy as np
 
 from .h5 import atomic_h5, put
+from .integrity import DATASETS_ATTR, DIGEST_ATTR, declare, digest
 
 
 @dataclass
@@ -61,7 +62,7 @@ def _canon(value):
 
 
 PROVENANCE_KEYS = ("format", "stage", "config_sha256", "input_sha256", "settings", "software",
-                   "software_version", "created_utc", "compute_s")
+                   "software_version", "created_utc", "compute_s", "stage_datasets")
 
 def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key: str, params: dict,
                 extra_attrs: dict | None = None) -> None:
@@ -74,16 +75,19 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
         f.attrs["config_sha256"] = key
         f.attrs["input_sha256"] = input_key
         f.attrs["settings"] = json.dumps(_canon(params), sort_keys=True, default=str)
+        f.attrs[DATASETS_ATTR] = json.dumps(list(data.vars))    # integrity.py: what the file declares
         scales = {}
         for name, var in data.vars.items():  # coordinates first, as dimension scales
             if var.dims == (name,):
                 ds = put(f, name, var.data, var.units, var.long_name)
+                declare(ds, var.data)
                 ds.make_scale(name)
                 scales[name] = ds
         for name, var in data.vars.items():
             if var.dims == (name,):
                 continue
             ds = put(f, name, var.data, var.units, var.long_name)
+            declare(ds, var.data)
             ds.attrs["dims"] = json.dumps(list(var.dims))
             for axis, dim in enumerate(var.dims):
                 if dim not in scales or scales[dim].shape[0] != var.data.shape[axis]:
@@ -114,3 +118,64 @@ def stage_file_key(path: Path) -> str | None:
             return f.attrs.get("config_sha256")
     except OSError:
         return None
+
+
+def _text(value):
+    if isinstance(value, bytes):
+        return value.decode(errors="replace")
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def load_verified(path, key: str):
+    """(StageData, None) for a sound stage file made by ``key``; (None, None) when the file is missing
+    or was made by other settings (normal: recompute); (None, reason) when it is damaged."""
+    import h5py
+
+    from .stagefile import PROVENANCE_KEYS, StageData, Var
+
+    try:
+        f = h5py.File(path, "r")
+    except FileNotFoundError:
+        return None, None
+    except Exception:  # noqa: BLE001  (truncated, not HDF5, unreadable)
+        return None, "not a readable HDF5 file"
+    try:
+        with f:
+            if _text(f.attrs.get("config_sha256")) != key:
+                return None, None
+            if _text(f.attrs.get("format")) != "fwdlook-stage":
+                return None, "root attribute format is not fwdlook-stage"
+            try:
+                names = json.loads(_text(f.attrs[DATASETS_ATTR]))
+            except Exception:  # noqa: BLE001
+                return None, f"root attribute {DATASETS_ATTR} missing or malformed (no declaration)"
+            out = StageData()
+            for k, v in f.attrs.items():
+                if k not in PROVENANCE_KEYS and k != DATASETS_ATTR:
+                    out.attrs[k] = _text(v)
+            for name in names:
+                ds = f.get(str(name))
+                if not isinstance(ds, h5py.Dataset):
+                    return None, f"/{name}: declared dataset missing"
+                want_dtype, want_shape = _text(ds.attrs.get("dtype")), _text(ds.attrs.get("shape"))
+                want_digest = _text(ds.attrs.get(DIGEST_ATTR))
+                if want_dtype is None or want_shape is None or want_digest is None:
+                    return None, f"/{name}: no dtype, shape or sha256 declaration"
+                if json.loads(want_shape) != list(ds.shape):
+                    return None, f"/{name}: shape {list(ds.shape)}, declared {want_shape}"
+                if np.dtype(want_dtype) != ds.dtype:
+                    return None, f"/{name}: dtype {ds.dtype}, declared {np.dtype(want_dtype)}"
+                data = ds[()]
+                if digest(data) != want_digest:
+                    return None, f"/{name}: data does not match its sha256 digest (bit rot or edited)"
+                dims = tuple(json.loads(_text(ds.attrs["dims"]))) if "dims" in ds.attrs else (str(name),)
+                if len(dims) != np.ndim(data):
+                    return None, f"/{name}: {len(dims)} dimension names for {np.ndim(data)} axes"
+                out.vars[str(name)] = Var(data, dims, str(_text(ds.attrs.get("units", ""))),
+                                          str(_text(ds.attrs.get("long_name", ""))))
+            return out, None
+    except Exception as exc:  # noqa: BLE001  (any read failure inside the file is damage)
+        text = str(exc).splitlines()[0][:120] if str(exc) else ""
+        return None, f"read failed ({exc.__class__.__name__}: {text})"

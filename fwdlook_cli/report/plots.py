@@ -2,8 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
-from pathlib import Path
 
 import numpy as np
 from ..io.quicklook import _plt, _save
@@ -109,11 +107,13 @@ def image_panels(path, panels, *, ncols=None, dynamic_range_db=40.0, suptitle=No
         fig.colorbar(mesh, ax=axes, label=label, shrink=0.85)
     if suptitle:
         fig.suptitle(suptitle, fontsize=10)
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp, bbox_inches="tight")
-    plt.close(fig)
-    os.replace(tmp, path)
+    from ..io.outputs import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, bbox_inches="tight")
+    finally:
+        plt.close(fig)
 
 
 def range_profile_panels(path, panels, *, xlabel="slant range at t_ref (m)", floor_db=-40.0, suptitle=None):

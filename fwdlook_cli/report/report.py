@@ -425,12 +425,16 @@ def default_report_dir(run_dirs) -> Path:
     return Path(run_dirs[0]) / "report" if len(run_dirs) == 1 else Path("reports") / "compare"
 
 
-def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M) -> Path:
+def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M, overwrite=False) -> Path:
     """Write the report of ``run_dirs`` into ``out_dir`` (default :func:`default_report_dir`); returns
-    the path of report.md.  Raises BadInput before writing anything when a run directory is bad."""
+    the path of report.md.  Raises BadInput before writing anything when a run directory is bad, or
+    when ``out_dir`` holds report files fwdlook did not write (unless ``overwrite``)."""
+    from ..io.outputs import prepare_report_dir
+
     runs = load_runs(run_dirs)
     out = Path(out_dir) if out_dir else default_report_dir(run_dirs)
-    out.mkdir(parents=True, exist_ok=True)
+    inputs = [Path(d) / n for d in run_dirs for n in ("metrics.json", "image.h5")]
+    prepare_report_dir(out, inputs=inputs, overwrite=overwrite)
     figures, notes = write_figures(runs, out, target_xy=target_xy)
     path = out / "report.md"
     atomic_write_text(path, report_markdown(runs, figures, notes))

@@ -27,8 +27,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from ..scenario.loader import scenario_hash
-from ..scenario.yamlio import yaml_load
 from ..errors import BadInput
+from ..scenario.readers import read_scenario_raw, read_yaml_file
 
 SUMMARY_KEYS = ("detected", "n_targets", "max_abs_range_error_m", "median_abs_range_error_m",
                 "rms_range_error_m", "max_abs_azimuth_error_deg", "rms_azimuth_error_deg", "median_islr_db",
@@ -37,10 +37,7 @@ SUMMARY_KEYS = ("detected", "n_targets", "max_abs_range_error_m", "median_abs_ra
 
 def load_sweep(path: str) -> dict:
     p = Path(path)
-    try:
-        raw = yaml_load(p.read_text(encoding="utf-8"), str(p))
-    except FileNotFoundError:
-        raise BadInput(f"{path}: sweep file not found") from None
+    raw = read_yaml_file(p, "sweep")
     if not isinstance(raw, dict):
         raise BadInput(f"{path}: top level: expected a mapping")
     allowed = {"name", "scenarios", "set", "grid", "config", "combine", "keep_stages"}
@@ -78,10 +75,7 @@ def plan_runs(sweep: dict, out_dir: Path) -> list[dict]:
     keys = list(sweep["grid"])
     runs = []
     for scen_path in sweep["scenarios"]:
-        try:
-            raw = yaml_load(Path(scen_path).read_text(encoding="utf-8"), scen_path) or {}
-        except FileNotFoundError:
-            raise BadInput(f"{scen_path}: scenario file not found") from None
+        raw = read_scenario_raw(scen_path)
         for values in itertools.product(*(sweep["grid"][k] for k in keys)):
             point = dict(zip(keys, values))
             sets = list(sweep["set"]) + [f"{k}={json.dumps(v)}" for k, v in point.items()]

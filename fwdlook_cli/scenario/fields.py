@@ -79,6 +79,8 @@ def integer(lo: int | None = None, hi: int | None = None) -> Callable[[Any], int
             raise ValueError(f"must be >= {lo}")
         if hi is not None and value > hi:
             raise ValueError(f"must be <= {hi}")
+        if hi is None and value >= 2**63:     # stored as HDF5/NumPy int64 attributes
+            raise ValueError("must be < 2**63")
         return value
 
     return check
@@ -165,5 +167,10 @@ def amplitude(value: Any):
 
 
 def _show(value: Any) -> str:
+    from ..limits import shown as _bounded
+
+    cut = _bounded(value, 200)        # bounded time: never serialises a huge or alias-expanded value
+    if len(cut) > 60 or cut.endswith("..."):
+        return _bounded(value, 60)
     shown = json.dumps(value, default=str) if not isinstance(value, str) else repr(value)
     return shown if len(shown) <= 60 else shown[:57] + "..."

@@ -81,6 +81,9 @@ FORWARD_SCHEMA: dict[str, Any] = {
     "simulation": {
         "gain_threshold_db": Field(num(-1000.0, 0.0), -60.0,
                                    "skip a target-pulse pair whose two-way power gain is below this"),
+        "max_cube_bytes": Field(auto_or(num(1.0)), "auto",
+                                "size limit checked before allocating: echo cube bytes (both channels, "
+                                "complex64) and simulation work; auto: $FWDLOOK_MAX_CUBE_BYTES, else 4 GiB"),
     },
     "processing": {
         "method": Field(choice("none", "bulk", "beam", "traditional", "decimation", "tracking", "auto"),
@@ -170,6 +173,10 @@ def _antenna_checks(ant: dict, source: str) -> None:
 
 def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None:
     radar, ant, sc, proc = scn["radar"], scn["antenna"], scn["scene"], scn["processing"]
+    if ant["scan_stop_deg"] > ant["scan_start_deg"] and (sc["kind"] != "points" or sc["points_m"]):
+        from .sizes import forward_sizes_check
+
+        forward_sizes_check(scn, source)        # before any array: pulses, pairs, echo bytes
     if radar["fs_hz"] < radar["bandwidth_hz"]:
         raise BadInput(f"{source}: radar.fs_hz = {radar['fs_hz']:g}: must be >= radar.bandwidth_hz "
                        f"= {radar['bandwidth_hz']:g} (complex sampling of the compressed pulse)")

@@ -100,6 +100,11 @@ def isar_checks(scn: dict, source: str) -> None:
             raise BadInput(f"{source}: radar.range_window_m = [{near:g}, {far:g}]: the object spans slant "
                            f"ranges {r.min():.1f} to {r.max():.1f} m over the dwell; widen the window or "
                            f"use auto")
+    from ..limits import check_cube_bytes  # before the echo is allocated (issue 12)
+
+    near, far = radar["range_window_m"] if radar["range_window_m"] != "auto" else (r.min() - reach, r.max() + reach)
+    check_cube_bytes(source, f"radar.range_window_m = {radar['range_window_m']} at radar.fs_hz = "
+                     f"{radar['fs_hz']:g}", (far - near) * 2.0 * radar["fs_hz"] / C_MPS + 1, len(t), channels=1, setting=None)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -37,7 +37,7 @@ def _resolve(raw: Any, schema: dict, path: str, source: str) -> dict:
         raise BadInput(f"{source}: {path or 'top level'}: expected a mapping, got {_show(raw)}")
     unknown = [k for k in raw if k not in schema]
     if unknown:
-        key = unknown[0]
+        key = unknown[0] if len(str(unknown[0])) <= 60 else _show(unknown[0])   # a 1 MB key, cut
         where = f"{path}.{key}" if path else str(key)
         raise BadInput(f"{source}: {where}: unknown key; allowed: {', '.join(schema)}")
     out = {}
@@ -104,16 +104,10 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, chec
 
 
 def load_scenario(path: str | Path, overrides=()) -> dict:
-    """Read, validate and resolve a scenario file."""
-    path = Path(path)
-    source = str(path)
-    try:
-        text_ = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise BadInput(f"{source}: scenario file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise BadInput(f"{source}: cannot read scenario file ({exc.__class__.__name__})") from None
-    return resolve_scenario(yaml_load(text_, source), source, overrides)
+    """Read, validate and resolve a scenario file (read by the one reader, ``readers.py``)."""
+    from .readers import read_scenario_raw
+
+    return resolve_scenario(read_scenario_raw(path), str(path), overrides)
 
 
 def scenario_hash(resolved: dict) -> str:

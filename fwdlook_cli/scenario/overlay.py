@@ -1,23 +1,18 @@
 """Processing presets (``-c configs/*.yaml``) merged over a scenario's ``processing:`` section."""
 from __future__ import annotations
 
-from pathlib import Path
 
 from ..errors import BadInput
 from .loader import resolve_scenario
-from .yamlio import yaml_load
 
 
 def load_config_overlay(path: str | None) -> dict:
     """A processing preset (configs/*.yaml): a mapping with a ``processing:`` section."""
     if not path:
         return {}
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise BadInput(f"{path}: config file not found") from None
-    raw = yaml_load(text, str(p)) or {}
+    from .readers import read_yaml_file
+
+    raw = read_yaml_file(path, "config") or {}
     if not isinstance(raw, dict) or set(raw) - {"processing", "name"}:
         extra = sorted(set(raw) - {"processing", "name"}) if isinstance(raw, dict) else ["<not a mapping>"]
         raise BadInput(f"{path}: {extra[0]}: unknown key in a processing preset; allowed: processing")

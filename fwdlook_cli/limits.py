@@ -1,0 +1,139 @@
+"""Bounds checked before anything large is allocated, and values cut before they are echoed.
+
+The size limit is a setting: the scenario key ``simulation.max_cube_bytes`` (``auto``: the environment
+variable ``FWDLOOK_MAX_CUBE_BYTES``, else :data:`DEFAULT_MAX_CUBE_BYTES`).  Reading a cube (``process``,
+``validate``, ``info``) has no scenario, so it uses the environment variable or the default.  The limit
+bounds the bytes of the echo cube (both channels, complex64) and, before them, the arrays the simulator
+needs: pulses, target-pulse pairs and range samples, each derived from the scenario's keys with the
+same formulas the simulator uses and checked BEFORE the geometry is computed.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+from .errors import BadInput
+
+DEFAULT_MAX_CUBE_BYTES = 4 * 2**30       # 4 GiB of echo: the simulator's peak is about 4x this
+MAX_PULSES = 10_000_000                 # as radar.n_pulses's own schema bound
+ENV_VAR = "FWDLOOK_MAX_CUBE_BYTES"
+SHOW_CHARS = 60
+
+
+def gib(n_bytes: float) -> str:
+    return f"{n_bytes / 2**30:.3g} GiB" if n_bytes >= 2**30 else f"{n_bytes / 2**20:.3g} MiB"
+
+
+def max_cube_bytes(setting="auto") -> int:
+    """The limit in bytes: the scenario setting, else ``$FWDLOOK_MAX_CUBE_BYTES``, else the default."""
+    if setting not in (None, "auto"):
+        return int(setting)
+    text = os.environ.get(ENV_VAR)
+    if text is None or not text.strip():
+        return DEFAULT_MAX_CUBE_BYTES
+    try:
+        value = float(text)
+        if not math.isfinite(value) or value < 1:
+            raise ValueError
+    except ValueError:
+        raise BadInput(f"${ENV_VAR} = {shown(text)}: expected a positive number of bytes") from None
+    return int(value)
+
+
+def limit_source(setting="auto") -> str:
+    """Where the limit came from; ``setting=None``: a kind with no such scenario key (ISAR)."""
+    if setting not in (None, "auto"):
+        return "simulation.max_cube_bytes"
+    if os.environ.get(ENV_VAR, "").strip():
+        return f"${ENV_VAR}"
+    return "the default limit" if setting is None else "simulation.max_cube_bytes (default)"
+
+
+def check_declared_dataset(source: str, name: str, shape, itemsize: int, limit: int | None = None) -> None:
+    """A dataset whose declared shape would need more than the limit is refused before it is read."""
+    limit = max_cube_bytes() if limit is None else limit
+    n = 1
+    for s in shape or ():
+        n *= int(s)
+    if n * itemsize > limit:
+        dims = " x ".join(f"{int(s):,}" for s in shape)
+        raise BadInput(f"{source}: /{name}: declares shape [{dims}] = {gib(n * itemsize)}; over the limit "
+                       f"of {gib(limit)} (set ${ENV_VAR} to raise it)")
+
+
+def check_cube_bytes(source: str, key: str, n_range: float, n_pulses: int, *, channels: int,
+                     setting="auto") -> None:
+    """Refuse an echo of ``n_range`` x ``n_pulses`` complex64 samples per channel over the limit."""
+    limit, where = max_cube_bytes(setting), limit_source(setting)
+    cube_bytes = channels * 8 * float(n_range) * n_pulses
+    if not math.isfinite(cube_bytes) or cube_bytes > limit:
+        what = "two complex64 channels" if channels == 2 else "one complex64 channel"
+        raise BadInput(f"{source}: {key}: {n_range:,.0f} range samples x {n_pulses:,} pulses = {gib(cube_bytes)} "
+                       f"of echo ({what}); over {where} = {gib(limit)}")
+
+
+def shown(value, limit: int = SHOW_CHARS) -> str:
+    """A short display of any value, computed in time bounded by ``limit`` (never the whole value).
+
+    Strings, bytes and numbers are cut before they are repr'd; lists and mappings are walked only
+    until ``limit`` characters are produced, so a shared-reference alias bomb or a 100 MiB attribute
+    costs nothing.
+    """
+    out: list[str] = []
+    budget = [limit + 4]
+
+    def emit(s: str) -> bool:
+        out.append(s[: max(budget[0], 0)])
+        budget[0] -= len(s)
+        return budget[0] > 0
+
+    def walk(v, depth=0) -> bool:
+        if budget[0] <= 0:
+            return False
+        if depth > 16:
+            return emit("...")
+        if isinstance(v, str):
+            return emit(repr(v[: limit + 2]))
+        if isinstance(v, bytes):
+            return emit(repr(v[: limit + 2]))
+        if isinstance(v, bool) or v is None:
+            return emit({True: "true", False: "false", None: "null"}[v])
+        if isinstance(v, int):
+            digits = len(str(v)) if v.bit_length() < 4000 else None
+            return emit(str(v) if digits is not None and digits <= limit else
+                        f"<integer of {digits or 'over 1200'} digits>")
+        if isinstance(v, float):
+            return emit(repr(v))
+        if isinstance(v, dict):
+            if not emit("{"):
+                return False
+            for i, (k, item) in enumerate(v.items()):
+                if (i and not emit(", ")) or not walk(k, depth + 1) or not emit(": ") or not walk(item, depth + 1):
+                    return False
+            return emit("}")
+        if isinstance(v, (list, tuple)):
+            if not emit("["):
+                return False
+            for i, item in enumerate(v):
+                if (i and not emit(", ")) or not walk(item, depth + 1):
+                    return False
+            return emit("]")
+        try:
+            import numpy as np
+
+            if isinstance(v, np.ndarray):
+                return emit(f"<array {v.dtype} shape {list(v.shape)}>") if v.size > 8 else walk(v.tolist(), depth)
+            if isinstance(v, np.generic):
+                return walk(v.item(), depth)
+        except ImportError:  # pragma: no cover
+            pass
+        return emit(repr(v)[: limit + 2])
+
+    walk(value)
+    text = "".join(out)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+# ----------------------------------------------------------------------------------------------
+# Derived sizes of a forward-looking scenario, before any array is made
+# ----------------------------------------------------------------------------------------------
