@@ -22,8 +22,6 @@ import csv
 import io as _io
 import itertools
 import json
-import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from .config import scenario_hash, yaml_load
@@ -120,41 +118,27 @@ def _process(run):
         # a sweep keeps each run's metrics.json, image.h5 and scenario.yaml; its stage files (about
         # 60 MB per paper-size run) would fill a disk over hundreds of runs
         shutil.rmtree(Path(run["run_dir"]) / "stages", ignore_errors=True)
+    return row_of(run, metrics)
+
+
+def row_of(run: dict, metrics: dict) -> dict:
+    """One summary row: the point's keys, its summary metrics, its time and run directory."""
     return {"scenario": run["scenario"], **{k: v for k, v in run["point"].items()},
             **{k: metrics["summary"].get(k) for k in SUMMARY_KEYS},
             **{k: metrics["summary"][k] for k in metrics["summary"] if k not in SUMMARY_KEYS},
             "total_s": metrics["timing_s"]["total"], "run_dir": run["run_dir"]}
 
 
-def run_sweep(path: str, out_dir: str | Path, *, workers: int = 1, quiet: bool = False) -> list[dict]:
+def run_sweep(path: str, out_dir: str | Path, *, workers: int = 1, quiet: bool = False,
+              scheduler: str = "local") -> list[dict]:
+    """Run every point (finished ones skipped, failures recorded; ``sweep_exec``), write the summary."""
+    from .sweep_exec import execute
+
     sweep = load_sweep(path)
-    out = Path(out_dir)
-    runs = plan_runs(sweep, out)
-    raw_dir = out / "raw"
-    raw_dir.mkdir(parents=True, exist_ok=True)
-    sims = {}
-    for run in runs:
-        run["raw"] = str(raw_dir / f"{run['sim_key'][:16]}.h5")
-        run["keep_stages"] = sweep["keep_stages"]
-        sims.setdefault(run["raw"], run["resolved"])
-    todo = [(scn, p) for p, scn in sims.items() if not Path(p).exists()]
-    pool = ProcessPoolExecutor(workers) if workers > 1 else None
-    mapper = pool.map if pool else map
-    try:
-        for _ in mapper(_simulate, todo):
-            pass
-        rows = []
-        for i, row in enumerate(mapper(_process, runs)):
-            rows.append(row)
-            if not quiet:
-                print(f"[{i + 1}/{len(runs)}] {row['scenario']} {_label(runs[i]['point'])}: max |range error| "
-                      f"{_fmt(row['max_abs_range_error_m'])} m, {row['total_s']:.2f} s", file=sys.stderr)
-    finally:
-        if pool:
-            pool.shutdown()
+    rows = execute(sweep, Path(out_dir), workers=workers, quiet=quiet, scheduler=scheduler)
     if sweep["combine"]:
         rows = combine_rows(rows, sweep)
-    write_summary(out, sweep, rows)
+    write_summary(Path(out_dir), sweep, rows)
     return rows
 
 
@@ -169,6 +153,12 @@ def combine_rows(rows: list[dict], sweep: dict) -> list[dict]:
         groups.setdefault((r["scenario"], *(json.dumps(r[k]) for k in keep)), []).append(r)
     out = []
     for members in groups.values():
+        failed = [r for r in members if r.get("status") == "failed"]
+        if failed:     # a union with a member missing is not the union: the group is failed too
+            out.append({"scenario": members[0]["scenario"], **{k: members[0][k] for k in keep},
+                        "status": "failed", "error": "; ".join(f"{Path(r['run_dir']).name}: {r['error']}" for r in failed),
+                        "runs": len(members), "run_dir": str(Path(members[0]["run_dir"]).parent)})
+            continue
         targets = []
         for r in members:
             targets += json.loads((Path(r["run_dir"]) / "metrics.json").read_text())["targets"]
@@ -176,7 +166,7 @@ def combine_rows(rows: list[dict], sweep: dict) -> list[dict]:
         out.append({"scenario": members[0]["scenario"], **{k: members[0][k] for k in keep},
                     **{k: summary.get(k) for k in SUMMARY_KEYS},
                     **{k: v for k, v in summary.items() if k not in SUMMARY_KEYS},
-                    "runs": len(members), "total_s": sum(r["total_s"] for r in members),
+                    "runs": len(members), "total_s": sum(r["total_s"] for r in members), "status": "ok",
                     "run_dir": str(Path(members[0]["run_dir"]).parent)})
     return out
 
@@ -190,20 +180,26 @@ def write_summary(out: Path, sweep: dict, rows: list[dict]) -> None:
 
     atomic_write_text(out / "summary.json", json.dumps({"sweep": sweep["name"], "grid": sweep["grid"],
                                                         "rows": rows}, indent=1))
-    cols = list(rows[0]) if rows else []
+    cols = list(dict.fromkeys(k for r in rows for k in r))      # union: failed rows have fewer keys
     buf = _io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=cols)
     writer.writeheader()
     writer.writerows(rows)
     atomic_write_text(out / "summary.csv", buf.getvalue())
     keys = [k for k in sweep["grid"] if k not in sweep["combine"]]
-    atomic_write_text(out / "summary.md", markdown_table(rows, ["scenario", *keys]))
-    if rows:
+    failed = [r for r in rows if r.get("status") == "failed"]
+    text = markdown_table(rows, ["scenario", *keys])
+    if failed:
+        text += "\n**Failed points** (rerun the sweep to retry them; finished points are skipped):\n\n"
+        text += "".join(f"- `{r['run_dir']}`: {r['error']}\n" for r in failed)
+    atomic_write_text(out / "summary.md", text)
+    done = [r for r in rows if r.get("status") != "failed"]
+    if done:
         from .plots import speed_accuracy_chart, stability_map
 
-        speed_accuracy_chart(out / "speed_accuracy.png", rows, keys)
+        speed_accuracy_chart(out / "speed_accuracy.png", done, keys)
         if len(keys) == 2:
-            stability_map(out / "stability.png", rows, keys)
+            stability_map(out / "stability.png", done, keys)
 
 
 def markdown_table(rows, key_cols) -> str:
@@ -217,5 +213,8 @@ def markdown_table(rows, key_cols) -> str:
     heads = [names.get(c, c.split(".")[-1]) for c in show]
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(show)]
     for r in rows:
-        lines.append("| " + " | ".join(_fmt(r.get(c), 2 if c.endswith("db") else 3) for c in show) + " |")
+        cells = [_fmt(r.get(c), 2 if c.endswith("db") else 3) for c in show]
+        if r.get("status") == "failed":
+            cells[len(key_cols)] = "FAILED"
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
