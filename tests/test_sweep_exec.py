@@ -1,0 +1,158 @@
+"""Sweeps that behave (issue 13, items 5 and 6): a rerun recomputes nothing it finished, one failing
+point is recorded and the others complete, pool workers run one FFT/BLAS thread each, and the same
+sweep on a loopback dask.distributed LocalCluster gives the local pool's summary."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from fwdlook_cli.cli import main
+from fwdlook_cli.sweep import SUMMARY_KEYS
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = str(ROOT / "scenarios" / "tiny.yaml")
+
+
+def sweep_file(tmp_path, methods=("tracking", "beam"), name="t"):
+    spec = {"name": name, "scenarios": [TINY], "set": ["noise.snr_db=null"],
+            "grid": {"processing.method": list(methods), "processing.t_ref": ["start", "centre"]}}
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+def run_cli(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return exc.value.code, out, err
+
+
+def rows_of(out_dir):
+    return json.loads((Path(out_dir) / "summary.json").read_text())["rows"]
+
+
+@pytest.fixture
+def count_processing(monkeypatch):
+    """Count (and optionally fail) calls of the forward chain made by an in-process sweep."""
+    import fwdlook_cli.process as process
+
+    calls, real = [], process.process_cube
+
+    def counted(cube, scn, run_dir, **kw):
+        calls.append(str(run_dir))
+        if scn["processing"]["method"] == counted.fail_method and scn["processing"]["t_ref"] == "centre":
+            raise RuntimeError("injected fault in stage keystone")
+        return real(cube, scn, run_dir, **kw)
+
+    counted.fail_method = None
+    monkeypatch.setattr(process, "process_cube", counted)
+    return counted, calls
+
+
+def test_rerun_recomputes_nothing_it_finished(tmp_path, capsys, count_processing):
+    counted, calls = count_processing
+    path, out = sweep_file(tmp_path), tmp_path / "out"
+    code, _, err = run_cli(["sweep", path, "-o", out], capsys)
+    assert code == 0 and len(calls) == 4
+    assert "ETA" in err                                     # progress with an ETA on stderr
+    first = rows_of(out)
+    mtimes = {p: p.stat().st_mtime_ns for p in out.glob("*/*/metrics.json")}
+    assert len(mtimes) == 4
+    code, _, err = run_cli(["sweep", path, "-o", out], capsys)
+    assert code == 0 and len(calls) == 4                    # nothing recomputed
+    assert "4 of 4 points already finished" in err
+    assert rows_of(out) == first                            # the same summary, rebuilt from metrics.json
+    assert {p: p.stat().st_mtime_ns for p in out.glob("*/*/metrics.json")} == mtimes
+    # a point whose recorded scenario hash no longer matches is not finished: only it is recomputed
+    victim = sorted(mtimes)[0]
+    m = json.loads(victim.read_text())
+    m["scenario_sha256"] = "0" * 64
+    victim.write_text(json.dumps(m))
+    code, _, _ = run_cli(["sweep", path, "-o", out], capsys)
+    assert code == 0 and calls[4:] == [str(victim.parent)]
+    # a grid extended by one method computes only the new points
+    code, _, _ = run_cli(["sweep", sweep_file(tmp_path, ("tracking", "beam", "bulk")), "-o", out], capsys)
+    assert code == 0 and len(calls) == 7 and all("method=bulk" in c for c in calls[5:])
+
+
+def test_one_failed_point_is_recorded_and_the_others_complete(tmp_path, capsys, count_processing):
+    counted, calls = count_processing
+    counted.fail_method = "beam"
+    path, out = sweep_file(tmp_path), tmp_path / "out"
+    code, stdout, err = run_cli(["sweep", path, "-o", out], capsys)
+    assert code == 1 and len(calls) == 4                    # every point was tried
+    assert "1 of 4 points failed" in err
+    rows = rows_of(out)
+    failed = [r for r in rows if r["status"] == "failed"]
+    assert len(failed) == 1
+    assert failed[0]["processing.method"] == "beam" and failed[0]["processing.t_ref"] == "centre"
+    assert failed[0]["error"] == "RuntimeError: injected fault in stage keystone"
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert len(ok) == 3 and all(r["detected"] == r["n_targets"] == 3 for r in ok)
+    assert all(r["max_abs_range_error_m"] < 1.0 for r in ok)   # a third of the tiny scene's 3 m cell
+    md = (out / "summary.md").read_text()
+    assert "FAILED" in md and "injected fault in stage keystone" in md
+    assert (out / "stability.png").stat().st_size > 1000       # drawn from the points that finished
+    # fixed, the rerun computes the failed point only
+    counted.fail_method = None
+    code, _, _ = run_cli(["sweep", path, "-o", out], capsys)
+    assert code == 0 and len(calls) == 5 and "method=beam,t_ref=centre" in calls[-1]
+    assert all(r["status"] == "ok" for r in rows_of(out))
+
+
+def test_pool_workers_run_one_fft_and_blas_thread():
+    from concurrent.futures import ProcessPoolExecutor
+
+    from fwdlook_cli.sweep_exec import limit_threads, thread_report
+
+    with ProcessPoolExecutor(2, initializer=limit_threads) as pool:
+        reports = list(pool.map(thread_report_after, range(2)))
+    for r in reports:
+        assert r["fft_workers"] == 1
+        assert all(n == 1 for n in r["blas_threads"])
+    import os
+
+    assert thread_report()["pid"] == os.getpid()             # this process is left alone
+
+
+def thread_report_after(_):
+    from fwdlook_cli.sweep_exec import thread_report
+
+    return thread_report()
+
+
+def _comparable(rows):
+    return [{k: r.get(k) for k in ("scenario", "processing.method", "processing.t_ref", "status", *SUMMARY_KEYS)}
+            for r in rows]
+
+
+def test_sweep_on_a_loopback_dask_cluster_equals_the_local_pool(tmp_path, capsys):
+    distributed = pytest.importorskip("distributed")
+    path = sweep_file(tmp_path)
+    code, _, _ = run_cli(["sweep", path, "-o", tmp_path / "pool", "--workers", "2", "-q"], capsys)
+    assert code == 0
+    # two worker processes on loopback: the sweep limits each to one FFT/BLAS thread, as the pool does,
+    # so both compute in the same order and agree exactly
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, protocol="tcp",
+                                  host="127.0.0.1", dashboard_address=None) as cluster:
+        address = cluster.scheduler_address
+        assert address.startswith("tcp://127.0.0.1:")
+        code, _, err = run_cli(["sweep", path, "-o", tmp_path / "dask", "--scheduler", address], capsys)
+    assert code == 0, err
+    assert "dask scheduler" in err
+    pool, dask = rows_of(tmp_path / "pool"), rows_of(tmp_path / "dask")
+    assert len(pool) == 4
+    a, b = _comparable(pool), _comparable(dask)
+    assert a == b
+    assert all(Path(r["run_dir"]).is_absolute() and (Path(r["run_dir"]) / "metrics.json").exists() for r in dask)
+
+
+def test_scheduler_that_does_not_answer_is_bad_input(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    code, _, err = run_cli(["sweep", sweep_file(tmp_path), "-o", tmp_path / "x", "--scheduler",
+                            "tcp://127.0.0.1:9"], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "--scheduler tcp://127.0.0.1:9" in err
