@@ -224,11 +224,13 @@ def sweep(sweep_file, output, workers, scheduler, quiet):
               help="Ground (x, y) of the target whose range profile is drawn (default: nearest -300 1700).")
 @quiet_option
 def report(run_dirs, output, target, quiet):
-    """Figures and tables for one run or several side by side (report.md and PNGs)."""
+    """Figures and tables for one run or several side by side (report.md, PNGs, index.html).
+
+    A sweep output folder may be given too: its table, stability map and chart go into index.html."""
     from .report import DEFAULT_TARGET_XY_M, make_report
 
     path = make_report(run_dirs, output, target_xy=tuple(target) if target else DEFAULT_TARGET_XY_M)
-    _log(quiet, f"wrote {path.parent}/ (report.md and figures)")
+    _log(quiet, f"wrote {path.parent}/ (report.md, figures, and index.html: one self-contained file)")
     click.echo(str(path))
 
 

@@ -428,10 +428,18 @@ def default_report_dir(run_dirs) -> Path:
 def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M) -> Path:
     """Write the report of ``run_dirs`` into ``out_dir`` (default :func:`default_report_dir`); returns
     the path of report.md.  Raises BadInput before writing anything when a run directory is bad."""
-    runs = load_runs(run_dirs)
+    from .htmlreport import extra_figures, is_sweep_dir, write_html
+
+    sweep_dirs = [d for d in run_dirs if is_sweep_dir(d)]          # sweeps: shown in index.html only
+    plain = [d for d in run_dirs if d not in sweep_dirs]
+    runs = load_runs(plain) if plain or not sweep_dirs else []
     out = Path(out_dir) if out_dir else default_report_dir(run_dirs)
     out.mkdir(parents=True, exist_ok=True)
     figures, notes = write_figures(runs, out, target_xy=target_xy)
+    more, more_notes = extra_figures(runs, out)                    # ground plane, ISAR echoes and image
+    figures.update(more)
+    notes += more_notes
     path = out / "report.md"
     atomic_write_text(path, report_markdown(runs, figures, notes))
+    write_html(out / "index.html", runs, figures, notes, sweep_dirs)   # one self-contained file
     return path
