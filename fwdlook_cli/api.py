@@ -7,7 +7,7 @@ section shows them in use; ``tests/test_api.py`` runs that example.
 =================  ==================================================================================
 scenarios          ``load_scenario(path, overrides=())``, ``resolve_scenario(mapping, ...)``,
                    ``scenario_hash``, ``dump_scenario``, ``plan_for_scenario``
-cubes              ``simulate(scn) -> RawCube`` (forward or ISAR), ``simulate_scenario`` (with stats),
+cubes              ``simulate_cube(scn) -> RawCube`` (forward or ISAR), ``simulate_scenario`` (with stats),
                    ``read_raw``, ``write_raw``, ``RawCube`` (``.to_xarray()``)
 stages             ``build_forward_stages(cube, processing) -> (source, [Stage], geometry)``, the
                    stage functions ``range_fft``, ``decimate``, ``keystone_stage``, ``regroup``,
@@ -25,7 +25,7 @@ from __future__ import annotations
 EXPORTS = {
     "load_scenario": "config", "resolve_scenario": "config", "scenario_hash": "config", "dump_scenario": "config",
     "plan_for_scenario": "plan",
-    "simulate": "api", "simulate_scenario": "simulate", "read_raw": "io", "write_raw": "io", "RawCube": "cube",
+    "simulate_cube": "api", "simulate_scenario": "simulate", "read_raw": "io", "write_raw": "io", "RawCube": "cube",
     "build_forward_stages": "chain", "range_fft": "chain", "decimate": "chain", "keystone_stage": "chain",
     "regroup": "chain", "range_curvature": "chain", "doppler_spectra": "chain", "monopulse_image": "chain",
     "run_chain": "api", "StageData": "pipeline", "stage_to_xarray": "xr",
@@ -36,7 +36,7 @@ EXPORTS = {
 }
 
 
-def simulate(scn: dict):
+def simulate_cube(scn: dict):
     """The raw cube of a resolved scenario (forward-looking or ``kind: isar``), in memory."""
     if scn.get("kind") == "isar":
         from .isar import simulate_isar_scenario

@@ -34,7 +34,7 @@ def test_in_memory_chain_equals_the_run_directory_chain(tmp_path):
     import fwdlook_cli as fw
 
     scn = fw.load_scenario(ROOT / "scenarios" / "tiny.yaml", ["processing.method=tracking"])
-    cube = fw.simulate(scn)
+    cube = fw.simulate_cube(scn)
     final = fw.run_chain(cube, scn["processing"])
     mem = fw.measure(cube, final, scn["processing"])
     disk = fw.process_cube(cube, scn, tmp_path, png=False)
@@ -53,6 +53,10 @@ def test_every_exported_name_resolves():
     import fwdlook_cli as fw
     from fwdlook_cli.api import EXPORTS
 
+    import pkgutil
+
+    # a submodule of the same name would shadow the export once imported (import binds it on the package)
+    assert not set(EXPORTS) & {m.name for m in pkgutil.iter_modules(fw.__path__)}
     for name in EXPORTS:
         assert callable(getattr(fw, name)), name
     assert set(EXPORTS) <= set(dir(fw))
