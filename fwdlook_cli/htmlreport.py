@@ -221,8 +221,9 @@ def render_html(runs, figures: dict, notes: list[str], out: Path, sweeps=()) -> 
              f"<header><h1>fwdlook report</h1><p>{n} run{'s' if n != 1 else ''}"
              f"{f', {len(sweeps)} sweep(s)' if sweeps else ''}; fwdlook {__version__}; every number is read from "
              f"the run's metrics.json (CONTRACT.md section 5)</p></header><main>",
-             '<nav><a href="#glance">runs</a><a href="#figures">figures</a>'
-             + ('<a href="#sweeps">sweeps</a>' if sweeps else "") + '<a href="#details">details</a></nav>']
+             "<nav>" + "".join(f'<a href="#{a}">{t}</a>' for a, t, shown in (
+                 ("glance", "runs", runs), ("figures", "figures", figures), ("sweeps", "sweeps", sweeps),
+                 ("details", "details", runs)) if shown) + "</nav>"]
     if runs:
         parts += ['<h2 id="glance">Runs at a glance</h2>', _table(GLANCE_HEADS, glance_rows(runs))]
     if figures:

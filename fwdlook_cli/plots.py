@@ -76,8 +76,13 @@ def speed_accuracy_chart(path, rows, grid_keys, *, error_key=None):
             ax.annotate(",".join(str(r[k]) for k in grid_keys), (r["total_s"], r[error_key]), fontsize=6,
                         xytext=(3, 2), textcoords="offset points")
     ax.set_xlabel("whole chain time (s), both channels, intermediates written")
-    ax.set_ylabel(error_key.replace("_", " "))
+    ax.set_ylabel(error_key.replace("max_abs_range_error", "max |range error|").replace("_resolved", ", resolved targets")
+                  .replace("_m", " (m)").replace("_", " "))
     ax.set_yscale("log")
+    from matplotlib.ticker import FuncFormatter
+
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda y, _: f"{y:g}"))
+    ax.yaxis.set_minor_formatter(FuncFormatter(lambda y, _: f"{y:g}" if f"{y:.0e}"[0] in "25" else ""))
     ax.axhline(0.3, color="k", lw=0.7, ls="--")
     ax.legend(fontsize=7)
     ax.set_title("speed against accuracy", fontsize=10)

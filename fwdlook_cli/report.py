@@ -435,11 +435,15 @@ def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M) -> Pat
     runs = load_runs(plain) if plain or not sweep_dirs else []
     out = Path(out_dir) if out_dir else default_report_dir(run_dirs)
     out.mkdir(parents=True, exist_ok=True)
-    figures, notes = write_figures(runs, out, target_xy=target_xy)
+    figures, notes = write_figures(runs, out, target_xy=target_xy) if runs else ({}, [])
     more, more_notes = extra_figures(runs, out)                    # ground plane, ISAR echoes and image
     figures.update(more)
     notes += more_notes
     path = out / "report.md"
-    atomic_write_text(path, report_markdown(runs, figures, notes))
+    text = report_markdown(runs, figures, notes) if runs else "# fwdlook report\n"
+    if sweep_dirs:
+        text += ("\nSweeps (their tables, stability maps and speed-accuracy charts are in `index.html`): "
+                 + ", ".join(f"`{d}`" for d in sweep_dirs) + ".\n")
+    atomic_write_text(path, text)
     write_html(out / "index.html", runs, figures, notes, sweep_dirs)   # one self-contained file
     return path

@@ -156,3 +156,29 @@ def test_scheduler_that_does_not_answer_is_bad_input(tmp_path, capsys):
     code, _, err = run_cli(["sweep", sweep_file(tmp_path), "-o", tmp_path / "x", "--scheduler",
                             "tcp://127.0.0.1:9"], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "--scheduler tcp://127.0.0.1:9" in err
+
+
+def test_a_corrupt_cube_fails_its_points_through_the_pool_and_spares_the_others(tmp_path, capsys):
+    """A real fault through the process pool: one scenario's shared cube is truncated on disk before
+    the sweep (as by a full disk), so its points fail with the reader's one-line error, while the other
+    scenario's points complete in the other worker."""
+    from fwdlook_cli.sweep import load_sweep, plan_runs
+
+    other = tmp_path / "tiny_seed2.yaml"
+    other.write_text(Path(TINY).read_text().replace("name: tiny", "name: tiny_seed2"))
+    spec = {"name": "c", "scenarios": [TINY, str(other)], "set": ["noise.seed=2"],
+            "grid": {"processing.method": ["tracking", "beam"]}}
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    out = tmp_path / "out"
+    victim = next(r for r in plan_runs(load_sweep(str(path)), out) if r["scenario"] == "tiny_seed2")
+    raw = out / "raw" / f"{victim['sim_key'][:16]}.h5"
+    raw.parent.mkdir(parents=True)
+    raw.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 64)          # an HDF5 signature, then nothing
+    code, _, err = run_cli(["sweep", path, "-o", out, "--workers", "2"], capsys)
+    assert code == 1 and "2 of 4 points failed" in err
+    rows = rows_of(out)
+    assert [r["status"] for r in rows] == ["ok", "ok", "failed", "failed"]
+    assert all(r["scenario"] == "tiny_seed2" and r["error"].startswith("BadInput: ") and str(raw) in r["error"]
+               for r in rows[2:])
+    assert all(r["detected"] == 3 for r in rows[:2])
