@@ -156,7 +156,7 @@ class _Dask:
             raise BadInput(f"--scheduler {address}: dask.distributed is not installed; "
                            f"install it with pip install -e '.[dask]', or use --scheduler local") from None
         try:
-            self.client = Client(address, timeout="10s")
+            self.client = Client(address, timeout="5s")
         except (OSError, TimeoutError) as exc:
             raise BadInput(f"--scheduler {address}: no Dask scheduler answers there ({_error_text(exc)}); "
                            f"allowed: local or the address of a running dask scheduler (tcp://HOST:PORT)") from None
