@@ -412,7 +412,11 @@ def member_run_dir(row: dict) -> Path | None:
 def run_sweep_dir(sweep_file: Path, out: Path, *, workers: int, keep_stages: bool) -> list[dict]:
     from .sweep import run_sweep
 
-    run_sweep(str(sweep_file), out, workers=workers, quiet=False)
+    rows = run_sweep(str(sweep_file), out, workers=workers, quiet=False)
+    failed = [r for r in rows if r.get("status") == "failed"]
+    if failed:      # the tables below need every point: stop here, naming them (a rerun skips the rest)
+        raise RuntimeError(f"{sweep_file}: {len(failed)} point(s) failed: " +
+                           "; ".join(f"{r['run_dir']}: {r['error']}" for r in failed[:3]))
     summary = _read_json(out / "summary.json")
     if not keep_stages:
         for row in summary["rows"]:
