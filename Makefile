@@ -21,10 +21,10 @@ help: ## list the targets
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,xarray,dask]'
 	touch $(STAMP)
 
-install: $(STAMP) ## create .venv and install fwdlook (editable) with its test extra
+install: $(STAMP) ## create .venv and install fwdlook (editable) with its test, xarray and dask extras
 
 run: $(STAMP) ## simulate and process the default scenario end to end (SCENARIO=, CONFIG=, RUN_DIR=)
 	$(BIN)/fwdlook run $(SCENARIO) -c $(CONFIG) -o $(RUN_DIR)

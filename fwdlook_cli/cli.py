@@ -5,6 +5,7 @@ or dataset; 1 internal fault (traceback kept).  Progress and logs go to stderr, 
 """
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 
@@ -17,13 +18,21 @@ from .options import json_option, quiet_option, set_option
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="fwdlook")
-def cli():
+@click.option("-v", "--verbose", count=True, help="More on stderr: debug messages with their module (any command).")
+@click.option("-q", "--quiet", is_flag=True, help="Only warnings and errors on stderr (any command).")
+def cli(verbose, quiet):
     """Forward-looking scanning monopulse radar: simulate, correct, image, measure."""
+    from .console import configure_logging
+
+    configure_logging(verbose, quiet)
+
+
+log = logging.getLogger("fwdlook_cli.cli")
 
 
 def _log(quiet: bool, message: str) -> None:
     if not quiet:
-        click.echo(message, err=True)
+        log.info(message)
 
 
 overwrite_option = click.option("--overwrite", is_flag=True,
@@ -121,11 +130,11 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube"):
 
 
 def _print_summary(metrics, run_dir, quiet):
-    s = metrics.get("summary", {})
     if quiet:
         return
-    parts = [f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in s.items() if v is not None]
-    click.echo(f"{run_dir}: {metrics['method']}: " + ", ".join(parts), err=True)
+    from .console import summary_table
+
+    log.info(summary_table(metrics, run_dir))
 
 
 config_option = click.option("-c", "--config", "config", default=None, metavar="CONFIG.yaml",
@@ -207,19 +216,26 @@ def plan(scenario, overrides, as_json):
 @click.argument("sweep_file")
 @click.option("-o", "--output", "output", default=None, metavar="DIR", help="Output folder (default runs/sweep-<name>).")
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True, help="Parallel processes.")
-@click.option("--scheduler", default="local", show_default=True,
-              help="Where runs execute: only 'local' (a process pool) is available here.")
+@click.option("--scheduler", default="local", show_default=True, metavar="local|tcp://HOST:PORT",
+              help="Where points run: 'local' (this process, or a pool of --workers processes) or the "
+                   "address of a dask.distributed scheduler (pip install -e .[dask]).")
 @quiet_option
 def sweep(sweep_file, output, workers, scheduler, quiet):
-    """Grids of runs: summary table, speed-accuracy chart, stability map."""
+    """Grids of runs: summary table, speed-accuracy chart, stability map.
+
+    Finished points (same scenario hash) are skipped on a rerun; a failed point is recorded in the
+    summary and the others go on (exit 1 at the end if any failed)."""
     from .report.sweep import load_sweep, run_sweep
 
-    if scheduler != "local":
-        raise BadInput(f"--scheduler {scheduler}: no distributed scheduler is installed; allowed: local")
     spec = load_sweep(sweep_file)
     out = Path(output) if output else Path("runs") / f"sweep-{spec['name']}"
-    run_sweep(sweep_file, out, workers=workers, quiet=quiet)
+    rows = run_sweep(sweep_file, out, workers=workers, quiet=quiet, scheduler=scheduler)
     click.echo(str(out / "summary.md"))
+    failed = [r for r in rows if r.get("status") == "failed"]
+    if failed:
+        click.echo(f"fwdlook: error: sweep: {len(failed)} of {len(rows)} points failed; their errors are in "
+                   f"{out / 'summary.md'}", err=True)
+        sys.exit(1)
 
 
 @cli.command()
@@ -231,12 +247,14 @@ def sweep(sweep_file, output, workers, scheduler, quiet):
 @overwrite_option
 @quiet_option
 def report(run_dirs, output, target, overwrite, quiet):
-    """Figures and tables for one run or several side by side (report.md and PNGs)."""
+    """Figures and tables for one run or several side by side (report.md, PNGs, index.html).
+
+    A sweep output folder may be given too: its table, stability map and chart go into index.html."""
     from .report.report import DEFAULT_TARGET_XY_M, make_report
 
     path = make_report(run_dirs, output, target_xy=tuple(target) if target else DEFAULT_TARGET_XY_M,
                        overwrite=overwrite)
-    _log(quiet, f"wrote {path.parent}/ (report.md and figures)")
+    _log(quiet, f"wrote {path.parent}/ (report.md, figures, and index.html: one self-contained file)")
     click.echo(str(path))
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import sys
 import time
 from dataclasses import dataclass
@@ -23,6 +24,8 @@ from typing import Callable
 
 from .errors import BadInput
 from .io.stagefile import StageData, _canon, load_verified, write_stage
+
+log = logging.getLogger(__name__)
 
 @dataclass
 class Stage:
@@ -83,10 +86,11 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
                     params=st.params, extra_attrs={"compute_s": t_compute})
         timings[st.name] = time.perf_counter() - t0
         if not quiet:
-            print(f"[{i + 1}/{len(stages)}] {st.name:<18s} {t_compute * 1e3:8.1f} ms compute, "
-                  f"{(timings[st.name] - t_compute) * 1e3:6.1f} ms write", file=sys.stderr)
+            log.info(f"[{i + 1}/{len(stages)}] {st.name:<18s} {t_compute * 1e3:8.1f} ms compute, "
+                     f"{(timings[st.name] - t_compute) * 1e3:6.1f} ms write")
+        log.debug("stage %s: key %s -> %s", st.name, keys[i][:12], paths[i])
     if first == len(stages) and not quiet:
-        print(f"all {len(stages)} stages up to date (reused)", file=sys.stderr)
+        log.info(f"all {len(stages)} stages up to date (reused)")
     if first < len(stages) and first > 0 and not quiet:
-        print(f"reused stages 1-{first} ({', '.join(names[:first])})", file=sys.stderr)
+        log.info(f"reused stages 1-{first} ({', '.join(names[:first])})")
     return data, timings, dict(zip(names, keys))

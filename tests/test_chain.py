@@ -7,7 +7,7 @@ ambiguity number (eq. 19-20), the closed-form residual curvature a keystone leav
 the CONTRACT.md outputs of a run.  Scenes are the tiny radar (``fwdlook_cli.testing``) with the
 parameters each check needs stated next to it; nothing here touches the 2500-pulse paper cube.
 
-Stage functions are driven through :func:`fwdlook_cli.chain.build_forward_stages`, so the tests use the
+Stage functions are driven through :func:`fwdlook_cli.forward.chain.build_forward_stages`, so the tests use the
 same parameters the runner would; only the keystone's implementation / ambiguity number and the
 processing settings are varied.  Range peaks are measured with this file's own band-limited
 interpolator (zero-padding in range frequency, then a 3-point parabola on log power), not with the

@@ -1,4 +1,4 @@
-"""Tests for fwdlook_cli.io: raw-cube round trip, on-disk layout, foreign writers, atomic writes.
+"""Tests for fwdlook_cli.io (raw.py, h5.py): raw-cube round trip, on-disk layout, foreign writers, atomic writes.
 
 Facts checked here come from CONTRACT.md section 3 (the raw cube layout) and section 1 (outputs are
 written to a temporary name and renamed into place).  Everything runs on scenarios/tiny.yaml

@@ -15,7 +15,7 @@ import pytest
 
 from fwdlook_cli.cli import main
 from fwdlook_cli.dsp.geometry import C_MPS
-from fwdlook_cli.report.report import SIG_DIGITS, parse_md_table, parse_value
+from fwdlook_cli.report.tables import SIG_DIGITS, parse_md_table, parse_value
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = REPO / "scenarios" / "tiny.yaml"

@@ -49,6 +49,14 @@ class RawCube:
             return None
         return np.column_stack([self.truth["x_m"], self.truth["y_m"], self.truth["z_m"]])
 
+    def to_xarray(self):
+        """The cube as an ``xarray.Dataset``: ``sum`` (and ``diff``) on (slow_time_s, range_m), the scan
+        angle and the INS track on slow_time_s, truth on ``target``; radar, antenna and noise as attrs
+        (prefixed ``radar_``, ``antenna_``, ``noise_``).  Needs xarray (``pip install -e .[xarray]``)."""
+        from .xr import cube_to_xarray
+
+        return cube_to_xarray(self)
+
 
 def cube_hash(cube) -> str:
     h = hashlib.sha256()

@@ -35,13 +35,17 @@ def write_raw(path: str | Path, cube: RawCube) -> None:
             f.attrs[key] = value
         if cube.scenario_yaml is not None:
             f.attrs["scenario"] = cube.scenario_yaml
-        axes = f.create_group("axes")
-        t = put_scale(axes, "slow_time_s", cube.slow_time_s.astype(np.float64), "s",
+        # the dimension scales live at the root, where netCDF readers (xarray + h5netcdf) find them
+        # from every group; /axes/* (CONTRACT.md 3) and /echo/* are hard links to the same datasets
+        t = put_scale(f, "slow_time_s", cube.slow_time_s.astype(np.float64), "s",
                       "slow time, t = 0 at the first pulse")
-        r = put_scale(axes, "range_m", cube.range_m.astype(np.float64), "m", "slant range")
+        r = put_scale(f, "range_m", cube.range_m.astype(np.float64), "m", "slant range")
+        axes = f.create_group("axes")
+        axes["slow_time_s"], axes["range_m"] = t, r
         put(axes, "scan_angle_deg", cube.scan_angle_deg.astype(np.float64), "deg",
             "beam pointing azimuth atan2(dx, dy)", dims=(t,))
         echo = f.create_group("echo")
+        echo["slow_time_s"], echo["range_m"] = t, r
         if cube.diff is None:  # single channel (ISAR): only /echo/sum, marked by the root attr
             f.attrs["channels"] = "sum"
         for name, data, what in (("sum", cube.sum, "sum"), ("diff", cube.diff, "difference")):
@@ -63,17 +67,20 @@ def write_raw(path: str | Path, cube: RawCube) -> None:
                 else:
                     ant.attrs[key] = value
         plat = f.create_group("platform")
+        xyz = put_scale(plat, "xyz", np.arange(3), "1", "axis: 0 = x cross-range, 1 = y forward, 2 = z up")
         put(plat, "position_m", cube.position_m.astype(np.float64), "m",
-            "antenna phase centre (x, y, z) per pulse (INS)", dims=(t, None))
+            "antenna phase centre (x, y, z) per pulse (INS)", dims=(t, xyz))
         put(plat, "velocity_mps", cube.velocity_mps.astype(np.float64), "m/s",
-            "antenna phase-centre velocity per pulse (INS)", dims=(t, None))
+            "antenna phase-centre velocity per pulse (INS)", dims=(t, xyz))
         if cube.truth:
             tg = f.create_group("truth/targets")
+            n_t = len(np.atleast_1d(cube.truth["x_m"]))
+            tid = put_scale(tg, "target", np.arange(n_t), "1", "target index")
             for key, units in (("x_m", "m"), ("y_m", "m"), ("z_m", "m"), ("amplitude", "1")):
-                put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), units, f"target {key}")
+                put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), units, f"target {key}", dims=(tid,))
             for key in sorted(cube.truth.keys() - set(TRUTH_KEYS)):  # extra truth, e.g. vx_mps
                 put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), _truth_units(key),
-                    f"target {key}")
+                    f"target {key}", dims=(tid,))
 
 
 TRUTH_KEYS = ("x_m", "y_m", "z_m", "amplitude")

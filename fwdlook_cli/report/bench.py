@@ -6,6 +6,7 @@ ratio to one plain 2-D FFT of the same cube (``fft2_s``) measured in the same pr
 from __future__ import annotations
 
 import json
+import logging
 import statistics
 import sys
 import time
@@ -15,6 +16,15 @@ import numpy as np
 import scipy.fft
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
+log = logging.getLogger(__name__)
+_T0 = [0.0]
+
+
+def _step(i: int, n: int, what: str) -> None:
+    """Progress on stderr (logging): step i of n, elapsed time."""
+    if i == 1:
+        _T0[0] = time.perf_counter()
+    log.info(f"bench [{i}/{n}] {what} ({time.perf_counter() - _T0[0]:.1f} s elapsed)")
 
 
 def _median_time(fn, repeats=5):
@@ -37,17 +47,21 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     from ..forward.process import process_cube
     from ..forward.simulate import simulate_scenario
 
+    n = 8
+    _step(1, n, "simulating the paper cube")
     paper = load_scenario(paper_scenario)
     tiny = load_scenario(tiny_scenario)
     cube, stats = simulate_scenario(paper)
     out = {"cube_shape": list(cube.sum.shape), "n_targets": int(len(cube.truth["x_m"])),
            "pairs_kept": stats.n_pairs_kept, "pairs_total": stats.n_pairs}
     x = cube.sum
+    _step(2, n, "plain 2-D FFT and simulation timings")
     out["fft2_s"] = _median_time(lambda: scipy.fft.fft2(x, workers=-1), repeats=15)
     out["simulate_s"] = _median_time(lambda: simulate_scenario(paper), repeats=3)
     out["simulate_tiny_s"] = _median_time(lambda: simulate_scenario(tiny), repeats=5)
 
     # keystones on the sum channel in the paper's decimated layout (Q = 25, P = 100 pulses)
+    _step(3, n, "CZT keystone (Q = 25 layout)")
     proc = dict(paper["processing"], method="decimation", q=25)
     src, stages, geo = build_forward_stages(cube, proc)
     data = src
@@ -69,14 +83,17 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     y128 = KeystonePlan(p_len, alpha, t0_index=t0, dtype=np.complex128)(sub.astype(np.complex128),
                                                                         ambiguity=ks["ambiguity"])
     out["keystone_c64_vs_c128_db"] = float(10 * np.log10(np.sum(np.abs(y64 - y128) ** 2) / np.sum(np.abs(y128) ** 2)))
+    _step(4, n, "direct DFT keystone, O(M^2): the slow one")
     out["keystone_dft_s"] = _median_time(lambda: keystone_dft(sub, alpha, t0_index=t0, ambiguity=ks["ambiguity"]),
                                          repeats=1)
+    _step(5, n, "demodulated sinc keystone")
     ref = ks["doppler_ref_hz"] / (cube.radar["prf_hz"] / q)
     out["keystone_sinc_s"] = _median_time(lambda: keystone_sinc(sub, alpha, t0_index=t0, doppler_ref=ref),
                                           repeats=1)
 
     # whole chains, both channels, every intermediate written
     for method in ("decimation", "tracking"):
+        _step(6 if method == "decimation" else 7, n, f"whole chain, {method}, intermediates written")
         scn = dict(paper, processing=dict(paper["processing"], method=method))
         with tempfile.TemporaryDirectory() as tmp:
             metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False)
@@ -85,6 +102,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         for stage, seconds in metrics["timing_s"].items():
             if stage != "total":
                 out[f"stage_{method}_{stage}_s"] = seconds
+    _step(8, n, "done")
     out["ratios_to_fft2"] = {k[:-2]: out[k] / out["fft2_s"] for k in list(out) if k.endswith("_s")
                              and k != "fft2_s" and not k.startswith("stage_")}
     return out

@@ -28,20 +28,88 @@ def speed_accuracy_chart(path, rows, grid_keys, *, error_key=None):
             ax.annotate(",".join(str(r[k]) for k in grid_keys), (r["total_s"], r[error_key]), fontsize=6,
                         xytext=(3, 2), textcoords="offset points")
     ax.set_xlabel("whole chain time (s), both channels, intermediates written")
-    ax.set_ylabel(error_key.replace("_", " "))
+    ax.set_ylabel(error_key.replace("max_abs_range_error", "max |range error|").replace("_resolved", ", resolved targets")
+                  .replace("_m", " (m)").replace("_", " "))
     ax.set_yscale("log")
+    from matplotlib.ticker import FuncFormatter
+
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda y, _: f"{y:g}"))
+    ax.yaxis.set_minor_formatter(FuncFormatter(lambda y, _: f"{y:g}" if f"{y:.0e}"[0] in "25" else ""))
     ax.axhline(0.3, color="k", lw=0.7, ls="--")
     ax.legend(fontsize=7)
     ax.set_title("speed against accuracy", fontsize=10)
     _save(fig, path)
 
 
+ERROR_NORM_M = (0.01, 30.0)      # fixed colour limits of the error maps (m): 1 cm to a lattice spacing
+_UNIT_WORDS = (("_mps2", "m/s$^2$"), ("_mps", "m/s"), ("_deg", "deg"), ("_hz", "Hz"), ("_db", "dB"), ("_m", "m"),
+               ("_s", "s"))
+
+
+def axis_label(key: str) -> str:
+    """``platform.accel_mps2`` -> ``platform accel (m/s^2)``; ``processing.method`` -> ``method``."""
+    section, _, name = key.rpartition(".")
+    for suffix, unit in _UNIT_WORDS:
+        if name.endswith(suffix):
+            name = f"{name[: -len(suffix)]} ({unit})"
+            break
+    name = name.replace("_", " ")
+    return name if section in ("", "processing") else f"{section.split('.')[-1]} {name}"
+
+
+def value_label(value) -> str:
+    """A grid value as a tick label: vectors such as accel [0, 50, 0] as 0, 50, 0."""
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except ValueError:
+            return value
+    if isinstance(value, list):
+        return ", ".join(f"{v:g}" if isinstance(v, (int, float)) else str(v) for v in value)
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def error_map(ax, grid, x_labels, y_labels, *, xlabel, ylabel, title, threshold=None, fmt="{:.2f}"):
+    """One panel of errors (m) on a logarithmic colour norm with the fixed limits ERROR_NORM_M."""
+    from matplotlib.colors import LogNorm
+
+    plt = _plt()
+    cmap = plt.get_cmap("magma_r").with_extremes(bad="0.85")
+    norm = LogNorm(*ERROR_NORM_M, clip=True)
+    v = np.asarray(grid, dtype=np.float64)
+    mesh = ax.imshow(np.where(v > 0, v, np.nan), origin="lower", aspect="auto", cmap=cmap, norm=norm)
+    ax.set_xticks(range(len(x_labels)), x_labels, rotation=30 if max(map(len, x_labels), default=0) > 4 else 0,
+                  ha="right" if max(map(len, x_labels), default=0) > 4 else "center", fontsize=8)
+    ax.set_yticks(range(len(y_labels)), y_labels, fontsize=8)
+    for (i, j), val in np.ndenumerate(v):
+        if np.isfinite(val):
+            dark = norm(min(max(val, ERROR_NORM_M[0]), ERROR_NORM_M[1])) > 0.55
+            ax.text(j, i, fmt.format(val), ha="center", va="center", fontsize=7, color="w" if dark else "k")
+            if threshold is not None and val > threshold:
+                ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="tab:red", lw=1.4))
+    ax.set_xlabel(xlabel, fontsize=9)
+    ax.set_ylabel(ylabel, fontsize=9)
+    ax.set_title(title, fontsize=9)
+    return mesh
+
+
+def error_colorbar(fig, mesh, ax, label):
+    from matplotlib.ticker import FixedLocator, FuncFormatter
+
+    cb = fig.colorbar(mesh, ax=ax, label=label, extend="both")
+    cb.locator = FixedLocator([0.01, 0.03, 0.1, 0.3, 1, 3, 10, 30])
+    cb.formatter = FuncFormatter(lambda x, _: f"{x:g}")
+    cb.update_ticks()
+    return cb
+
+
 def stability_map(path, rows, grid_keys, *, error_key="max_abs_range_error_m"):
-    """Worst range error over a two-key grid (one panel per scenario)."""
+    """Worst range error (m) over a two-key grid, one panel per scenario, on a logarithmic colour norm
+    with fixed limits (ERROR_NORM_M), so that colours mean the same metres on every map."""
     plt = _plt()
     k1, k2 = grid_keys
     scenarios = sorted({r["scenario"] for r in rows})
-    fig, axes = plt.subplots(1, len(scenarios), figsize=(4.2 * len(scenarios), 3.8), dpi=110, squeeze=False)
+    fig, axes = plt.subplots(1, len(scenarios), figsize=(4.6 * len(scenarios) + 0.6, 4.0), dpi=110, squeeze=False)
     for ax, scen in zip(axes[0], scenarios):
         sel = [r for r in rows if r["scenario"] == scen]
         key = lambda v: json.dumps(v)  # noqa: E731  (list values such as accel_mps2 are not hashable)
@@ -51,16 +119,10 @@ def stability_map(path, rows, grid_keys, *, error_key="max_abs_range_error_m"):
         for r in sel:
             if r.get(error_key) is not None:
                 grid[v2.index(key(r[k2])), v1.index(key(r[k1]))] = r[error_key]
-        mesh = ax.imshow(np.log10(grid), origin="lower", aspect="auto", cmap="magma_r")
-        ax.set_xticks(range(len(v1)), [str(v) for v in v1], rotation=45, fontsize=7)
-        ax.set_yticks(range(len(v2)), [str(v) for v in v2], fontsize=7)
-        for (i, j), val in np.ndenumerate(grid):
-            if np.isfinite(val):
-                ax.text(j, i, f"{val:.2f}", ha="center", va="center", fontsize=6, color="c")
-        ax.set_xlabel(k1)
-        ax.set_ylabel(k2)
-        ax.set_title(scen, fontsize=9)
-        fig.colorbar(mesh, ax=ax, label=f"log10 {error_key}")
+        mesh = error_map(ax, grid, [value_label(v) for v in v1], [value_label(v) for v in v2],
+                         xlabel=axis_label(k1), ylabel=axis_label(k2), title=scen)
+        error_colorbar(fig, mesh, ax, error_key.replace("max_abs_range_error", "max |range error|")
+                       .replace("_resolved", ", resolved").replace("_m", " (m)").replace("_", " "))
     _save(fig, path)
 
 
@@ -172,19 +234,8 @@ def grid_heatmap(path, values, row_labels, col_labels, *, xlabel, ylabel, title,
     ``threshold`` (e.g. half a range cell) get a red frame: the method broke down there.
     """
     plt = _plt()
-    v = np.asarray(values, dtype=np.float64)
-    fig, ax = plt.subplots(figsize=(1.1 * len(col_labels) + 2.6, 0.55 * len(row_labels) + 1.8), dpi=110)
-    shown = np.log10(np.where(v > 0, v, np.nan))
-    mesh = ax.imshow(shown, origin="lower", aspect="auto", cmap="magma_r")
-    ax.set_xticks(range(len(col_labels)), [str(c) for c in col_labels], fontsize=8)
-    ax.set_yticks(range(len(row_labels)), [str(r) for r in row_labels], fontsize=8)
-    for (i, j), val in np.ndenumerate(v):
-        if np.isfinite(val):
-            ax.text(j, i, fmt.format(val), ha="center", va="center", fontsize=7, color="tab:cyan")
-            if threshold is not None and val > threshold:
-                ax.add_patch(_plt().Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="r", lw=1.2))
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=9)
-    fig.colorbar(mesh, ax=ax, label=f"log10 {cbar_label}")
+    fig, ax = plt.subplots(figsize=(1.1 * len(col_labels) + 2.9, 0.55 * len(row_labels) + 1.8), dpi=110)
+    mesh = error_map(ax, values, [str(c) for c in col_labels], [str(r) for r in row_labels], xlabel=xlabel,
+                     ylabel=ylabel, title=title, threshold=threshold, fmt=fmt)
+    error_colorbar(fig, mesh, ax, cbar_label)
     _save(fig, path)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .experiments import PAPER_CLAIMS
+from .tables import md_table
 
 
 def _fmt(v, nd=3) -> str:
@@ -21,12 +22,6 @@ def _fmt(v, nd=3) -> str:
     if isinstance(v, float):
         return "nan" if not math.isfinite(v) else f"{v:.{nd}f}"
     return str(v)
-
-
-def md_table(heads, rows) -> str:
-    lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-    return "\n".join(lines) + "\n"
 
 
 def _read_json(path: Path):

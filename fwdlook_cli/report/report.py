@@ -33,9 +33,9 @@ import numpy as np
 
 from ..errors import BadInput
 from ..io.h5 import atomic_write_text
+from .tables import SIG_DIGITS, fmt_value, md_table, summary_rows
 
 MAX_TARGET_ROWS = 70
-SIG_DIGITS = 6
 DEFAULT_TARGET_XY_M = (-300.0, 1700.0)      # paper Fig. 7: azimuth distance -300 m, ground range 1700 m
 PROFILE_HALF_WINDOW_M = 15.0                # half the paper lattice spacing: the next row stays out
 PROFILE_ANGLE_HALF_DEG = 0.25               # columns summed into the range cut (as evaluate.py does)
@@ -126,63 +126,6 @@ def load_runs(run_dirs) -> list[Run]:
         image, note = read_image(path)
         runs.append(Run(path, label, metrics, image, note))
     return runs
-
-
-# ----------------------------------------------------------------------------------------------
-# Numbers and tables
-# ----------------------------------------------------------------------------------------------
-def fmt_value(value) -> str:
-    """A metrics.json value as printed in report.md (numbers to SIG_DIGITS significant digits)."""
-    if value is None:
-        return "-"
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        return "nan" if not math.isfinite(value) else f"{value:.{SIG_DIGITS}g}"
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(fmt_value(v) for v in value) + "]"
-    return str(value).replace("|", "/")
-
-
-def parse_value(text: str):
-    """Inverse of :func:`fmt_value` for scalars (what a reader or a test gets back from report.md)."""
-    text = text.strip()
-    if text == "-":
-        return None
-    if text in ("yes", "no"):
-        return text == "yes"
-    try:
-        return int(text)
-    except ValueError:
-        pass
-    try:
-        return float(text)
-    except ValueError:
-        return text
-
-
-def md_table(heads, rows) -> str:
-    lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-    return "\n".join(lines) + "\n"
-
-
-def parse_md_table(lines: list[str]) -> list[list[str]]:
-    """Cells of a markdown table's body rows (header and rule skipped)."""
-    rows = [[c.strip() for c in ln.strip().strip("|").split("|")] for ln in lines if ln.strip().startswith("|")]
-    return rows[2:]
-
-
-def summary_rows(metrics: dict) -> list[tuple[str, str]]:
-    """(key, printed value) for method, scenario, params.*, t_ref_s and summary.* of one run."""
-    rows = [("scenario", fmt_value(metrics.get("scenario"))), ("method", fmt_value(metrics["method"]))]
-    params = metrics.get("params") or {}
-    rows += [(f"params.{k}", fmt_value(v)) for k, v in params.items()]
-    rows.append(("t_ref_s", fmt_value(metrics.get("t_ref_s"))))
-    rows += [(f"summary.{k}", fmt_value(v)) for k, v in metrics["summary"].items()]
-    return rows
 
 
 def target_columns(metrics: dict) -> tuple[str, ...]:
@@ -431,11 +374,23 @@ def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M, overwr
     when ``out_dir`` holds report files fwdlook did not write (unless ``overwrite``)."""
     from ..io.outputs import prepare_report_dir
 
-    runs = load_runs(run_dirs)
+    from .htmlreport import extra_figures, is_sweep_dir, write_html
+
+    sweep_dirs = [d for d in run_dirs if is_sweep_dir(d)]          # sweeps: shown in index.html only
+    plain = [d for d in run_dirs if d not in sweep_dirs]
+    runs = load_runs(plain) if plain or not sweep_dirs else []
     out = Path(out_dir) if out_dir else default_report_dir(run_dirs)
-    inputs = [Path(d) / n for d in run_dirs for n in ("metrics.json", "image.h5")]
+    inputs = [Path(d) / n for d in plain for n in ("metrics.json", "image.h5")]
     prepare_report_dir(out, inputs=inputs, overwrite=overwrite)
-    figures, notes = write_figures(runs, out, target_xy=target_xy)
+    figures, notes = write_figures(runs, out, target_xy=target_xy) if runs else ({}, [])
+    more, more_notes = extra_figures(runs, out)                    # ground plane, ISAR echoes and image
+    figures.update(more)
+    notes += more_notes
     path = out / "report.md"
-    atomic_write_text(path, report_markdown(runs, figures, notes))
+    text = report_markdown(runs, figures, notes) if runs else "# fwdlook report\n"
+    if sweep_dirs:
+        text += ("\nSweeps (their tables, stability maps and speed-accuracy charts are in `index.html`): "
+                 + ", ".join(f"`{d}`" for d in sweep_dirs) + ".\n")
+    atomic_write_text(path, text)
+    write_html(out / "index.html", runs, figures, notes, sweep_dirs)   # one self-contained file
     return path

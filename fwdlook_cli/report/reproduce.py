@@ -34,7 +34,8 @@ from ..errors import BadInput
 from ..io.h5 import atomic_write_text
 from .experiments import CONFIGS, ISAR_SCENARIOS, PANELS, PAPER_CLAIMS, QUICK_PANELS, REPO, SCENARIOS, SWEEPS
 from .isar_tables import isar_correction_table, save_isar_figures
-from .render import _fmt, _read_json, breakdown, fig7, md_table, methods_table, panel_figure, panel_rows, render_sec41
+from .tables import md_table
+from .render import _fmt, _read_json, breakdown, fig7, methods_table, panel_figure, panel_rows, render_sec41
 
 
 
@@ -192,7 +193,11 @@ def derived_sweep(src: Path, dst: Path, *, name=None, grid=None, scenarios=None,
 def run_sweep_dir(sweep_file: Path, out: Path, *, workers: int, keep_stages: bool) -> list[dict]:
     from .sweep import run_sweep
 
-    run_sweep(str(sweep_file), out, workers=workers, quiet=False)
+    rows = run_sweep(str(sweep_file), out, workers=workers, quiet=False)
+    failed = [r for r in rows if r.get("status") == "failed"]
+    if failed:      # the tables below need every point: stop here, naming them (a rerun skips the rest)
+        raise RuntimeError(f"{sweep_file}: {len(failed)} point(s) failed: " +
+                           "; ".join(f"{r['run_dir']}: {r['error']}" for r in failed[:3]))
     summary = _read_json(out / "summary.json")
     if not keep_stages:
         for row in summary["rows"]:

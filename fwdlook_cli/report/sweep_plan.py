@@ -1,0 +1,110 @@
+"""Sweep points: reading a sweep file, planning its runs, one point simulated and processed, its summary row."""
+from __future__ import annotations
+
+import copy
+import itertools
+import json
+from pathlib import Path
+
+from ..errors import BadInput
+from ..scenario.loader import scenario_hash
+from ..scenario.readers import read_scenario_raw, read_yaml_file
+
+SUMMARY_KEYS = ("detected", "n_targets", "max_abs_range_error_m", "median_abs_range_error_m",
+                "rms_range_error_m", "max_abs_azimuth_error_deg", "rms_azimuth_error_deg", "median_islr_db",
+                "median_pslr_db", "median_peak_loss_db")
+
+
+def load_sweep(path: str) -> dict:
+    p = Path(path)
+    raw = read_yaml_file(p, "sweep")
+    if not isinstance(raw, dict):
+        raise BadInput(f"{path}: top level: expected a mapping")
+    allowed = {"name", "scenarios", "set", "grid", "config", "combine", "keep_stages"}
+    extra = sorted(set(raw) - allowed)
+    if extra:
+        raise BadInput(f"{path}: {extra[0]}: unknown key; allowed: {', '.join(sorted(allowed))}")
+    scen = raw.get("scenarios")
+    if not isinstance(scen, list) or not scen or not all(isinstance(s, str) for s in scen):
+        raise BadInput(f"{path}: scenarios: expected a non-empty list of scenario files")
+    grid = raw.get("grid") or {}
+    if not isinstance(grid, dict) or not all(isinstance(v, list) and v for v in grid.values()):
+        raise BadInput(f"{path}: grid: expected a mapping of key.path to a non-empty list of values")
+    sets = raw.get("set") or []
+    if not isinstance(sets, list):
+        raise BadInput(f"{path}: set: expected a list of KEY.PATH=VALUE strings")
+    combine = raw.get("combine") or []
+    if not isinstance(combine, list) or any(c not in grid for c in combine):
+        raise BadInput(f"{path}: combine: expected a list of grid keys; allowed: {', '.join(grid)}")
+    base = p.parent
+    return {"name": str(raw.get("name", p.stem)), "scenarios": [str((base / s).resolve()) for s in scen],
+            "combine": combine, "keep_stages": bool(raw.get("keep_stages", False)),
+            "set": [str(s) for s in sets], "grid": grid,
+            "config": str((base / raw["config"]).resolve()) if raw.get("config") else None}
+
+
+def _label(point: dict) -> str:
+    return ",".join(f"{k.split('.')[-1]}={json.dumps(v) if not isinstance(v, str) else v}"
+                    for k, v in point.items()) or "base"
+
+
+def plan_runs(sweep: dict, out_dir: Path) -> list[dict]:
+    """Every run of the sweep, resolved (raises BadInput on a bad grid value before anything runs)."""
+    from ..scenario.overlay import resolve_with_config
+
+    keys = list(sweep["grid"])
+    runs = []
+    for scen_path in sweep["scenarios"]:
+        raw = read_scenario_raw(scen_path)
+        for values in itertools.product(*(sweep["grid"][k] for k in keys)):
+            point = dict(zip(keys, values))
+            sets = list(sweep["set"]) + [f"{k}={json.dumps(v)}" for k, v in point.items()]
+            scn = resolve_with_config(copy.deepcopy(raw), scen_path, sweep["config"], sets)
+            sim_key = scenario_hash({k: v for k, v in scn.items() if k != "processing"})
+            runs.append({"scenario": scn["name"], "scenario_path": scen_path, "point": point, "sets": sets,
+                         "sim_key": sim_key, "run_dir": str(out_dir / scn["name"] / _label(point)),
+                         "resolved": scn})
+    return runs
+
+
+def _simulate(args):
+    scn, path = args
+    from ..io.raw import write_raw
+
+    if scn["kind"] == "isar":
+        from ..isar.simulate import simulate_isar_scenario as sim
+    else:
+        from ..forward.simulate import simulate_scenario as sim
+    cube, _ = sim(scn)
+    write_raw(path, cube)
+    return path
+
+
+def _process(run):
+    import shutil
+
+    from ..io.raw import read_raw
+
+    cube = read_raw(run["raw"])
+    if run["resolved"]["kind"] == "isar":
+        from ..isar.process import process_isar_cube as proc
+    else:
+        from ..forward.process import process_cube as proc
+    metrics = proc(cube, run["resolved"], run["run_dir"], quiet=True, png=False)
+    if not run["keep_stages"]:
+        # a sweep keeps each run's metrics.json, image.h5 and scenario.yaml; its stage files (about
+        # 60 MB per paper-size run) would fill a disk over hundreds of runs
+        shutil.rmtree(Path(run["run_dir"]) / "stages", ignore_errors=True)
+    return row_of(run, metrics)
+
+
+def row_of(run: dict, metrics: dict) -> dict:
+    """One summary row: the point's keys, its summary metrics, its time and run directory."""
+    return {"scenario": run["scenario"], **{k: v for k, v in run["point"].items()},
+            **{k: metrics["summary"].get(k) for k in SUMMARY_KEYS},
+            **{k: metrics["summary"][k] for k in metrics["summary"] if k not in SUMMARY_KEYS},
+            "total_s": metrics["timing_s"]["total"], "run_dir": run["run_dir"]}
+
+
+def _fmt(v, nd=3):
+    return "-" if v is None else (f"{v:.{nd}f}" if isinstance(v, float) else str(v))

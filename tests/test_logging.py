@@ -1,0 +1,106 @@
+"""Logging (issue 13, item 4): the library logs through ``logging``, the CLI configures it with -v/-q
+on the group for every command (each command's own -q still works), ``bench`` shows progress on
+stderr, and ``run`` closes with a short table whose numbers are metrics.json's."""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import pytest
+
+from fwdlook_cli.cli import cli, main
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "scenarios" / "tiny.yaml"
+
+
+def run_cli(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return exc.value.code, out, err
+
+
+def test_run_progress_and_closing_table(tmp_path, capsys):
+    code, out, err = run_cli(["run", TINY, "-o", tmp_path / "r", "-c", ROOT / "configs" / "tracking.yaml"], capsys)
+    assert code == 0 and out.strip() == str(tmp_path / "r" / "metrics.json")
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    lines = err.splitlines()
+    assert any(ln.startswith("[7/7] monopulse_image") for ln in lines)
+    table = lines[next(i for i, ln in enumerate(lines) if ln.startswith(f"{tmp_path / 'r'}: tiny, tracking")):]
+    assert len(table) <= 12                                # short: a headline and one line per figure
+    cells = {ln[:32].strip(): ln[32:].split() for ln in table[1:]}
+    s = m["summary"]
+    assert cells["detected"] == [f"{s['detected']}/{s['n_targets']}"]
+    assert float(cells["max |range error| (m)"][0]) == pytest.approx(s["max_abs_range_error_m"], abs=0.005)
+    assert float(cells["rms azimuth error (deg)"][0]) == pytest.approx(s["rms_azimuth_error_deg"], abs=0.0005)
+    assert float(cells["time (s)"][0]) == pytest.approx(m["timing_s"]["total"], abs=0.005)
+
+
+@pytest.mark.parametrize("argv", [["-q", "run", TINY], ["run", TINY, "-q"]])
+def test_quiet_on_the_group_and_on_the_command(tmp_path, capsys, argv):
+    code, out, err = run_cli([*argv, "-o", tmp_path / "q"], capsys)
+    assert code == 0 and err == "" and out.strip().endswith("metrics.json")
+
+
+def test_verbose_shows_debug_with_module_names(tmp_path, capsys):
+    code, _, err = run_cli(["-v", "run", TINY, "-o", tmp_path / "v"], capsys)
+    assert code == 0
+    assert "DEBUG fwdlook_cli.runner: stage range_fft: key" in err
+    assert "INFO fwdlook_cli.runner: [1/7] range_fft" in err
+
+
+def test_group_options_reach_every_command(capsys):
+    for name in cli.commands:
+        for flags in (["-q"], ["-v"], ["-vv"]):
+            code, out, _ = run_cli([*flags, name, "--help"], capsys)
+            assert code == 0 and "Usage:" in out, (flags, name)
+
+
+def test_library_logs_through_logging_without_the_cli(tmp_path):
+    """Called as a library, progress is a log record of the module's logger, not a print."""
+    from fwdlook_cli.scenario.loader import load_scenario
+    from fwdlook_cli.forward.process import process_cube
+    from fwdlook_cli.forward.simulate import simulate_scenario
+
+    records = []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logger = logging.getLogger("fwdlook_cli.runner")
+    logger.addHandler(handler)
+    old = logging.getLogger("fwdlook_cli").level
+    logging.getLogger("fwdlook_cli").setLevel(logging.INFO)
+    try:
+        scn = load_scenario(TINY)
+        cube, _ = simulate_scenario(scn)
+        process_cube(cube, scn, tmp_path, png=False)
+    finally:
+        logger.removeHandler(handler)
+        logging.getLogger("fwdlook_cli").setLevel(old)
+    names = [r.getMessage().split()[1] for r in records if r.getMessage().startswith("[")]
+    assert names == ["range_fft", "decimate", "keystone", "regroup", "range_curvature", "doppler_spectra",
+                     "monopulse_image"]
+
+
+def test_bench_shows_progress(capsys, monkeypatch):
+    """bench's steps are logged in order on stderr while stdout stays pure JSON (repeats cut to one
+    and the two slow reference keystones stubbed out: this checks the progress, not the timings)."""
+    import time
+
+    import fwdlook_cli.report.bench as bench
+    import fwdlook_cli.dsp.keystone as keystone
+
+    def once(fn, repeats=1):
+        t0 = time.perf_counter()
+        fn()
+        return time.perf_counter() - t0
+
+    monkeypatch.setattr(bench, "_median_time", once)
+    monkeypatch.setattr(keystone, "keystone_dft", lambda *a, **k: None)
+    monkeypatch.setattr(keystone, "keystone_sinc", lambda *a, **k: None)
+    code, out, err = run_cli(["bench", "--json"], capsys)
+    assert code == 0
+    assert "fft2_s" in json.loads(out)
+    steps = [ln for ln in err.splitlines() if ln.startswith("bench [")]
+    assert [s.split("]")[0] for s in steps] == [f"bench [{i}/8" for i in range(1, 9)]
