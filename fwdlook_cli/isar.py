@@ -107,15 +107,20 @@ Metrics
 -------
 ``migration_span_cells``: per pulse, the range profile of the corrected range-time data is oversampled
 (band-limited, x4) and its peak (within the reference scatterer's range gate when the truth is known:
-its range at t_ref +- half its raw migration + 3 resolution cells) refined by a log-parabola; the
+the min..max of its raw range history and of its predicted track after the correction, +- 3
+resolution cells, ``isar_span.py``)
+refined by a log-parabola; the
 positions of the pulses where the target is present (peak power at least a quarter of the median peak
 power) are smoothed by a running mean of ``SPAN_SMOOTH_PULSES`` (32) pulses, which keeps noise jitter out
 of max-minus-min (keystone2_n0 on the paper scenarios, 3 / 5 deg: 0.04 / 0.10 cell noiseless, 0.10 /
-0.13 at 20 dB), and the span is max minus min in range samples (``c / (2 fs)``, "range cells").  With several scatterers in the gate the track
-follows the strongest return per pulse.
+0.13 at 20 dB), and the span is max minus min, measured in range samples (``c / (2 fs)``) and reported
+in range resolution cells ``c / (2 B)`` (``summary.migration_span_cells`` =
+``migration_span_resolution_cells``), range samples (``migration_span_samples``) and metres
+(``migration_span_m``).  With several scatterers in the gate the track follows the strongest return per
+pulse.
 
 ``integration_gain_db``: 20 log10 of the image maximum within the reference scatterer's migration extent
-(range gate above, +-3 Doppler bins) over the ideal ``N a |p(0)|`` (N pulses of amplitude a, p the
+(the range gate above, +-3 Doppler bins) over the ideal ``N a |p(0)|`` (N pulses of amplitude a, p the
 compressed pulse, p(0) = 1 unweighted): perfect range alignment and phase compensation.  The sampled
 compressed pulse itself loses 0.09-0.2 dB at fs = 1.2 B (its interpolated per-pulse peak), so a perfectly
 compensated target reads about -0.1 dB.  A cube without truth uses N times the median per-pulse peak
@@ -151,6 +156,7 @@ from .config import (REQUIRED, CROSS_CHECKS, Field, amplitude, auto_or, choice, 
                      range_window, register_schema, text, vector)
 from .errors import BadInput
 from .geometry import C_MPS, ambiguity_number
+from .isar_span import span_units, track_gate_samples
 from .pipeline import Stage, StageData
 
 __all__ = [
@@ -989,10 +995,10 @@ def isar_outputs(final: StageData, cube, processing: dict):
                 pred_f = -2.0 * (rdot_all[k] - m.rdot_mps) / lam
             else:
                 pred_f = float(np.mod(-2.0 * rdot_all[k] / lam + prf / 2, prf) - prf / 2)
-            wide_r = 0.5 * float(np.ptp(raw_r[k])) + 3.0 * res_r       # where the energy may be smeared
             wide_f = 3.0 * res_f + (0.0 if m is not None else 0.5 * chirp_hz)
-            if k == 0:
-                gate = ((true_r - wide_r - rng[0]) / dr, (true_r + wide_r - rng[0]) / dr)
+            if k == 0:  # the predicted track's actual extent after this correction (isar_span.py)
+                gate = track_gate_samples(raw_r[k], t, t_ref, correction, range0_m=float(rng[0]), sample_m=dr,
+                                          margin_m=3.0 * res_r)
             row = {"id": k, "x_m": float(pos_ref[k, 0]), "y_m": float(pos_ref[k, 1]),
                    "z_m": float(pos_ref[k, 2]), "true_range_m": true_r,
                    "true_azimuth_deg": math.degrees(math.atan2(true_x, true_r)),
@@ -1024,7 +1030,8 @@ def isar_outputs(final: StageData, cube, processing: dict):
                     "detected": bool(peak >= 10.0 * median_power and not on_edge),
                 })
             if k == 0:  # integration gain: the image maximum wherever the migration smeared it
-                i, j, _ = gated_peak(true_r, wide_r, pred_f, wide_f)
+                lo_m, hi_m = (float(rng[0]) + g * dr for g in gate)
+                i, j, _ = gated_peak(0.5 * (lo_m + hi_m), 0.5 * (hi_m - lo_m), pred_f, wide_f)
                 _, _, peak = _measure_peak(img, i, j, dr, df)
                 row["integration_gain_db"] = 10.0 * math.log10(max(peak, 1e-300) / ideal**2)
             rows.append(row)
@@ -1036,7 +1043,8 @@ def isar_outputs(final: StageData, cube, processing: dict):
                    "cross_range_width_3db_m": am.width_3db * abs(xscale), "islr_db": rm.islr_db,
                    "pslr_db": rm.pslr_db, "azimuth_islr_db": am.islr_db, "azimuth_pslr_db": am.pslr_db,
                    "integration_gain_db": 10.0 * math.log10(max(peak, 1e-300) / ideal**2)}
-    span, _, _ = migration_span_cells(final["echo_rc"], gate=gate)
+    span, _, _ = migration_span_cells(final["echo_rc"], gate=gate)      # in range samples c / (2 fs)
+    spans = span_units(span, fs_hz=float(cube.radar["fs_hz"]), bandwidth_hz=float(cube.radar["bandwidth_hz"]))
 
     found = [r for r in rows if "meas_range_m" in r]
     rerr = np.array([r["range_error_m"] for r in found]) if found else np.array([])
@@ -1050,7 +1058,8 @@ def isar_outputs(final: StageData, cube, processing: dict):
         "rms_range_error_m": float(np.sqrt(np.mean(rerr**2))) if rerr.size else None,
         "max_abs_azimuth_error_deg": float(np.max(np.abs(aerr))) if aerr.size else None,
         "median_islr_db": float(np.median(islr)) if islr else None,
-        "migration_span_cells": span,
+        "migration_span_cells": spans["migration_span_resolution_cells"],   # resolution cells c / (2 B)
+        **spans,
         "integration_gain_db": ref_row.get("integration_gain_db"),
         "integration_gain_reference": ideal_kind,
         "range_width_3db_m": ref_row.get("range_width_3db_m"),
@@ -1161,7 +1170,8 @@ def _scenario_dir() -> Path:
 
 def isar_correction_table(scn_paths=None, corrections=CORRECTIONS, overrides=()):
     """For each scenario and correction, run the stages in memory; returns a list of row dicts with
-    keys scenario, correction, migration_span_cells, integration_gain_db, n0_true, n0_est (n0_est only
+    keys scenario, correction, migration_span_cells (resolution cells c / (2 B)), migration_span_samples
+    (range samples c / (2 fs)), migration_span_m, integration_gain_db, n0_true, n0_est (n0_est only
     for keystone2_n0_est; pulses from the middle of the observation)."""
     from .config import load_scenario
 
@@ -1177,6 +1187,8 @@ def isar_correction_table(scn_paths=None, corrections=CORRECTIONS, overrides=())
             s = met["summary"]
             rows.append({"scenario": scn["name"], "correction": corr,
                          "migration_span_cells": s["migration_span_cells"],
+                         "migration_span_samples": s["migration_span_samples"],
+                         "migration_span_m": s["migration_span_m"],
                          "integration_gain_db": s["integration_gain_db"],
                          "n0_true": s["n0_true_pulses"], "n0_est": s["n0_est_pulses"]})
     return rows
@@ -1184,12 +1196,16 @@ def isar_correction_table(scn_paths=None, corrections=CORRECTIONS, overrides=())
 
 def format_isar_table(rows) -> str:
     """Markdown table of :func:`isar_correction_table` rows."""
-    lines = ["| scenario | correction | migration span (cells) | integration gain (dB) | n0 true | n0 est |",
-             "|---|---|---:|---:|---:|---:|"]
+    lines = ["| scenario | correction | migration span (resolution cells c/2B) | migration span (samples c/2fs) "
+             "| migration span (m) | integration gain (dB) | n0 true | n0 est |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         est = "" if r["n0_est"] is None else f"{r['n0_est']:.1f}"
         true = "" if r["n0_true"] is None else f"{r['n0_true']:.1f}"
+        samples = r.get("migration_span_samples")
+        span_m = r.get("migration_span_m")
         lines.append(f"| {r['scenario']} | {r['correction']} | {r['migration_span_cells']:.2f} | "
+                     f"{'' if samples is None else f'{samples:.2f}'} | {'' if span_m is None else f'{span_m:.3f}'} | "
                      f"{r['integration_gain_db']:.2f} | {true} | {est} |")
     return "\n".join(lines)
 
