@@ -112,8 +112,7 @@ resolution cells, ``isar_span.py``)
 refined by a log-parabola; the
 positions of the pulses where the target is present (peak power at least a quarter of the median peak
 power) are smoothed by a running mean of ``SPAN_SMOOTH_PULSES`` (32) pulses, which keeps noise jitter out
-of max-minus-min (keystone2_n0 on the paper scenarios, 3 / 5 deg: 0.04 / 0.10 cell noiseless, 0.10 /
-0.13 at 20 dB), and the span is max minus min, measured in range samples (``c / (2 fs)``) and reported
+of max-minus-min (keystone2_n0 on the paper scenarios, 3 / 5 deg, 20 dB: 0.09 / 0.12 range samples), and the span is max minus min, measured in range samples (``c / (2 fs)``) and reported
 in range resolution cells ``c / (2 B)`` (``summary.migration_span_cells`` =
 ``migration_span_resolution_cells``), range samples (``migration_span_samples``) and metres
 (``migration_span_m``).  With several scatterers in the gate the track follows the strongest return per
