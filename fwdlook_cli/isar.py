@@ -444,7 +444,8 @@ def simulate_isar_scenario(scn: dict):
                "vy_mps": np.full(len(pos0), vel[1]), "vz_mps": np.full(len(pos0), vel[2])},
         scenario_yaml=dump_scenario(scn),
         noise={"snr_db": np.nan if scn["noise"]["snr_db"] is None else scn["noise"]["snr_db"],
-               "sigma": sigma, "seed": scn["noise"]["seed"]},
+               "sigma": sigma, "seed": scn["noise"]["seed"],
+               "band_hz": float(radar["bandwidth_hz"]) if sigma > 0.0 else 0.0},   # noise band-limited to |f| <= B/2
         attrs={"scenario_sha256": scenario_hash(scn), "scenario_name": scn["name"], "scenario_kind": "isar"},
     )
     stats = IsarSimulationStats(n_scatterers=len(pos0), n_pulses=n_p, kernel_samples=len(taps), n0_pulses=n0)

@@ -156,7 +156,8 @@ def simulate_scenario(scn: dict):
                "z_m": targets_m[:, 2].copy(), "amplitude": amps.astype(np.float64)},
         scenario_yaml=dump_scenario(scn),
         noise={"snr_db": np.nan if scn["noise"]["snr_db"] is None else scn["noise"]["snr_db"],
-               "sigma": sigma, "seed": scn["noise"]["seed"]},
+               "sigma": sigma, "seed": scn["noise"]["seed"],
+               "band_hz": float(radar["bandwidth_hz"]) if sigma > 0.0 else 0.0},   # noise band-limited to |f| <= B/2
         attrs={"scenario_sha256": scenario_hash(scn), "scenario_name": scn["name"]},
     )
     return cube, stats
