@@ -206,20 +206,36 @@ def range_curvature(data: StageData, *, model: str, radial_accel_mps2: float, t_
 # ----------------------------------------------------------------------------------------------
 # 6. per-CPI Doppler spectra (eq. 23-26)
 # ----------------------------------------------------------------------------------------------
-def cpi_doppler_band_hz(speed_mps, beam_deg, depression_deg, fc_hz, beamwidth_deg, prf_hz, n_cpi_pulses,
+def cpi_doppler_band_hz(velocity_mps, beam_deg, depression_deg, fc_hz, beamwidth_deg, prf_hz, n_cpi_pulses,
                         band_beamwidths=1.0):
     """Doppler band of the main beam per CPI: eq. (25) centroid and eq. (26) width, computed exactly as
-    the range of 2 v cos(theta') cos(phi_0)/lambda over theta' = theta +- band_beamwidths * theta_3 / 2.
+    the range of 2 v . u(theta', phi_0) / lambda over theta' = theta +- band_beamwidths * theta_3 / 2,
+    with the full velocity vector ``velocity_mps`` ([..., 3]: transverse, forward and vertical motion;
+    the paper's 2 v cos(theta') cos(phi_0) / lambda when v is along +y).
 
-    For |theta| > theta_3/2 the width is eq. (26)'s 2 v f_c theta_3 cos(phi_0) sin(theta)/c (to first
-    order); near boresight it is eq. (26)'s second case.  At least 4 Doppler resolution cells wide.
+    Over theta' the Doppler is A cos(theta' - psi) + C, psi the heading of the horizontal velocity,
+    A = 2 |v_h| cos(phi_0) / lambda, C = -2 v_z sin(phi_0) / lambda: its extremes are the band's ends,
+    or A + C (C - A) where the heading (its opposite) lies inside the band (eq. 26's second case near
+    boresight).  At least 4 Doppler resolution cells wide.
     """
-    k = 2.0 * np.asarray(speed_mps) * fc_hz / C_MPS * np.cos(np.radians(depression_deg))
+    v = np.asarray(velocity_mps, dtype=np.float64)
+    lam = C_MPS / fc_hz
     half = band_beamwidths * beamwidth_deg / 2.0
-    th = np.asarray(beam_deg)
-    f_a, f_b = k * np.cos(np.radians(th - half)), k * np.cos(np.radians(th + half))
-    f_hi = np.where(np.abs(th) < half, k, np.maximum(f_a, f_b))
-    f_lo = np.minimum(f_a, f_b)
+    th = np.asarray(beam_deg, dtype=np.float64)
+
+    def doppler(az_deg):                                  # 2 v . u(theta', phi_0) / lambda, eq. (25)
+        return 2.0 * np.sum(v * unit_vector(az_deg, depression_deg), axis=-1) / lam
+
+    f_a, f_b = doppler(th - half), doppler(th + half)
+    psi = np.degrees(np.arctan2(v[..., 0], v[..., 1]))
+    amp = 2.0 * np.hypot(v[..., 0], v[..., 1]) * np.cos(np.radians(depression_deg)) / lam
+    c0 = -2.0 * v[..., 2] * np.sin(np.radians(depression_deg)) / lam
+
+    def within(angle_deg):
+        return np.abs((angle_deg - th + 180.0) % 360.0 - 180.0) < half
+
+    f_hi = np.where(within(psi), amp + c0, np.maximum(f_a, f_b))
+    f_lo = np.where(within(psi + 180.0), c0 - amp, np.minimum(f_a, f_b))
     min_width = 4.0 * prf_hz / n_cpi_pulses
     centre = 0.5 * (f_lo + f_hi)
     width = np.clip(f_hi - f_lo, min_width, prf_hz)
@@ -237,8 +253,9 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
                     band_beamwidths: float = 1.0) -> StageData:
     """Per CPI: zoomed DFT (a chirp-Z zoom on the main-beam Doppler band) of both channels.
 
-    The CPI speed is v_c = v + a t_c (eq. 25, from the INS) when ``follow_speed``; otherwise the
-    initial speed v is used for every CPI (what is lost without eq. 25 shows in the image).
+    The CPI velocity is the INS mean over the CPI, v_c = v + a t_c (eq. 25, the whole vector) when
+    ``follow_speed``; otherwise the initial velocity is used for every CPI (what is lost without eq. 25
+    shows in the image).
     """
     out = StageData(attrs=dict(data.attrs))
     t = data["slow_time_s"]
@@ -248,8 +265,10 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     t_c = t_cpi.mean(axis=1)
     beam_c = data["scan_angle_deg"][:m].reshape(n_cpi, cpi).mean(axis=1)
     vel = data["velocity_mps"][:m].reshape(n_cpi, cpi, 3).mean(axis=1)
-    speed = vel[:, 1] if follow_speed else np.full(n_cpi, data["velocity_mps"][0, 1])
-    f_lo, f_hi = cpi_doppler_band_hz(speed, beam_c, depression_deg, fc_hz, beamwidth_deg, prf_hz, cpi,
+    if not follow_speed:
+        vel = np.broadcast_to(data["velocity_mps"][0], vel.shape)
+    speed = np.linalg.norm(vel, axis=1)
+    f_lo, f_hi = cpi_doppler_band_hz(vel, beam_c, depression_deg, fc_hz, beamwidth_deg, prf_hz, cpi,
                                      band_beamwidths)
     frac = (np.arange(n_doppler) + 0.5) / n_doppler
     f_z = f_lo[:, None] + (f_hi - f_lo)[:, None] * frac[None, :]          # [n_cpi, n_doppler], true Hz
@@ -266,7 +285,9 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     out.vars["range_m"] = data.vars["range_m"]
     out.vars["xyz"] = data.vars["xyz"]
     out.add("cpi_beam_deg", beam_c, ("cpi_time_s",), "deg", "mean beam pointing angle in the CPI")
-    out.add("cpi_speed_mps", speed, ("cpi_time_s",), "m/s", "CPI speed used for the Doppler band (eq. 25)")
+    out.add("cpi_speed_mps", speed, ("cpi_time_s",), "m/s", "CPI speed |v| used for the Doppler band (eq. 25)")
+    out.add("cpi_velocity_mps", np.ascontiguousarray(vel), ("cpi_time_s", "xyz"), "m/s",
+            "CPI velocity vector used for the Doppler band (eq. 25)")
     out.add("cpi_position_m", data["position_m"][:m].reshape(n_cpi, cpi, 3).mean(axis=1),
             ("cpi_time_s", "xyz"), "m", "mean antenna position in the CPI")
     out.add("doppler_hz", f_z, ("cpi_time_s", "doppler_cell"), "Hz", "true Doppler of each zoomed cell")

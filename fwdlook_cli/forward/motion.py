@@ -55,14 +55,20 @@ def reference_depression_deg(height_m: float, reference_range_m: float) -> float
 
 
 def beam_points_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m):
-    """For each pulse, the ground point on its beam axis (azimuth ``beam_deg[n]`` seen from the
-    antenna at t_ref) at ``reference_range_m`` slant range from it; and the antenna at t_ref."""
+    """For each pulse n, the ground point on its beam axis: azimuth ``beam_deg[n]`` seen from the
+    antenna *at pulse n* (the scan angle is the antenna's pointing at that pulse, CONTRACT section 3),
+    at ``reference_range_m`` slant range from it; and the antenna at t_ref.
+
+    (Placing the point at the scan angle seen from the antenna at t_ref instead puts it where the beam
+    of pulse n does not look: an error that grows with the distance flown from t_ref, NOTES.md
+    "Corrections".)
+    """
     p = np.asarray(position_m, dtype=np.float64)
     n = np.arange(len(p), dtype=np.float64)
     p_ref = np.array([np.interp(t_ref_index, n, p[:, i]) for i in range(3)])
     az = np.radians(np.asarray(beam_deg, dtype=np.float64))
-    ground = np.sqrt(max(reference_range_m**2 - p_ref[2] ** 2, 1.0))
-    target = np.column_stack([p_ref[0] + ground * np.sin(az), p_ref[1] + ground * np.cos(az), np.zeros(len(p))])
+    ground = np.sqrt(np.maximum(reference_range_m**2 - p[:, 2] ** 2, 1.0))
+    target = np.column_stack([p[:, 0] + ground * np.sin(az), p[:, 1] + ground * np.cos(az), np.zeros(len(p))])
     return target, p_ref
 
 

@@ -16,9 +16,11 @@ patterns (``antenna.py``).  Only the work the scene needs is done:
 
 Everything is vectorised over pairs x kernel samples; pairs are processed in chunks to bound memory
 and accumulated with ``np.bincount`` on flat indices (several targets may hit the same sample).
-Noise is circular complex Gaussian with variance sigma^2 per range-compressed sample in each channel,
+Noise is circular complex Gaussian, band-limited in range frequency to |f_r| <= B/2 like the echo
+(``noise.py``), with variance sigma^2 per range-compressed sample in each channel,
 ``sigma^2 = a_ref^2 / 10^(snr_db/10)`` with ``a_ref`` the largest target amplitude: the SNR is that of
-the peak sample of the strongest target at beam centre.
+the peak sample of the strongest target at beam centre, and since all the noise is in band it is also
+the in-band SNR.
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ from ..dsp.geometry import C_MPS, azimuth_deg, scan_angle_deg, slant_range_m
 from ..scenario.forward import scene_geometry
 from ..dsp.pulse import CompressedPulse
 from ..dsp.pulse import auto_range_axis_m, noise_sigma_for
+from ..dsp.noise import band_limited_noise
 
 RANGE_GUARD_SAMPLES = 8
 
@@ -100,10 +103,9 @@ def simulate_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, amplitu
     echo_diff = (acc[2] + 1j * acc[3]).astype(np.complex64)
     if noise_sigma > 0.0:
         rng = np.random.default_rng(seed)
-        scale = np.float32(noise_sigma / np.sqrt(2.0))
-        for echo in (echo_sum, echo_diff):
-            noise = rng.standard_normal((n_p, 2 * n_r), dtype=np.float32).view(np.complex64)
-            echo += scale * noise
+        for echo in (echo_sum, echo_diff):      # band-limited to |f_r| <= B/2 like the echo (noise.py)
+            echo += band_limited_noise(rng, n_p, n_r, sigma=noise_sigma, fs_hz=pulse.fs_hz,
+                                       bandwidth_hz=pulse.bandwidth_hz)
     stats = SimulationStats(n_pairs=int(keep.size), n_pairs_kept=int(len(r)), kernel_samples=width,
                             samples_written=int(len(r)) * width)
     return echo_sum, echo_diff, stats
@@ -157,7 +159,8 @@ def simulate_scenario(scn: dict):
                "z_m": targets_m[:, 2].copy(), "amplitude": amps.astype(np.float64)},
         scenario_yaml=dump_scenario(scn),
         noise={"snr_db": np.nan if scn["noise"]["snr_db"] is None else scn["noise"]["snr_db"],
-               "sigma": sigma, "seed": scn["noise"]["seed"]},
+               "sigma": sigma, "seed": scn["noise"]["seed"],
+               "band_hz": float(radar["bandwidth_hz"]) if sigma > 0.0 else 0.0},   # noise band-limited to |f| <= B/2
         attrs={"scenario_sha256": scenario_hash(scn), "scenario_name": scn["name"]},
     )
     return cube, stats

@@ -107,15 +107,18 @@ Metrics
 -------
 ``migration_span_cells``: per pulse, the range profile of the corrected range-time data is oversampled
 (band-limited, x4) and its peak (within the reference scatterer's range gate when the truth is known:
-its range at t_ref +- half its raw migration + 3 resolution cells) refined by a log-parabola; the
-positions of the pulses where the target is present (peak power at least a quarter of the median peak
-power) are smoothed by a running mean of ``SPAN_SMOOTH_PULSES`` (32) pulses, which keeps noise jitter out
-of max-minus-min (keystone2_n0 on the paper scenarios, 3 / 5 deg: 0.04 / 0.10 cell noiseless, 0.10 /
-0.13 at 20 dB), and the span is max minus min in range samples (``c / (2 fs)``, "range cells").  With several scatterers in the gate the track
-follows the strongest return per pulse.
+the min..max of its raw range history and of its predicted track after the correction, +- 3
+resolution cells, ``isar/span.py``) refined by a log-parabola; the positions of the pulses where the
+target is present (peak power at least a quarter of the median peak power) are smoothed by a running
+mean of ``SPAN_SMOOTH_PULSES`` (32) pulses, which keeps noise jitter out of max-minus-min (keystone2_n0
+on the paper scenarios, 3 / 5 deg, 20 dB: 0.09 / 0.12 range samples), and the span is max minus min,
+measured in range samples (``c / (2 fs)``) and reported in range resolution cells ``c / (2 B)``
+(``summary.migration_span_cells`` = ``migration_span_resolution_cells``), range samples
+(``migration_span_samples``) and metres (``migration_span_m``).  With several scatterers in the gate the
+track follows the strongest return per pulse.
 
 ``integration_gain_db``: 20 log10 of the image maximum within the reference scatterer's migration extent
-(range gate above, +-3 Doppler bins) over the ideal ``N a |p(0)|`` (N pulses of amplitude a, p the
+(the range gate above, +-3 Doppler bins) over the ideal ``N a |p(0)|`` (N pulses of amplitude a, p the
 compressed pulse, p(0) = 1 unweighted): perfect range alignment and phase compensation.  The sampled
 compressed pulse itself loses 0.09-0.2 dB at fs = 1.2 B (its interpolated per-pulse peak), so a perfectly
 compensated target reads about -0.1 dB.  A cube without truth uses N times the median per-pulse peak

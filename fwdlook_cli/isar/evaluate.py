@@ -14,6 +14,7 @@ from .track import migration_span_cells, peak_track
 from .geometry import LineModel
 from .. import __version__
 from ..scenario.isar import scatterer_ranges_m
+from .span import span_units, track_gate_samples
 
 ANALYSIS_WINDOW_CELLS = 16.0   # +- cells of the ISLR / PSLR window (range and Doppler)
 
@@ -160,10 +161,10 @@ def isar_outputs(final: StageData, cube, processing: dict):
                 pred_f = -2.0 * (rdot_all[k] - m.rdot_mps) / lam
             else:
                 pred_f = float(np.mod(-2.0 * rdot_all[k] / lam + prf / 2, prf) - prf / 2)
-            wide_r = 0.5 * float(np.ptp(raw_r[k])) + 3.0 * res_r       # where the energy may be smeared
             wide_f = 3.0 * res_f + (0.0 if m is not None else 0.5 * chirp_hz)
-            if k == 0:
-                gate = ((true_r - wide_r - rng[0]) / dr, (true_r + wide_r - rng[0]) / dr)
+            if k == 0:  # the predicted track's actual extent after this correction (isar_span.py)
+                gate = track_gate_samples(raw_r[k], t, t_ref, correction, range0_m=float(rng[0]), sample_m=dr,
+                                          margin_m=3.0 * res_r)
             row = {"id": k, "x_m": float(pos_ref[k, 0]), "y_m": float(pos_ref[k, 1]),
                    "z_m": float(pos_ref[k, 2]), "true_range_m": true_r,
                    "true_azimuth_deg": math.degrees(math.atan2(true_x, true_r)),
@@ -195,7 +196,8 @@ def isar_outputs(final: StageData, cube, processing: dict):
                     "detected": bool(peak >= 10.0 * median_power and not on_edge),
                 })
             if k == 0:  # integration gain: the image maximum wherever the migration smeared it
-                i, j, _ = gated_peak(true_r, wide_r, pred_f, wide_f)
+                lo_m, hi_m = (float(rng[0]) + g * dr for g in gate)
+                i, j, _ = gated_peak(0.5 * (lo_m + hi_m), 0.5 * (hi_m - lo_m), pred_f, wide_f)
                 _, _, peak = _measure_peak(img, i, j, dr, df)
                 row["integration_gain_db"] = 10.0 * math.log10(max(peak, 1e-300) / ideal**2)
             rows.append(row)
@@ -207,7 +209,8 @@ def isar_outputs(final: StageData, cube, processing: dict):
                    "cross_range_width_3db_m": am.width_3db * abs(xscale), "islr_db": rm.islr_db,
                    "pslr_db": rm.pslr_db, "azimuth_islr_db": am.islr_db, "azimuth_pslr_db": am.pslr_db,
                    "integration_gain_db": 10.0 * math.log10(max(peak, 1e-300) / ideal**2)}
-    span, _, _ = migration_span_cells(final["echo_rc"], gate=gate)
+    span, _, _ = migration_span_cells(final["echo_rc"], gate=gate)      # in range samples c / (2 fs)
+    spans = span_units(span, fs_hz=float(cube.radar["fs_hz"]), bandwidth_hz=float(cube.radar["bandwidth_hz"]))
 
     found = [r for r in rows if "meas_range_m" in r]
     rerr = np.array([r["range_error_m"] for r in found]) if found else np.array([])
@@ -221,7 +224,8 @@ def isar_outputs(final: StageData, cube, processing: dict):
         "rms_range_error_m": float(np.sqrt(np.mean(rerr**2))) if rerr.size else None,
         "max_abs_azimuth_error_deg": float(np.max(np.abs(aerr))) if aerr.size else None,
         "median_islr_db": float(np.median(islr)) if islr else None,
-        "migration_span_cells": span,
+        "migration_span_cells": spans["migration_span_resolution_cells"],   # resolution cells c / (2 B)
+        **spans,
         "integration_gain_db": ref_row.get("integration_gain_db"),
         "integration_gain_reference": ideal_kind,
         "range_width_3db_m": ref_row.get("range_width_3db_m"),

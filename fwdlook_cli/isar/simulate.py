@@ -29,8 +29,9 @@ def simulate_isar_scenario(scn: dict):
     ``a_k p(2 (r - R_kn) / c) exp(-j 4 pi f0 R_kn / c)`` with the exact range ``R_kn`` and the tabulated
     compressed pulse ``p`` (:class:`~fwdlook_cli.dsp.pulse.CompressedPulse`); the carrier phase is reduced
     modulo one cycle in float64.  Vectorised over (scatterer, pulse) pairs x kernel samples, accumulated
-    with ``np.bincount``.  Noise: circular complex Gaussian, ``sigma = max(a) / 10^(snr_db / 20)`` per
-    range-compressed sample (the forward simulator's definition).
+    with ``np.bincount``.  Noise: circular complex Gaussian band-limited to |f| <= B/2,
+    ``sigma = max(a) / 10^(snr_db / 20)`` per range-compressed sample (the forward simulator's
+    definition, ``noise.py``).
 
     The single channel is written to ``sum`` (``diff = None``; the file marks it with the root
     attribute ``channels = "sum"``).  ``scan_angle_deg`` holds the reference scatterer's line-of-sight
@@ -77,9 +78,10 @@ def simulate_isar_scenario(scn: dict):
     echo = echo.astype(np.complex64)
     sigma = noise_sigma_for(scn["noise"]["snr_db"], amps)
     if sigma > 0.0:
-        rng = np.random.default_rng(scn["noise"]["seed"])
-        noise = rng.standard_normal((n_p, 2 * n_r), dtype=np.float32).view(np.complex64)
-        echo += np.float32(sigma / np.sqrt(2.0)) * noise
+        from ..dsp.noise import band_limited_noise
+
+        rng = np.random.default_rng(scn["noise"]["seed"])     # band-limited to |f| <= B/2 (noise.py)
+        echo += band_limited_noise(rng, n_p, n_r, sigma=sigma, fs_hz=fs, bandwidth_hz=radar["bandwidth_hz"])
 
     p_ref = pos0[0][None, :] + vel[None, :] * slow_time_s[:, None]
     los_az = np.degrees(np.arctan2(p_ref[:, 0], p_ref[:, 1]))
@@ -96,7 +98,8 @@ def simulate_isar_scenario(scn: dict):
                "vy_mps": np.full(len(pos0), vel[1]), "vz_mps": np.full(len(pos0), vel[2])},
         scenario_yaml=dump_scenario(scn),
         noise={"snr_db": np.nan if scn["noise"]["snr_db"] is None else scn["noise"]["snr_db"],
-               "sigma": sigma, "seed": scn["noise"]["seed"]},
+               "sigma": sigma, "seed": scn["noise"]["seed"],
+               "band_hz": float(radar["bandwidth_hz"]) if sigma > 0.0 else 0.0},   # noise band-limited to |f| <= B/2
         attrs={"scenario_sha256": scenario_hash(scn), "scenario_name": scn["name"], "scenario_kind": "isar"},
     )
     stats = IsarSimulationStats(n_scatterers=len(pos0), n_pulses=n_p, kernel_samples=len(taps), n0_pulses=n0)

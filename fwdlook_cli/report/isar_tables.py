@@ -24,7 +24,8 @@ def _scenario_dir() -> Path:
 
 def isar_correction_table(scn_paths=None, corrections=CORRECTIONS, overrides=()):
     """For each scenario and correction, run the stages in memory; returns a list of row dicts with
-    keys scenario, correction, migration_span_cells, integration_gain_db, n0_true, n0_est (n0_est only
+    keys scenario, correction, migration_span_cells (resolution cells c / (2 B)), migration_span_samples
+    (range samples c / (2 fs)), migration_span_m, integration_gain_db, n0_true, n0_est (n0_est only
     for keystone2_n0_est; pulses from the middle of the observation)."""
     from ..scenario.loader import load_scenario
 
@@ -40,6 +41,8 @@ def isar_correction_table(scn_paths=None, corrections=CORRECTIONS, overrides=())
             s = met["summary"]
             rows.append({"scenario": scn["name"], "correction": corr,
                          "migration_span_cells": s["migration_span_cells"],
+                         "migration_span_samples": s["migration_span_samples"],
+                         "migration_span_m": s["migration_span_m"],
                          "integration_gain_db": s["integration_gain_db"],
                          "n0_true": s["n0_true_pulses"], "n0_est": s["n0_est_pulses"]})
     return rows
@@ -47,12 +50,16 @@ def isar_correction_table(scn_paths=None, corrections=CORRECTIONS, overrides=())
 
 def format_isar_table(rows) -> str:
     """Markdown table of :func:`isar_correction_table` rows."""
-    lines = ["| scenario | correction | migration span (cells) | integration gain (dB) | n0 true | n0 est |",
-             "|---|---|---:|---:|---:|---:|"]
+    lines = ["| scenario | correction | migration span (resolution cells c/2B) | migration span (samples c/2fs) "
+             "| migration span (m) | integration gain (dB) | n0 true | n0 est |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         est = "" if r["n0_est"] is None else f"{r['n0_est']:.1f}"
         true = "" if r["n0_true"] is None else f"{r['n0_true']:.1f}"
+        samples = r.get("migration_span_samples")
+        span_m = r.get("migration_span_m")
         lines.append(f"| {r['scenario']} | {r['correction']} | {r['migration_span_cells']:.2f} | "
+                     f"{'' if samples is None else f'{samples:.2f}'} | {'' if span_m is None else f'{span_m:.3f}'} | "
                      f"{r['integration_gain_db']:.2f} | {true} | {est} |")
     return "\n".join(lines)
 
