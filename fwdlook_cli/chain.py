@@ -460,4 +460,8 @@ def build_forward_stages(cube, proc: dict):
             "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
             "position_ref_m": [float(v) for v in geo["p_ref"]]}),
     ]
+    if proc.get("imaging", "cpi") == "dwell":      # whole-dwell imaging replaces stages 6-7 (dwell.py)
+        from .dwell import dwell_stages
+
+        stages = stages[:5] + dwell_stages(cube, proc, geo, monopulse_slope(cube))
     return src, stages, geo

@@ -321,6 +321,12 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "angle_step_deg": Field(num(1e-4, 1.0), 0.05, "angle bin of the monopulse image"),
         "threshold_db": Field(num(-50.0, 100.0), 12.0,
                               "Doppler cells projected only above this many dB over the CPI noise floor"),
+        "imaging": Field(choice("cpi", "dwell"), "cpi",
+                         "cpi: the paper's per-CPI monopulse image (processing.cpi pulses); dwell: every image "
+                         "direction integrated coherently over its whole two-way beam dwell (fwdlook_cli/dwell.py)"),
+        "doppler_estimator": Field(choice("fft", "iaa"), "fft",
+                                   "per-CPI Doppler estimate (imaging: cpi): fft, the zoomed DFT; iaa, the "
+                                   "iterative adaptive approach (Yardibi et al. 2010) per range cell"),
     },
 }
 

@@ -147,12 +147,13 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                                bandwidth_hz=cube.radar["bandwidth_hz"], wavelength_m=299_792_458.0 / cube.radar["fc_hz"],
                                speed_mps=float(np.linalg.norm(geo["v_ref"])), prf_hz=cube.radar["prf_hz"],
                                cpi=proc["cpi"], depression_deg=geo["depression_deg"],
-                               beamwidth_two_way_deg=MonopulseAntenna(bw, squint).two_way_3db_width_deg())
+                               beamwidth_two_way_deg=MonopulseAntenna(bw, squint).two_way_3db_width_deg(),
+                               doppler_resolution_hz=geo.get("doppler_resolution_hz"))
         for row, flag in zip(rows, flags):
             row["resolved"] = bool(flag)
-        spectra = read_stage(run_dir / "stages" / f"{len(stages) - 1:02d}_doppler_spectra.h5")
         beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
-        if np.isfinite(beta):
+        if np.isfinite(beta) and "doppler_spectra" in names:      # imaging: cpi (dwell has no CPI spectra)
+            spectra = read_stage(run_dir / "stages" / f"{names.index('doppler_spectra') + 1:02d}_doppler_spectra.h5")
             dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
                                           float(cube.antenna["monopulse_slope_per_deg"]), beta, geo["p_ref"])
             for row, extra in zip(rows, dwell):
@@ -169,6 +170,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         "params": {"q": geo["q"], "keystone": proc["keystone"],
                    "range_curvature": bool(proc["range_curvature"]), "t_ref": proc["t_ref"],
                    "doppler_centroid": bool(proc["doppler_centroid"]), "cpi": proc["cpi"],
+                   "imaging": proc.get("imaging", "cpi"), "doppler_estimator": proc.get("doppler_estimator", "fft"),
                    "ambiguity_number": geo["ambiguity_number"],
                    "boresight_doppler_hz": geo["f_dc0_hz"], "depression_deg": geo["depression_deg"],
                    "radial_accel_mps2": geo["radial_accel_mps2"]},
