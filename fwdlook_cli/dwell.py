@@ -93,7 +93,7 @@ def subaperture_layout(n_pulses, sub_pulses, beam_deg, angle_deg, dwell_half_wid
 
 def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, velocity_mps, range_m, angle_deg,
                 fc_hz, prf_hz, slope_per_deg, beta_per_deg2, position_ref_m, sub_pulses=40,
-                dwell_half_width_deg=3.2, fft_oversample=8, twin_null=True, twin_axis_deg=0.0):
+                dwell_half_width_deg=3.2, fft_oversample=8, twin_null=True, twin_axis_deg=0.0, twin_orders=1, twin_max_corr2=0.9):
     """Rotated sum and difference of every (direction, range) integrated over its dwell.
 
     Returns ``(s_rot, d_rot, gain, pos_dwell)``: complex64 [n_angle, n_range] images S', D' (module
@@ -144,7 +144,8 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
         p_tw = ground_points(r_mid, 2.0 * twin_axis_deg - theta, p_ref)
         d_tw = np.degrees(np.arctan2(p_tw[..., 0] - pos_c[:, None, 0], p_tw[..., 1] - pos_c[:, None, 1])) \
             - beam_j[:, None]
-        w = _orthogonalise(w, pattern_weight(d_tw, beta_per_deg2, k) * (w != 0), g, n_a)
+        t_c = np.interp(idx_c, n, slow_time_s)
+        w = _orthogonalise(w, pattern_weight(d_tw, beta_per_deg2, k) * (w != 0), g, n_a, t_c, twin_orders, twin_max_corr2)
     gain = np.bincount(gi[valid], weights=(w**2)[valid], minlength=n_a)
     pos_dwell = np.stack([np.bincount(gi[valid], weights=(w**2 * pos_c[:, None, i])[valid], minlength=n_a)
                           for i in range(3)], axis=-1) / np.maximum(gain, 1e-300)[:, None]
@@ -194,27 +195,40 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     return s_rot.astype(np.complex64), d_rot.astype(np.complex64), gain, pos_dwell
 
 
-def _orthogonalise(w, e, g, n_a):
-    """w - e (w.e)/(e.e) per direction over its whole dwell (all sub-apertures [n_sub, n_loc] that hold it).
+def _orthogonalise(w, e, g, n_a, t_s, n_orders=1, max_corr2=0.9):
+    """Make each direction's weights w [n_sub, n_loc] orthogonal, over its whole dwell, to the twin's
+    envelope e and to e (t - t_dir)^p, p < n_orders (a twin slightly off the mirror direction has a
+    residual Doppler: the first-order term nulls its leakage too).
 
-    Only where the twin is distinct from the direction (envelope correlation^2 < 0.98): near the
-    flight axis the twin is the direction itself and nulling it would null the target.
+    Only where the twin is distinct from the direction (envelope correlation^2 < 0.9): near the flight
+    axis the twin is the direction itself and nulling it would null the target.
     """
     valid = (g >= 0) & (g < n_a)
     gi = np.clip(g, 0, n_a - 1)
-    we = np.bincount(gi[valid], weights=(w * e)[valid], minlength=n_a)
-    ee = np.bincount(gi[valid], weights=(e * e)[valid], minlength=n_a)
-    ww = np.bincount(gi[valid], weights=(w * w)[valid], minlength=n_a)
-    rho2 = np.where(ee * ww > 0, we**2 / np.maximum(ee * ww, 1e-300), 1.0)
-    coef = np.where(rho2 < 0.98, we / np.maximum(ee, 1e-300), 0.0)
-    return w - coef[gi] * e
+    gv = gi[valid]
+
+    def dsum(x):
+        return np.bincount(gv, weights=x[valid], minlength=n_a)
+
+    ww = dsum(w * w)
+    t_dir = dsum(w * w * t_s[:, None]) / np.maximum(ww, 1e-300)
+    tau = (t_s[:, None] - t_dir[gi]) / 0.05                                  # scaled, for conditioning
+    basis = [e * tau**p for p in range(n_orders)]
+    gram = np.stack([np.stack([dsum(bi * bj) for bj in basis], -1) for bi in basis], -2)   # [n_a, P, P]
+    proj = np.stack([dsum(w * bi) for bi in basis], -1)                                   # [n_a, P]
+    ee, we = gram[:, 0, 0], proj[:, 0]
+    distinct = (ee * ww > 0) & (we**2 < max_corr2 * np.maximum(ee * ww, 1e-300))
+    eye = np.eye(n_orders)
+    coef = np.linalg.solve(np.where(distinct[:, None, None], gram, eye), proj[..., None])[..., 0]
+    coef = np.where(distinct[:, None], coef, 0.0)
+    return w - sum(coef[gi][..., p] * basis[p] for p in range(n_orders))
 
 
 def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: float, beta_per_deg2: float,
                 beamwidth_deg: float, angle_step_deg: float, range_oversample: int, threshold_db: float,
                 dynamic_range_db: float, position_ref_m: list, sub_pulses: int = 40,
-                dwell_half_width_deg: float = 3.2, twin_null: bool = True,
-                max_offset_beamwidths: float = 0.5) -> StageData:
+                dwell_half_width_deg: float = 3.2, twin_null: bool = True, twin_orders: int = 1,
+                peaks_only: bool = False, twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5) -> StageData:
     """Stage ``dwell_image``: the monopulse image from whole-dwell sums (module docstring).
 
     Same output variables and grid conventions as ``chain.monopulse_image`` (range at t_ref oversampled
@@ -235,7 +249,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         prf_hz=prf_hz,
         slope_per_deg=slope_per_deg, beta_per_deg2=beta_per_deg2, position_ref_m=p_ref,
         sub_pulses=sub_pulses, dwell_half_width_deg=dwell_half_width_deg, twin_null=twin_null,
-        twin_axis_deg=twin_axis)
+        twin_axis_deg=twin_axis, twin_orders=twin_orders, twin_max_corr2=twin_max_corr2)
     looked = gain > 0
     s = oversample_range(s_rot[looked], range_oversample)
     dz = oversample_range(d_rot[looked], range_oversample)
@@ -247,6 +261,11 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     level = max(floor * 10 ** (threshold_db / 10), power.max() * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
     keep = (power > level) & (np.abs(ratio) < max_ratio)
+    if peaks_only:
+        # only the directions where a range cell's focused power peaks: there the target is in focus
+        # and a neighbour's leakage into its ratio is smallest
+        pad = np.pad(power, ((1, 1), (0, 0)))
+        keep &= (power >= pad[:-2]) & (power >= pad[2:])
     i_dir, i_r = np.nonzero(keep)
     # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from the
     # dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
