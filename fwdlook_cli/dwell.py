@@ -169,21 +169,23 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     f0 = base + i0 * n_r
     f1 = base + np.mod(i0 + 1, n_fft) * n_r
     # FFT bins count from the sub-aperture's first pulse: move the phase origin to its centre
-    centre = _cis(2.0 * np.pi * f_hz * (0.5 * (L - 1) / prf_hz))
-    focus = _cis(4.0 * np.pi * (r_jr - rr) / lam) * centre                   # exact phase at t_j, minus r
-    del r_jr, f_hz, pos_bin, centre
+    # exact phase of P at t_j (minus the t_ref range), with the FFT's origin moved to the centre
+    focus = _cis_cycles(2.0 * (r_jr - rr) / lam + f_hz * (0.5 * (L - 1) / prf_hz), np.complex64)
+    del r_jr, f_hz, pos_bin
     zs = spec[0][f0] * (1 - frac) + spec[0][f1] * frac                       # linear interpolation in Doppler
     zd = spec[1][f0] * (1 - frac) + spec[1][f1] * frac
     # rotation by the offset of P(r, theta) itself from the beam axis: parallax makes it range dependent
     # (the antenna is up to 130 m from p_ref when the beam passes a direction)
     th = np.radians(theta)[:, :, None]
-    delta_r = np.degrees(np.arctan2(rho * np.sin(th) + dg[:, None, None, 0],
-                                    rho * np.cos(th) + dg[:, None, None, 1])) - beam_j[:, None, None]
-    kd = (k * delta_r).astype(np.float32)
-    w32 = w[:, :, None].astype(np.float32)
-    ch = w32 * np.cosh(kd)
-    sh = w32 * np.sinh(kd)
-    del kd, delta_r
+    rho32 = rho.astype(np.float32)
+    kd = np.arctan2(rho32 * np.sin(th).astype(np.float32) + dg[:, None, None, 0].astype(np.float32),
+                    rho32 * np.cos(th).astype(np.float32) + dg[:, None, None, 1].astype(np.float32))
+    kd = (np.float32(np.degrees(k)) * kd - (k * beam_j[:, None, None]).astype(np.float32))   # k delta
+    ek = np.exp(kd)
+    half_w = (0.5 * w[:, :, None]).astype(np.float32)
+    ch = half_w * (ek + 1.0 / ek)                                           # w cosh(k delta)
+    sh = half_w * (ek - 1.0 / ek)                                           # w sinh(k delta)
+    del kd, ek
     s_part = (ch * zs - sh * zd) * focus                                     # S' = s cosh - d sinh
     d_part = (ch * zd - sh * zs) * focus                                     # D' = d cosh - s sinh
 
