@@ -232,7 +232,7 @@ def _window(name: str, n: int) -> np.ndarray:
 
 def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, fc_hz: float,
                     beamwidth_deg: float, depression_deg: float, prf_hz: float, follow_speed: bool,
-                    band_beamwidths: float = 1.0) -> StageData:
+                    band_beamwidths: float = 1.0, estimator: str = "fft", iaa_iterations: int = 10) -> StageData:
     """Per CPI: zoomed DFT (a chirp-Z zoom on the main-beam Doppler band) of both channels.
 
     The CPI speed is v_c = v + a t_c (eq. 25, from the INS) when ``follow_speed``; otherwise the
@@ -259,6 +259,12 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     x = np.concatenate([data["sum"][:m].reshape(n_cpi, cpi, n_r), data["diff"][:m].reshape(n_cpi, cpi, n_r)],
                        axis=2)
     z = np.matmul(e, x)
+    if estimator == "iaa":      # processing.doppler_estimator: iaa (dwell.iaa_doppler), same cells and scale
+        from .dwell import iaa_doppler
+
+        a = _cis(2.0 * np.pi * (t_cpi - t_c[:, None])[:, :, None] * f_z[:, None, :])    # [n_cpi, cpi, K]
+        s_s, s_d = iaa_doppler(x[:, :, :n_r], x[:, :, n_r:], a, n_iter=iaa_iterations)
+        z = np.concatenate([s_s, s_d], axis=2) * np.float32(w.sum())
     out.add("cpi_time_s", t_c, ("cpi_time_s",), "s", "CPI centre time t_c")
     out.add("doppler_cell", np.arange(n_doppler), ("doppler_cell",), "1", "zoomed Doppler cell")
     out.vars["range_m"] = data.vars["range_m"]
@@ -453,7 +459,8 @@ def build_forward_stages(cube, proc: dict):
         Stage("doppler_spectra", doppler_spectra, {
             "cpi": proc["cpi"], "n_doppler": proc["n_doppler"], "window": proc["doppler_window"], "fc_hz": fc,
             "beamwidth_deg": cube.radar["beamwidth_3db_deg"], "depression_deg": geo["depression_deg"],
-            "prf_hz": prf, "follow_speed": bool(proc["doppler_centroid"])}),
+            "prf_hz": prf, "follow_speed": bool(proc["doppler_centroid"]),
+            **({"estimator": "iaa"} if proc.get("doppler_estimator", "fft") == "iaa" else {})}),
         Stage("monopulse_image", monopulse_image, {
             "slope_per_deg": monopulse_slope(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
             "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
