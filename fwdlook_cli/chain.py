@@ -263,7 +263,12 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
         from .dwell import iaa_doppler
 
         a = _cis(2.0 * np.pi * (t_cpi - t_c[:, None])[:, :, None] * f_z[:, None, :])    # [n_cpi, cpi, K]
-        s_s, s_d = iaa_doppler(x[:, :, :n_r], x[:, :, n_r:], a, n_iter=iaa_iterations)
+        pz = np.abs(z[:, :, :n_r]) ** 2
+        floor = np.median(pz.reshape(n_cpi, -1), axis=1)
+        active = pz.max(axis=1) > floor[:, None] * 10 ** (12.0 / 10)      # range cells holding an echo
+        s_s, s_d = iaa_doppler(x[:, :, :n_r], x[:, :, n_r:], a, t_s=t_cpi - t_c[:, None], prf_hz=prf_hz,
+                               n_iter=iaa_iterations, active=active,
+                               noise_power=float(np.median(np.abs(x[:, :, :n_r]) ** 2)))
         z = np.concatenate([s_s, s_d], axis=2) * np.float32(w.sum())
     out.add("cpi_time_s", t_c, ("cpi_time_s",), "s", "CPI centre time t_c")
     out.add("doppler_cell", np.arange(n_doppler), ("doppler_cell",), "1", "zoomed Doppler cell")
