@@ -348,6 +348,9 @@ def dwell_stages(cube, proc: dict, geo: dict, slope_per_deg: float):
     step_deg = float(np.median(np.abs(np.diff(cube.scan_angle_deg))))          # scan per pulse
     # sub-aperture: the beam moves SUB_APERTURE_DEG (40 pulses for the paper's 30 deg/s at 2.5 kHz)
     sub_pulses = int(np.clip(round(SUB_APERTURE_DEG / max(step_deg, 1e-9)), 4, max(4, cube.n_pulses // 4)))
+    # mirror directions (same Doppler) are parted only by the beam: inside one dwell window of each
+    # other they are integrated together (resolved_flags' angle gate)
+    geo["resolution_angle_gate_deg"] = 2.0 * DWELL_HALF_WIDTH_BEAMS * two_way_deg
     return [Stage("dwell_image", dwell_image, {
         "sub_pulses": sub_pulses, "dwell_half_width_deg": DWELL_HALF_WIDTH_BEAMS * two_way_deg,
         "fc_hz": cube.radar["fc_hz"], "prf_hz": cube.radar["prf_hz"], "slope_per_deg": slope_per_deg,

@@ -43,8 +43,9 @@ def resolved_flags(range_m, azimuth_deg, *, bandwidth_hz, wavelength_m, speed_mp
     """Whether each target has no other target inside its image resolution cell.
 
     Two targets share a cell when they are closer than one range resolution c/(2B) in range, closer
-    in Doppler 2 v cos(theta) cos(phi)/lambda than the imaging's Doppler resolution, and inside one
-    two-way beamwidth of each other (beyond it the beam separates them).  The Doppler resolution is
+    in Doppler 2 v cos(theta) cos(phi)/lambda than the imaging's Doppler resolution, and closer in angle
+    than ``beamwidth_two_way_deg`` (beyond it the beam separates them: the two-way width for a CPI,
+    the width of the dwell window for ``dwell``, which integrates everything inside it).  The Doppler resolution is
     the imaging's own: PRF/CPI for ``cpi`` (the default; lambda (PRF/CPI) / (2 v |sin theta| cos phi)
     in angle, NOTES.md), 1/T_dwell for ``dwell`` (``doppler_resolution_hz``).  Mirror directions
     +-theta have the same Doppler (flight along +y) and share a cell when the beam cannot part them.

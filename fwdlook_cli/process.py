@@ -147,7 +147,8 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                                bandwidth_hz=cube.radar["bandwidth_hz"], wavelength_m=299_792_458.0 / cube.radar["fc_hz"],
                                speed_mps=float(np.linalg.norm(geo["v_ref"])), prf_hz=cube.radar["prf_hz"],
                                cpi=proc["cpi"], depression_deg=geo["depression_deg"],
-                               beamwidth_two_way_deg=MonopulseAntenna(bw, squint).two_way_3db_width_deg(),
+                               beamwidth_two_way_deg=geo.get("resolution_angle_gate_deg",
+                                                             MonopulseAntenna(bw, squint).two_way_3db_width_deg()),
                                doppler_resolution_hz=geo.get("doppler_resolution_hz"))
         for row, flag in zip(rows, flags):
             row["resolved"] = bool(flag)

@@ -26,7 +26,7 @@ def run_tracking(scenario, tmp_path, *overrides):
     """The scenario with the tracking preset (-c configs/tracking.yaml) and --set overrides over it."""
     path = ROOT / "scenarios" / scenario
     scn = resolve_with_config(yaml.safe_load(path.read_text()), str(path), str(ROOT / "configs" / "tracking.yaml"),
-                              list(overrides))
+                              ["processing.imaging=cpi", *overrides])   # issue 3's claims: the CPI image
     cube, _ = simulate_scenario(scn)
     return process_cube(cube, scn, tmp_path, quiet=True, png=False)
 

@@ -132,5 +132,8 @@ def test_resolved_flags_follow_the_imagings_doppler_resolution():
               depression_deg=1.7, beamwidth_two_way_deg=4.25)
     cpi = resolved_flags(rng, az, **kw)
     assert cpi.sum() == 30 and np.all(cpi == (np.abs(x) >= 180))
-    dwell = resolved_flags(rng, az, **kw, doppler_resolution_hz=1 / 0.142)
-    assert np.all(dwell[np.abs(x) >= 90]) and not np.any(dwell[np.abs(x) <= 60])
+    # x = 0 and +-30 m: 1.1 deg apart, Doppler 2 v (1 - cos 1.1 deg) / lambda = 5.3 Hz < 7 Hz; the mirror
+    # pairs +-30 and +-60 m (same Doppler) 2.2 and 4.4 deg apart, inside one dwell window (2 x 0.75 x
+    # 4.25 = 6.4 deg): unresolved.  From |x| = 90 m (mirror 6.5 deg, neighbours >= 12 Hz): resolved.
+    dwell = resolved_flags(rng, az, **{**kw, "beamwidth_two_way_deg": 6.375}, doppler_resolution_hz=1 / 0.142)
+    assert np.all(dwell == (np.abs(x) >= 90))
