@@ -137,3 +137,54 @@ def test_resolved_flags_follow_the_imagings_doppler_resolution():
     # 4.25 = 6.4 deg): unresolved.  From |x| = 90 m (mirror 6.5 deg, neighbours >= 12 Hz): resolved.
     dwell = resolved_flags(rng, az, **{**kw, "beamwidth_two_way_deg": 6.375}, doppler_resolution_hz=1 / 0.142)
     assert np.all(dwell == (np.abs(x) >= 90))
+
+
+def _run(scenario, tmp_path, *overrides):
+    path = ROOT / "scenarios" / scenario
+    scn = resolve_with_config(yaml.safe_load(path.read_text()), str(path), str(ROOT / "configs" / "tracking.yaml"),
+                              list(overrides))
+    cube, _ = simulate_scenario(scn)
+    return process_cube(cube, scn, tmp_path, quiet=True, png=False)
+
+
+def test_isolated_targets_azimuth_dwell(tmp_path):
+    """Isolated scene (11 points, a = 50, SNR 20 dB), tracking preset (imaging: dwell): azimuth RMS
+    <= 0.03 deg (issue 9), every point within 0.3 m, and a 3 dB angle width under the CPI image's
+    0.26 deg (the dwell's resolved cell is one angle bin wide: 0.05-0.1 deg)."""
+    m = _run("isolated_a50.yaml", tmp_path)
+    assert m["params"]["imaging"] == "dwell"
+    rows = m["targets"]
+    assert all(r["detected"] for r in rows)
+    az = np.array([r["azimuth_error_deg"] for r in rows])
+    assert np.sqrt(np.mean(az**2)) <= 0.03
+    assert np.max(np.abs([r["range_error_m"] for r in rows])) <= 0.3
+    assert np.median([r["angle_width_3db_deg"] for r in rows]) < 0.26
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["paper_fig5_a0.yaml", "paper_fig6_a10.yaml", "paper_fig6_a50.yaml"])
+def test_dwell_lattice_away_from_boresight(scenario, tmp_path):
+    """Full lattice, one run, dwell: every target with |x| >= 120 m (42 of 63, |theta| >= 4.3 deg)
+    detected, within 0.3 m, azimuth RMS <= 0.1 deg and max <= 0.3 deg (the CPI image: 0.6 m and
+    0.13-0.15 deg RMS on the same targets)."""
+    m = _run(scenario, tmp_path)
+    outer = [r for r in m["targets"] if abs(r["x_m"]) >= 120.0]
+    assert len(outer) == 42 and all(r["detected"] for r in outer)
+    assert max(abs(r["range_error_m"]) for r in outer) <= 0.3
+    az = np.array([r["azimuth_error_deg"] for r in outer])
+    assert np.sqrt(np.mean(az**2)) <= 0.1 and np.max(np.abs(az)) <= 0.3
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 9's full-lattice criterion is not met near boresight: "
+                   "|x| <= 90 m (mirror pairs +-x share one Doppler history, x = 0 and +-30 m are 5 Hz apart) "
+                   "mix; measured 63/63/59 detected, max 1.37/1.25/1.38 m, az RMS 0.14/0.13/0.16 deg")
+@pytest.mark.parametrize("scenario", ["paper_fig5_a0.yaml", "paper_fig6_a10.yaml", "paper_fig6_a50.yaml"])
+def test_dwell_lattice_all_63_issue9(scenario, tmp_path):
+    """Issue 9: all 63 detected, every one within 0.3 m, azimuth RMS <= 0.1 deg and max <= 0.3 deg."""
+    m = _run(scenario, tmp_path)
+    rows = m["targets"]
+    assert all(r["detected"] for r in rows)
+    assert max(abs(r["range_error_m"]) for r in rows) <= 0.3
+    az = np.array([r["azimuth_error_deg"] for r in rows])
+    assert np.sqrt(np.mean(az**2)) <= 0.1 and np.max(np.abs(az)) <= 0.3
