@@ -234,8 +234,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
                 beamwidth_deg: float, angle_step_deg: float, range_oversample: int, threshold_db: float,
                 dynamic_range_db: float, position_ref_m: list, sub_pulses: int = 40,
                 dwell_half_width_deg: float = 3.2, twin_null: bool = True, twin_orders: int = 1,
-                peaks_only: bool = False, twin_max_corr2: float = 0.9, two_way_deg: float = 0.0,
-                max_offset_beamwidths: float = 0.5) -> StageData:
+                peaks_only: bool = False, twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5) -> StageData:
     """Stage ``dwell_image``: the monopulse image from whole-dwell sums (module docstring).
 
     Same output variables and grid conventions as ``chain.monopulse_image`` (range at t_ref oversampled
@@ -282,19 +281,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio[keep]) / slope_per_deg, p_dw, p_ref)
     fin = np.isfinite(az)
     az = np.where(fin, az, angle_deg[looked][i_dir])
-    # each resolved cell spans res(theta) / step grid directions, all projected to the same angle:
-    # weight them by step / res so a target's image peak does not grow towards boresight, where the
-    # Doppler resolution lambda / (2 v T_dwell |sin theta|) spans the beam
-    if two_way_deg:
-        lam = C_MPS / fc_hz
-        rate_dps = float(np.median(np.abs(np.diff(beam)))) * prf_hz
-        t_dwell = two_way_deg / max(rate_dps, 1e-12)
-        speed = float(np.linalg.norm(vel[m_ref]))
-        res_deg = np.degrees(lam / (2.0 * speed * t_dwell * np.maximum(np.abs(np.sin(np.radians(angle_deg))), 1e-9)))
-        density = np.clip(angle_step_deg / np.minimum(res_deg, two_way_deg), 0.0, 1.0)
-        w = power[keep] * density[looked][i_dir]
-    else:
-        w = power[keep]
+    w = power[keep]
     n_a = len(angle_deg)
     step = angle_step_deg
     a_idx = np.rint((az - angle_deg[0]) / step).astype(np.int64)
@@ -366,7 +353,6 @@ def dwell_stages(cube, proc: dict, geo: dict, slope_per_deg: float):
     geo["resolution_angle_gate_deg"] = 2.0 * DWELL_HALF_WIDTH_BEAMS * two_way_deg
     return [Stage("dwell_image", dwell_image, {
         "sub_pulses": sub_pulses, "dwell_half_width_deg": DWELL_HALF_WIDTH_BEAMS * two_way_deg,
-        "two_way_deg": two_way_deg,
         "fc_hz": cube.radar["fc_hz"], "prf_hz": cube.radar["prf_hz"], "slope_per_deg": slope_per_deg,
         "beta_per_deg2": pattern_beta_per_deg2(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
         "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
