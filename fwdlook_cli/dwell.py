@@ -20,28 +20,33 @@ range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
    that direction: the same for every pulse of the dwell although the beam sweeps across it.  So the
    coherent dwell sums keep Re(D'/S') = tanh(k eps) exactly and the angle inside the resolved cell is
    theta + atanh(Re(D'/S'))/k, k the chain's monopulse slope (``chain.monopulse_slope``).
-2. **Sub-apertures.**  Slow time is cut into sub-apertures of ``sub_pulses`` pulses (20 = 8 ms: the
-   beam moves 0.24 deg, the Doppler-rate phase is under 0.1 rad).  For every sub-aperture j and every
-   direction within ``dwell_half_width_deg`` of its beam, one batched matrix product forms
-   sum_n w_n (cosh, sinh)(k delta_n) exp(+j 4 pi (R_P(t_n) - R_P(t_j)) / lambda) [s_n, d_n]: the
-   exact within-sub-aperture Doppler history of P (the acceleration included) at the centre range of
-   each of a few range blocks, matched-filter weighted by the pattern w = Sigma e^{-beta delta^2}
-   a target in that direction has (a Gaussian taper: low Doppler sidelobes).
-3. **Dwell.**  The sub-aperture sums of each direction are phased with the exact range-dependent
-   exp(+j 4 pi (R_P(t_j; r, theta) - r) / lambda) and summed over the dwell: a back-projection whose
-   inner sums are the sub-apertures.  The -r keeps the focused image smooth in range, so it is
-   band-limited-oversampled like the CPI image.
+2. **Sub-apertures.**  Slow time is cut into sub-apertures over which the beam moves 0.48 deg
+   (``SUB_APERTURE_DEG``: 40 pulses for the paper).  Each is dechirped by the Doppler rate of the
+   point on its beam axis (acceleration and geometry: 6 kHz/s at a = 50) and FFT-ed over the whole
+   PRF with x8 zero padding, both channels.
+3. **Dwell.**  For every sub-aperture j, every direction within ``dwell_half_width_deg`` (0.75 two-way
+   widths, 3.2 deg) of its beam and every range, the spectrum is read (linear interpolation) at the
+   Doppler of P at the sub-aperture centre, rotated (step 1, delta of P itself: parallax makes it
+   range dependent), phased with the exact exp(+j 4 pi (|P - p(t_j)| - r) / lambda) and summed over
+   the dwell with the matched-filter weight w = Sigma(delta) e^{-beta delta^2} a target in that
+   direction has (a Gaussian taper: low Doppler sidelobes): a back-projection whose inner sums are the
+   sub-apertures.  The -r keeps the focused image smooth in range, so it is band-limited-oversampled
+   like the CPI image.
 4. **Twins.**  With the flight along +y, theta and -theta have the same range history (mirror Doppler):
    no Doppler processing separates them, only the scan does (the beam reaches -theta before +theta).
-   Where the twin lies inside the dwell, the weights are made orthogonal to the twin's envelope over
-   the dwell (``twin_null``), which cancels a twin exactly at the mirror direction.
+   Where the twin lies inside the dwell and its envelope is distinct (correlation^2 < 0.9), the
+   weights are made orthogonal to the twin's envelope and its first time moment over the dwell
+   (``twin_null``).  It cancels a twin at the mirror direction; pairs closer than about 2.5 deg to
+   each other, and x = 0 against +-30 m of the paper lattice (5 Hz apart, 1/T_dwell = 7 Hz), still mix.
 5. **Projection.**  Cells above ``threshold_db`` over the image's median power (the noise floor),
-   within ``dynamic_range_db`` of its peak and with |eps| under half a beamwidth put |S'|^2 at
-   (r, theta + eps): one target's resolved cell lands on one angle bin.
+   within ``dynamic_range_db`` of its peak and with |eps| under half a beamwidth put |S'|^2 at the
+   azimuth theta + eps seen from the dwell's mean antenna position, moved to the t_ref frame exactly
+   (``chain.azimuth_at_t_ref``): one target's resolved cell lands on one angle bin.
 
-Cost: one batched complex64 product of n_pulses x n_dir x 2 n_range x 2 (the rotated kernels) plus the
-exact phase of every (sub-aperture, direction, range) cell; ``fwdlook bench`` measures it
-(``chain_dwell_s``) against one 2-D FFT of the cube.
+Cost (``fwdlook bench``, paper cube): the ``dwell_image`` stage is about 46 plain 2-D FFTs of the
+2500 x 280 cube (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range, 8.8 k x 280
+cells, one interpolated read, the phase, the rotation and one sparse sum over the dwell), the same as
+the CPI chain's ``doppler_spectra`` + ``monopulse_image``; the whole chain 1.01 x ``chain_tracking_s``.
 """
 from __future__ import annotations
 
@@ -130,7 +135,7 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     rb = np.linalg.norm(bp, axis=1)
     ub = bp / rb[:, None]
     vr = np.einsum("ji,ji->j", vel_c, ub)
-    rate_hz_s = 2.0 * (np.einsum("ji,ji->j", acc_c, ub) + (np.einsum("ji,ji->j", vel_c, vel_c) - vr**2) / rb) / lam
+    rate_hz_s = 2.0 * (np.einsum("ji,ji->j", acc_c, ub) - (np.einsum("ji,ji->j", vel_c, vel_c) - vr**2) / rb) / lam
     chirp = _cis(-np.pi * rate_hz_s[:, None] * tau[None, :] ** 2)            # [n_sub, L]
     n_fft = int(fft_oversample * L)
     spec = []
@@ -234,7 +239,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
                 beamwidth_deg: float, angle_step_deg: float, range_oversample: int, threshold_db: float,
                 dynamic_range_db: float, position_ref_m: list, sub_pulses: int = 40,
                 dwell_half_width_deg: float = 3.2, twin_null: bool = True, twin_orders: int = 1,
-                peaks_only: bool = False, twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5) -> StageData:
+                twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5) -> StageData:
     """Stage ``dwell_image``: the monopulse image from whole-dwell sums (module docstring).
 
     Same output variables and grid conventions as ``chain.monopulse_image`` (range at t_ref oversampled
@@ -267,11 +272,6 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     level = max(floor * 10 ** (threshold_db / 10), power.max() * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
     keep = (power > level) & (np.abs(ratio) < max_ratio)
-    if peaks_only:
-        # only the directions where a range cell's focused power peaks: there the target is in focus
-        # and a neighbour's leakage into its ratio is smallest
-        pad = np.pad(power, ((1, 1), (0, 0)))
-        keep &= (power >= pad[:-2]) & (power >= pad[2:])
     i_dir, i_r = np.nonzero(keep)
     # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from the
     # dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
