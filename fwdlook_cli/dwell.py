@@ -102,7 +102,8 @@ def subaperture_layout(n_pulses, sub_pulses, beam_deg, angle_deg, dwell_half_wid
 
 def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, velocity_mps, range_m, angle_deg,
                 fc_hz, prf_hz, slope_per_deg, beta_per_deg2, position_ref_m, sub_pulses=40,
-                dwell_half_width_deg=3.2, fft_oversample=8, twin_null=True, twin_axis_deg=0.0, twin_orders=1, twin_max_corr2=0.9):
+                dwell_half_width_deg=3.2, fft_oversample=8, twin_null=True, twin_axis_deg=0.0, twin_orders=1,
+                twin_max_corr2=0.9):
     """Rotated sum and difference of every (direction, range) integrated over its dwell.
 
     Returns ``(s_rot, d_rot, gain, pos_dwell)``: complex64 [n_angle, n_range] images S', D' (module
@@ -154,7 +155,8 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
         d_tw = np.degrees(np.arctan2(p_tw[..., 0] - pos_c[:, None, 0], p_tw[..., 1] - pos_c[:, None, 1])) \
             - beam_j[:, None]
         t_c = np.interp(idx_c, n, slow_time_s)
-        w = _orthogonalise(w, pattern_weight(d_tw, beta_per_deg2, k) * (w != 0), g, n_a, t_c, twin_orders, twin_max_corr2)
+        w = _orthogonalise(w, pattern_weight(d_tw, beta_per_deg2, k) * (w != 0), g, n_a, t_c, twin_orders,
+                           twin_max_corr2)
     gain = np.bincount(gi[valid], weights=(w**2)[valid], minlength=n_a)
     pos_dwell = np.stack([np.bincount(gi[valid], weights=(w**2 * pos_c[:, None, i])[valid], minlength=n_a)
                           for i in range(3)], axis=-1) / np.maximum(gain, 1e-300)[:, None]

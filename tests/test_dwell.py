@@ -2,11 +2,13 @@
 Doppler estimator (``processing.doppler_estimator: iaa``)."""
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 import yaml
 
 from fwdlook_cli.antenna import MonopulseAntenna
+from fwdlook_cli.chain import chain_geometry
 from fwdlook_cli.dwell import iaa_doppler
 from fwdlook_cli.evaluate import resolved_flags, target_metrics
 from fwdlook_cli.process import process_cube, resolve_with_config
@@ -60,13 +62,8 @@ def _two_points_at_5_deg(imaging, tmp_path):
                               [f"processing.imaging={imaging}", "processing.q=1"])
     cube, _ = simulate_scenario(scn)
     process_cube(cube, scn, tmp_path, quiet=True, png=False)
-    import h5py
-
     with h5py.File(tmp_path / "image.h5", "r") as f:
         image, range_m, angle_deg = f["image"][()], f["range_m"][()], f["angle_deg"][()]
-        p_ref = None
-    from fwdlook_cli.chain import chain_geometry
-
     p_ref = chain_geometry(cube, scn["processing"])["p_ref"]
     truth = cube.truth_xyz_m()
     # search window +-0.2 deg: less than half the separation, so the neighbour is never taken
