@@ -512,6 +512,10 @@ def _forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> Non
         raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the pulse count {m}")
     if check_pulses and proc["cpi"] > m:
         raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the {m} pulses")
+    if proc["doppler_estimator"] != "fft" and proc["imaging"] != "cpi":
+        raise BadInput(f"{source}: processing.doppler_estimator = {proc['doppler_estimator']!r}: the per-CPI "
+                       f"estimator needs processing.imaging = cpi (it is {proc['imaging']!r}); allowed with "
+                       f"dwell: fft")
     if radar["range_window_m"] != "auto":
         from .geometry import scene_range_extent_m  # local: geometry imports nothing from here
 

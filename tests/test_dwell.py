@@ -185,3 +185,12 @@ def test_dwell_lattice_all_63_issue9(scenario, tmp_path):
     assert max(abs(r["range_error_m"]) for r in rows) <= 0.3
     az = np.array([r["azimuth_error_deg"] for r in rows])
     assert np.sqrt(np.mean(az**2)) <= 0.1 and np.max(np.abs(az)) <= 0.3
+
+
+def test_iaa_with_dwell_is_bad_input():
+    """IAA is the per-CPI Doppler estimator: asked for with imaging: dwell it is a user error (exit 2)."""
+    from fwdlook_cli.errors import BadInput
+
+    with pytest.raises(BadInput, match="processing.doppler_estimator"):
+        tiny_scenario(processing={"imaging": "dwell", "doppler_estimator": "iaa"})
+    assert tiny_scenario(processing={"imaging": "cpi", "doppler_estimator": "iaa"})["processing"]["imaging"] == "cpi"
