@@ -4,8 +4,8 @@ Tolerances are the issue's, not tuned: azimuth of isolated targets RMS <= 0.05 d
 3 dB width <= 0.5 deg; lattice RMS <= 0.3 deg, <= 0.1 deg for |x| >= 210 m; range within 0.3 m.
 The full-lattice range criterion is asserted on the targets the image resolves (no other target in
 the same range cell and Doppler cell, ``evaluate.resolved_flags``): near boresight neighbours 1 deg
-apart share a Doppler cell and the monopulse ratio mixes them (NOTES.md), which no motion
-compensation can undo.  The placement of every one of the 63 targets, free of that mixing, is the
+apart share a Doppler cell of a 32-pulse CPI and the monopulse ratio mixes them (NOTES.md); these
+tests pin ``imaging: cpi`` (the whole-dwell imaging resolves them away from boresight: test_dwell.py).  The placement of every one of the 63 targets, free of that mixing, is the
 slow test at the end (each lattice column processed on its own).
 """
 import json
@@ -27,7 +27,7 @@ def run_tracking(scenario, tmp_path, *overrides):
     """The scenario with the tracking preset (-c configs/tracking.yaml) and --set overrides over it."""
     path = ROOT / "scenarios" / scenario
     scn = resolve_with_config(yaml.safe_load(path.read_text()), str(path), str(ROOT / "configs" / "tracking.yaml"),
-                              list(overrides))
+                              ["processing.imaging=cpi", *overrides])   # issue 3's claims: the CPI image
     cube, _ = simulate_scenario(scn)
     return process_cube(cube, scn, tmp_path, quiet=True, png=False)
 

@@ -400,3 +400,16 @@ def antenna_from_scenario(ant: dict):
         return read_pattern_file(ant["pattern_file"], ant["beamwidth_3db_deg"])
     return MonopulseAntenna(ant["beamwidth_3db_deg"], ant.get("squint_deg", "auto"),
                             pattern=ant.get("pattern", "gaussian2"), crossover_db=ant.get("crossover_db"))
+
+
+def two_way_width_for(beamwidth_3db_deg: float, attrs: dict | None) -> float:
+    """Two-way 3 dB width of a cube's antenna: its ``/antenna`` attributes when they name a two-beam
+    design, else two Gaussian beams crossing at -3 dB with that sum beamwidth (never a default squint)."""
+    a = attrs or {}
+    try:
+        if a.get("pattern", "gaussian2") in ("gaussian2", "sinc2") and np.isfinite(float(a.get("squint_deg", np.nan))):
+            return MonopulseAntenna(beamwidth_3db_deg, float(a["squint_deg"]),
+                                    pattern=a.get("pattern", "gaussian2")).two_way_3db_width_deg()
+    except (AntennaDesignError, TypeError, ValueError):
+        pass
+    return MonopulseAntenna(beamwidth_3db_deg).two_way_3db_width_deg()

@@ -65,3 +65,21 @@ def ambiguity_number(doppler_hz, prf_hz):
 def residual_velocity_mps(prf_hz, fc_hz, q=1):
     """Eq. (19)-(20): radial-velocity error of one wrong ambiguity number, c (F_R/Q) / (2 f_c)."""
     return C_MPS * (prf_hz / q) / (2.0 * fc_hz)
+
+
+def azimuth_at_t_ref(range_m, azimuth_deg, position_at_measure_m, position_ref_m):
+    """Ground point seen at ``azimuth_deg`` from the antenna at one time, and ``range_m`` from it at
+    t_ref: returns its azimuth from the t_ref antenna and its ground (x, y); NaN where no solution.
+
+    The monopulse angle is measured at the CPI time, the corrected range refers to t_ref; the point
+    P = g_c + s u(theta) (ground) with |P - p_ref| = R is solved exactly (a quadratic in s).
+    """
+    u = np.stack([np.sin(np.radians(azimuth_deg)), np.cos(np.radians(azimuth_deg))], axis=-1)
+    d = position_at_measure_m[..., :2] - position_ref_m[:2]
+    b = np.sum(d * u, axis=-1)
+    c = np.sum(d * d, axis=-1) + position_ref_m[2] ** 2 - np.asarray(range_m) ** 2
+    disc = b * b - c
+    s = -b + np.sqrt(np.where(disc >= 0, disc, np.nan))
+    gx = position_at_measure_m[..., 0] + s * u[..., 0]
+    gy = position_at_measure_m[..., 1] + s * u[..., 1]
+    return np.degrees(np.arctan2(gx - position_ref_m[0], gy - position_ref_m[1])), gx, gy

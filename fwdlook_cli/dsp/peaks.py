@@ -20,8 +20,9 @@ import math
 import numbers
 
 import numpy as np
+import scipy.fft
 
-__all__ = ["oversample_profile", "interpolate_peak", "image_peak_2d"]
+__all__ = ["oversample_profile", "oversample_range", "interpolate_peak", "image_peak_2d"]
 
 # Fraction of the peak power that defines the 3 dB (half-power) width.
 _HALF_POWER = 0.5
@@ -239,3 +240,17 @@ def image_peak_2d(image_power, i, j):
     else:  # both axes clamped and a non-positive centre
         peak = centre
     return i + di, j + dj, float(peak)
+
+
+def oversample_range(x, factor: int):
+    """Band-limited oversampling of the last (range) axis by FFT zero-padding, amplitudes preserved."""
+    if factor == 1:
+        return x
+    n = x.shape[-1]
+    spec = scipy.fft.fft(x, axis=-1, workers=-1)
+    spec *= factor
+    pad = np.zeros(spec.shape[:-1] + (n * factor,), dtype=spec.dtype)
+    half = n // 2
+    pad[..., : n - half] = spec[..., : n - half]
+    pad[..., n * factor - half:] = spec[..., n - half:]
+    return scipy.fft.ifft(pad, axis=-1, workers=-1, overwrite_x=True)

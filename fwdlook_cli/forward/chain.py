@@ -31,6 +31,8 @@ from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_histo
                      keystone_residual_envelope_m, reference_depression_deg, unit_vector)
 from ..runner import Stage
 from ..io.stagefile import StageData
+from ..dsp.geometry import azimuth_at_t_ref
+from ..dsp.peaks import oversample_range
 
 CONTEXT = ("slow_time_s", "scan_angle_deg", "position_m", "velocity_mps", "xyz")
 KEYSTONE_METHODS = ("traditional", "decimation", "tracking")
@@ -250,7 +252,7 @@ def _window(name: str, n: int) -> np.ndarray:
 
 def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, fc_hz: float,
                     beamwidth_deg: float, depression_deg: float, prf_hz: float, follow_speed: bool,
-                    band_beamwidths: float = 1.0) -> StageData:
+                    band_beamwidths: float = 1.0, estimator: str = "fft", iaa_iterations: int = 10) -> StageData:
     """Per CPI: zoomed DFT (a chirp-Z zoom on the main-beam Doppler band) of both channels.
 
     The CPI velocity is the INS mean over the CPI, v_c = v + a t_c (eq. 25, the whole vector) when
@@ -280,6 +282,17 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     x = np.concatenate([data["sum"][:m].reshape(n_cpi, cpi, n_r), data["diff"][:m].reshape(n_cpi, cpi, n_r)],
                        axis=2)
     z = np.matmul(e, x)
+    if estimator == "iaa":      # processing.doppler_estimator: iaa (dwell.iaa_doppler), same cells and scale
+        from .dwell import iaa_doppler
+
+        a = _cis(2.0 * np.pi * (t_cpi - t_c[:, None])[:, :, None] * f_z[:, None, :])    # [n_cpi, cpi, K]
+        pz = np.abs(z[:, :, :n_r]) ** 2
+        floor = np.median(pz.reshape(n_cpi, -1), axis=1)
+        active = pz.max(axis=1) > floor[:, None] * 10 ** (12.0 / 10)      # range cells holding an echo
+        s_s, s_d = iaa_doppler(x[:, :, :n_r], x[:, :, n_r:], a, t_s=t_cpi - t_c[:, None], prf_hz=prf_hz,
+                               n_iter=iaa_iterations, active=active,
+                               noise_power=float(np.median(np.abs(x[:, :, :n_r]) ** 2)))
+        z = np.concatenate([s_s, s_d], axis=2) * np.float32(w.sum())
     out.add("cpi_time_s", t_c, ("cpi_time_s",), "s", "CPI centre time t_c")
     out.add("doppler_cell", np.arange(n_doppler), ("doppler_cell",), "1", "zoomed Doppler cell")
     out.vars["range_m"] = data.vars["range_m"]
@@ -300,38 +313,6 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
 # ----------------------------------------------------------------------------------------------
 # 7. monopulse image
 # ----------------------------------------------------------------------------------------------
-def oversample_range(x, factor: int):
-    """Band-limited oversampling of the last (range) axis by FFT zero-padding, amplitudes preserved."""
-    if factor == 1:
-        return x
-    n = x.shape[-1]
-    spec = scipy.fft.fft(x, axis=-1, workers=-1)
-    spec *= factor
-    pad = np.zeros(spec.shape[:-1] + (n * factor,), dtype=spec.dtype)
-    half = n // 2
-    pad[..., : n - half] = spec[..., : n - half]
-    pad[..., n * factor - half:] = spec[..., n - half:]
-    return scipy.fft.ifft(pad, axis=-1, workers=-1, overwrite_x=True)
-
-
-def azimuth_at_t_ref(range_m, azimuth_deg, position_at_measure_m, position_ref_m):
-    """Ground point seen at ``azimuth_deg`` from the antenna at one time, and ``range_m`` from it at
-    t_ref: returns its azimuth from the t_ref antenna and its ground (x, y); NaN where no solution.
-
-    The monopulse angle is measured at the CPI time, the corrected range refers to t_ref; the point
-    P = g_c + s u(theta) (ground) with |P - p_ref| = R is solved exactly (a quadratic in s).
-    """
-    u = np.stack([np.sin(np.radians(azimuth_deg)), np.cos(np.radians(azimuth_deg))], axis=-1)
-    d = position_at_measure_m[..., :2] - position_ref_m[:2]
-    b = np.sum(d * u, axis=-1)
-    c = np.sum(d * d, axis=-1) + position_ref_m[2] ** 2 - np.asarray(range_m) ** 2
-    disc = b * b - c
-    s = -b + np.sqrt(np.where(disc >= 0, disc, np.nan))
-    gx = position_at_measure_m[..., 0] + s * u[..., 0]
-    gy = position_at_measure_m[..., 1] + s * u[..., 1]
-    return np.degrees(np.arctan2(gx - position_ref_m[0], gy - position_ref_m[1])), gx, gy
-
-
 def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: float, angle_step_deg: float,
                     range_oversample: int, threshold_db: float, dynamic_range_db: float,
                     position_ref_m: list, max_offset_beamwidths: float = 0.5, ratio_model: str = "tanh",
@@ -502,11 +483,16 @@ def build_forward_stages(cube, proc: dict):
         Stage("doppler_spectra", doppler_spectra, {
             "cpi": proc["cpi"], "n_doppler": proc["n_doppler"], "window": proc["doppler_window"], "fc_hz": fc,
             "beamwidth_deg": cube.radar["beamwidth_3db_deg"], "depression_deg": geo["depression_deg"],
-            "prf_hz": prf, "follow_speed": bool(proc["doppler_centroid"])}),
+            "prf_hz": prf, "follow_speed": bool(proc["doppler_centroid"]),
+            **({"estimator": "iaa"} if proc.get("doppler_estimator", "fft") == "iaa" else {})}),
         Stage("monopulse_image", monopulse_image, {
             "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
             "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
             "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
             "position_ref_m": [float(v) for v in geo["p_ref"]], **geo["calibration"].stage_params()}),
     ]
+    if proc.get("imaging", "cpi") == "dwell":      # whole-dwell imaging replaces stages 6-7 (dwell.py)
+        from .dwell import dwell_stages
+
+        stages = stages[:5] + dwell_stages(cube, proc, geo)
     return src, stages, geo

@@ -40,24 +40,26 @@ def _centroid(power, index, half_width):
 
 
 def resolved_flags(range_m, azimuth_deg, *, bandwidth_hz, wavelength_m, speed_mps, prf_hz, cpi,
-                   depression_deg, beamwidth_two_way_deg):
+                   depression_deg, beamwidth_two_way_deg, doppler_resolution_hz=None):
     """Whether each target has no other target inside its image resolution cell.
 
-    Two targets share a cell when they are closer than one range resolution c/(2B) in range AND
-    closer in angle than the Doppler (DBS) angular resolution of a CPI at that azimuth,
-    lambda (PRF/CPI) / (2 v |sin theta| cos phi), capped at the two-way beamwidth (NOTES.md: near
-    boresight neighbours 1 deg apart share a Doppler cell and the monopulse ratio mixes them).
+    Two targets share a cell when they are closer than one range resolution c/(2B) in range, closer
+    in Doppler 2 v cos(theta) cos(phi)/lambda than the imaging's Doppler resolution, and closer in angle
+    than ``beamwidth_two_way_deg`` (beyond it the beam separates them: the two-way width for a CPI,
+    the width of the dwell window for ``dwell``, which integrates everything inside it).  The Doppler resolution is
+    the imaging's own: PRF/CPI for ``cpi`` (the default; lambda (PRF/CPI) / (2 v |sin theta| cos phi)
+    in angle, NOTES.md), 1/T_dwell for ``dwell`` (``doppler_resolution_hz``).  Mirror directions
+    +-theta have the same Doppler (flight along +y) and share a cell when the beam cannot part them.
     """
     r = np.asarray(range_m)
     a = np.asarray(azimuth_deg)
     dr_res = C_MPS / (2.0 * bandwidth_hz)
-    sin_t = np.abs(np.sin(np.radians(a)))
-    da_res = np.degrees(wavelength_m * (prf_hz / cpi) / (2.0 * speed_mps * np.maximum(sin_t, 1e-9)
-                                                         * np.cos(np.radians(depression_deg))))
-    da_res = np.minimum(da_res, beamwidth_two_way_deg)
+    f_res = prf_hz / cpi if doppler_resolution_hz is None else doppler_resolution_hz
+    f_d = 2.0 * speed_mps * np.cos(np.radians(a)) * np.cos(np.radians(depression_deg)) / wavelength_m
     close_r = np.abs(r[:, None] - r[None, :]) < dr_res
-    close_a = np.abs(a[:, None] - a[None, :]) < np.maximum(da_res[:, None], da_res[None, :])
-    shared = close_r & close_a
+    close_f = np.abs(f_d[:, None] - f_d[None, :]) < f_res
+    close_a = np.abs(a[:, None] - a[None, :]) < beamwidth_two_way_deg
+    shared = close_r & close_f & close_a
     np.fill_diagonal(shared, False)
     return ~shared.any(axis=1)
 

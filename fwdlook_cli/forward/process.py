@@ -49,18 +49,10 @@ def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_
 
 
 def _two_way_beamwidth_deg(cube) -> float:
-    """Two-way 3 dB width of the cube's antenna (/antenna when it names a two-beam design, else two
-    Gaussian beams crossing at -3 dB with the cube's sum beamwidth)."""
-    from ..dsp.antenna import AntennaDesignError, MonopulseAntenna
+    """Two-way 3 dB width of the cube's antenna (``dsp.antenna.two_way_width_for``)."""
+    from ..dsp.antenna import two_way_width_for
 
-    bw = float(cube.radar["beamwidth_3db_deg"])
-    a = cube.antenna or {}
-    try:
-        if a.get("pattern", "gaussian2") in ("gaussian2", "sinc2") and np.isfinite(float(a.get("squint_deg", np.nan))):
-            return MonopulseAntenna(bw, float(a["squint_deg"]), pattern=a.get("pattern", "gaussian2")).two_way_3db_width_deg()
-    except (AntennaDesignError, TypeError, ValueError):
-        pass
-    return MonopulseAntenna(bw).two_way_3db_width_deg()
+    return two_way_width_for(float(cube.radar["beamwidth_3db_deg"]), cube.antenna)
 
 
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
@@ -115,12 +107,14 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                                bandwidth_hz=cube.radar["bandwidth_hz"], wavelength_m=299_792_458.0 / cube.radar["fc_hz"],
                                speed_mps=float(np.linalg.norm(geo["v_ref"])), prf_hz=cube.radar["prf_hz"],
                                cpi=proc["cpi"], depression_deg=geo["depression_deg"],
-                               beamwidth_two_way_deg=two_way_deg)
+                               beamwidth_two_way_deg=geo.get("resolution_angle_gate_deg", two_way_deg),
+                               doppler_resolution_hz=geo.get("doppler_resolution_hz"))
         for row, flag in zip(rows, flags):
             row["resolved"] = bool(flag)
-        spectra = read_stage(run_dir / "stages" / f"{len(stages) - 1:02d}_doppler_spectra.h5")
         beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
-        if np.isfinite(beta) and cube.antenna.get("pattern", "gaussian2") == "gaussian2":
+        if (np.isfinite(beta) and cube.antenna.get("pattern", "gaussian2") == "gaussian2"
+                and "doppler_spectra" in names):                  # imaging: cpi (dwell has no CPI spectra)
+            spectra = read_stage(run_dir / "stages" / f"{names.index('doppler_spectra') + 1:02d}_doppler_spectra.h5")
             dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
                                           float(cube.antenna["monopulse_slope_per_deg"]), beta, geo["p_ref"])
             for row, extra in zip(rows, dwell):
@@ -137,6 +131,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         "params": {"q": geo["q"], "keystone": proc["keystone"],
                    "range_curvature": bool(proc["range_curvature"]), "t_ref": proc["t_ref"],
                    "doppler_centroid": bool(proc["doppler_centroid"]), "cpi": proc["cpi"],
+                   "imaging": proc.get("imaging", "cpi"), "doppler_estimator": proc.get("doppler_estimator", "fft"),
                    "ambiguity_number": geo["ambiguity_number"],
                    "boresight_doppler_hz": geo["f_dc0_hz"], "depression_deg": geo["depression_deg"],
                    "radial_accel_mps2": geo["radial_accel_mps2"]},

@@ -47,7 +47,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     from ..forward.process import process_cube
     from ..forward.simulate import simulate_scenario
 
-    n = 8
+    n = 9
     _step(1, n, "simulating the paper cube")
     paper = load_scenario(paper_scenario)
     tiny = load_scenario(tiny_scenario)
@@ -56,7 +56,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
            "pairs_kept": stats.n_pairs_kept, "pairs_total": stats.n_pairs}
     x = cube.sum
     _step(2, n, "plain 2-D FFT and simulation timings")
-    out["fft2_s"] = _median_time(lambda: scipy.fft.fft2(x, workers=-1), repeats=15)
+    out["fft2_s"] = _median_time(lambda: scipy.fft.fft2(x, workers=-1), repeats=21)
     out["simulate_s"] = _median_time(lambda: simulate_scenario(paper), repeats=3)
     out["simulate_tiny_s"] = _median_time(lambda: simulate_scenario(tiny), repeats=5)
 
@@ -92,9 +92,11 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
                                           repeats=1)
 
     # whole chains, both channels, every intermediate written
-    for method in ("decimation", "tracking"):
-        _step(6 if method == "decimation" else 7, n, f"whole chain, {method}, intermediates written")
-        scn = dict(paper, processing=dict(paper["processing"], method=method))
+    # (dwell: the tracking chain with processing.imaging = dwell, forward/dwell.py)
+    for step, (method, imaging) in enumerate((("decimation", "cpi"), ("tracking", "cpi"), ("dwell", "dwell")), 6):
+        _step(step, n, f"whole chain, {method}, intermediates written")
+        proc = dict(paper["processing"], method="tracking" if method == "dwell" else method, imaging=imaging)
+        scn = dict(paper, processing=proc)
         with tempfile.TemporaryDirectory() as tmp:
             metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False)
         key = "chain_s" if method == "decimation" else f"chain_{method}_s"
@@ -102,7 +104,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         for stage, seconds in metrics["timing_s"].items():
             if stage != "total":
                 out[f"stage_{method}_{stage}_s"] = seconds
-    _step(8, n, "done")
+    _step(9, n, "done")
     out["ratios_to_fft2"] = {k[:-2]: out[k] / out["fft2_s"] for k in list(out) if k.endswith("_s")
                              and k != "fft2_s" and not k.startswith("stage_")}
     return out

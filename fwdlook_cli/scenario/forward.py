@@ -108,6 +108,12 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "angle_step_deg": Field(num(1e-4, 1.0), 0.05, "angle bin of the monopulse image"),
         "threshold_db": Field(num(-50.0, 100.0), 12.0,
                               "Doppler cells projected only above this many dB over the CPI noise floor"),
+        "imaging": Field(choice("cpi", "dwell"), "cpi",
+                         "cpi: the paper's per-CPI monopulse image (processing.cpi pulses); dwell: every image "
+                         "direction integrated coherently over its whole two-way beam dwell (forward/dwell.py)"),
+        "doppler_estimator": Field(choice("fft", "iaa"), "fft",
+                                   "per-CPI Doppler estimate (imaging: cpi): fft, the zoomed DFT; iaa, the "
+                                   "iterative adaptive approach (Yardibi et al. 2010) per range cell"),
         "monopulse_calibration": Field(calibration_setting, "auto",
                                        "where the monopulse ratio curve and channel imbalance come from: cube "
                                        "(/antenna), data (estimated from point returns), auto (cube when it has "
@@ -204,6 +210,10 @@ def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None
         raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the pulse count {m}")
     if check_pulses and proc["cpi"] > m:
         raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the {m} pulses")
+    if proc["doppler_estimator"] != "fft" and proc["imaging"] != "cpi":
+        raise BadInput(f"{source}: processing.doppler_estimator = {proc['doppler_estimator']!r}: the per-CPI "
+                       f"estimator needs processing.imaging = cpi (it is {proc['imaging']!r}); allowed with "
+                       f"dwell: fft")
     if radar["range_window_m"] != "auto":
         near, far = radar["range_window_m"]
         r_min, r_max = scene_range_extent_m(scn)

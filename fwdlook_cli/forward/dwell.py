@@ -1,0 +1,439 @@
+"""Monopulse imaging over each direction's whole beam dwell (``processing.imaging: dwell``).
+
+The paper forms its image per 32-pulse CPI: neighbours closer in Doppler than PRF/32 share a cell and
+their monopulse ratio mixes (NOTES.md, Corrections).  A scanning beam covers a direction for the
+whole two-way dwell, about 350 pulses (two-way width 4.25 deg at 30 deg/s), so the Doppler
+resolution available is 1/T_dwell, and the angular one lambda / (2 v T_dwell |sin theta| cos phi):
+0.16-0.8 deg for |theta| >= 1 deg.  This module uses it.
+
+Design (sub-aperture back-projection).  The input is the motion-compensated range-time cube (stage 5:
+every scatterer's envelope at its slant range from the antenna at t_ref, its carrier phase the full
+history -4 pi R(t)/lambda).  The image grid is the monopulse image's: slant range r from the antenna
+at t_ref and azimuth theta at t_ref; grid point (r, theta) is the ground point P(r, theta), whose exact
+range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
+
+1. **Monopulse rotation.**  For the two squinted Gaussian beams the echoes are a Sigma^2 (sum) and
+   a Sigma Delta (difference) with Delta/Sigma = tanh(k d), d the offset from the beam axis.  For a
+   direction whose offset from the axis of pulse n is delta_n (known: scan and INS), the rotated pair
+   S'_n = s cosh(k delta_n) - d sinh(k delta_n),  D'_n = d cosh(k delta_n) - s sinh(k delta_n)
+   equals a Sigma e^{-beta d^2} (cosh, sinh)(k eps) with eps = d - delta_n the target's offset from
+   that direction: the same for every pulse of the dwell although the beam sweeps across it.  So the
+   coherent dwell sums keep Re(D'/S') = tanh(k eps) exactly and the angle inside the resolved cell is
+   theta + atanh(Re(D'/S'))/k, k the chain's monopulse slope (``chain.monopulse_slope``).
+2. **Sub-apertures.**  Slow time is cut into sub-apertures over which the beam moves 0.48 deg
+   (``SUB_APERTURE_DEG``: 40 pulses for the paper).  Each is dechirped by the Doppler rate of the
+   point on its beam axis (acceleration and geometry: 6 kHz/s at a = 50) and FFT-ed over the whole
+   PRF with x8 zero padding, both channels.
+3. **Dwell.**  For every sub-aperture j, every direction within ``dwell_half_width_deg`` (0.75 two-way
+   widths, 3.2 deg) of its beam and every range, the spectrum is read (linear interpolation) at the
+   Doppler of P at the sub-aperture centre, rotated (step 1, delta of P itself: parallax makes it
+   range dependent), phased with the exact exp(+j 4 pi (|P - p(t_j)| - r) / lambda) and summed over
+   the dwell with the matched-filter weight w = Sigma(delta) e^{-beta delta^2} a target in that
+   direction has (a Gaussian taper: low Doppler sidelobes): a back-projection whose inner sums are the
+   sub-apertures.  The -r keeps the focused image smooth in range, so it is band-limited-oversampled
+   like the CPI image.
+4. **Twins.**  With the flight along +y, theta and -theta have the same range history (mirror Doppler):
+   no Doppler processing separates them, only the scan does (the beam reaches -theta before +theta).
+   Where the twin lies inside the dwell and its envelope is distinct (correlation^2 < 0.9), the
+   weights are made orthogonal to the twin's envelope and its first time moment over the dwell
+   (``twin_null``).  It cancels a twin at the mirror direction; pairs closer than about 2.5 deg to
+   each other, and x = 0 against +-30 m of the paper lattice (5 Hz apart, 1/T_dwell = 7 Hz), still mix.
+5. **Projection.**  Cells above ``threshold_db`` over the image's median power (the noise floor),
+   within ``dynamic_range_db`` of its peak and with |eps| under half a beamwidth put |S'|^2 at the
+   azimuth theta + eps seen from the dwell's mean antenna position, moved to the t_ref frame exactly
+   (``dsp.geometry.azimuth_at_t_ref``): one target's resolved cell lands on one angle bin.
+
+Cost (``fwdlook bench``, paper cube): the ``dwell_image`` stage is about 46 plain 2-D FFTs of the
+2500 x 280 cube (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range, 8.8 k x 280
+cells, one interpolated read, the phase, the rotation and one sparse sum over the dwell), the same as
+the CPI chain's ``doppler_spectra`` + ``monopulse_image``; the whole chain 1.01 x ``chain_tracking_s``.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+import scipy.sparse
+
+from ..dsp.antenna import two_way_width_for
+from ..dsp.geometry import C_MPS, azimuth_at_t_ref
+from ..dsp.peaks import oversample_range
+from ..dsp.keystone_common import _cis as _cis_cycles
+from ..io.stagefile import StageData
+
+
+SUB_APERTURE_DEG = 0.48          # scan per sub-aperture: its rotation and weight are taken at its centre
+DWELL_HALF_WIDTH_BEAMS = 0.75    # dwell of a direction: offsets within 0.75 two-way widths (3.2 deg, paper)
+
+
+def _cis(phase_rad):
+    """exp(j phase) in complex64, the phase reduced mod 2 pi in float64 first."""
+    return _cis_cycles(np.asarray(phase_rad) / (2.0 * np.pi), np.complex64)
+
+
+def image_angle_grid(beam_deg, beamwidth_deg, angle_step_deg):
+    """The monopulse image's angle axis (``chain.monopulse_image``'s convention)."""
+    a0 = np.floor((np.min(beam_deg) - beamwidth_deg) / angle_step_deg) * angle_step_deg
+    n_a = int(np.ceil((np.max(beam_deg) + beamwidth_deg - a0) / angle_step_deg)) + 1
+    return a0 + angle_step_deg * np.arange(n_a)
+
+
+def ground_points(range_m, azimuth_deg, position_ref_m):
+    """Ground point (z = 0) at slant range ``range_m`` and azimuth ``azimuth_deg`` from p_ref: [..., 3]."""
+    p_ref = np.asarray(position_ref_m, dtype=np.float64)
+    rho = np.sqrt(np.maximum(np.asarray(range_m, dtype=np.float64) ** 2 - p_ref[2] ** 2, 0.0))
+    az = np.radians(azimuth_deg)
+    rho, az = np.broadcast_arrays(rho, az)
+    return np.stack([p_ref[0] + rho * np.sin(az), p_ref[1] + rho * np.cos(az), np.zeros_like(rho)], axis=-1)
+
+
+def pattern_weight(offset_deg, beta_per_deg2, slope_per_deg):
+    """Amplitude of the rotated sum S' of a target on the imaged direction: Sigma(d) exp(-beta d^2)."""
+    d = np.asarray(offset_deg, dtype=np.float64)
+    return np.exp(-2.0 * beta_per_deg2 * d**2) * np.cosh(slope_per_deg * d)
+
+
+def subaperture_layout(n_pulses, sub_pulses, beam_deg, angle_deg, dwell_half_width_deg):
+    """Sub-aperture j: pulses [j L, (j+1) L); its local directions g0_j + l, l < n_loc, on the image grid."""
+    n_sub = n_pulses // sub_pulses
+    beam_j = np.asarray(beam_deg[: n_sub * sub_pulses]).reshape(n_sub, sub_pulses).mean(axis=1)
+    step = float(angle_deg[1] - angle_deg[0])
+    half = int(np.ceil(dwell_half_width_deg / step))
+    g0 = np.rint((beam_j - angle_deg[0]) / step).astype(np.int64) - half
+    return n_sub, beam_j, g0, 2 * half + 1
+
+
+def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, velocity_mps, range_m, angle_deg,
+                fc_hz, prf_hz, slope_per_deg, beta_per_deg2, position_ref_m, sub_pulses=40,
+                dwell_half_width_deg=3.2, fft_oversample=8, twin_null=True, twin_axis_deg=0.0, twin_orders=1,
+                twin_max_corr2=0.9):
+    """Rotated sum and difference of every (direction, range) integrated over its dwell.
+
+    Returns ``(s_rot, d_rot, gain, pos_dwell)``: complex64 [n_angle, n_range] images S', D' (module
+    docstring, steps 1-4), the matched-filter gain sum_j w_j^2 of each direction (0 where the scan never
+    looks) and the gain-weighted antenna position over each direction's dwell [n_angle, 3].
+    """
+    lam = C_MPS / fc_hz
+    k = slope_per_deg
+    m, n_r = sum_rt.shape
+    n_a = len(angle_deg)
+    L = sub_pulses
+    n_sub, beam_j, g0, n_loc = subaperture_layout(m, L, scan_angle_deg, angle_deg, dwell_half_width_deg)
+    mm = n_sub * L
+    g = g0[:, None] + np.arange(n_loc)[None, :]                              # [n_sub, n_loc] global index
+    valid = (g >= 0) & (g < n_a)
+    gi = np.clip(g, 0, n_a - 1)
+    theta = np.asarray(angle_deg, dtype=np.float64)[gi]                      # direction at t_ref
+    p_ref = np.asarray(position_ref_m, dtype=np.float64)
+    n = np.arange(m, dtype=np.float64)
+    idx_c = (np.arange(n_sub) + 0.5) * L - 0.5                               # sub-aperture centre (pulses)
+    pos_c = np.stack([np.interp(idx_c, n, position_m[:, i]) for i in range(3)], axis=-1)     # [n_sub, 3]
+    vel_c = np.stack([np.interp(idx_c, n, velocity_mps[:, i]) for i in range(3)], axis=-1)
+    acc_c = np.gradient(vel_c, idx_c / prf_hz, axis=0)
+    tau = (np.arange(L) - 0.5 * (L - 1)) / prf_hz                            # time from the centre
+
+    # 1. dechirp each sub-aperture by the Doppler rate of a fixed point on its beam axis (the
+    #    acceleration and the geometric term), then an oversampled FFT over the whole PRF
+    r_mid = 0.5 * (range_m[0] + range_m[-1])
+    bp = ground_points(r_mid, beam_j, p_ref) - pos_c
+    rb = np.linalg.norm(bp, axis=1)
+    ub = bp / rb[:, None]
+    vr = np.einsum("ji,ji->j", vel_c, ub)
+    rate_hz_s = 2.0 * (np.einsum("ji,ji->j", acc_c, ub) - (np.einsum("ji,ji->j", vel_c, vel_c) - vr**2) / rb) / lam
+    chirp = _cis(-np.pi * rate_hz_s[:, None] * tau[None, :] ** 2)            # [n_sub, L]
+    n_fft = int(fft_oversample * L)
+    spec = []
+    for x in (sum_rt, diff_rt):
+        xs = np.asarray(x)[:mm].reshape(n_sub, L, n_r) * chirp[:, :, None]
+        spec.append(scipy.fft.fft(xs, n=n_fft, axis=1, workers=-1).reshape(-1))   # [n_sub * n_fft * n_r]
+
+    # 2. per (sub-aperture, direction): offset of the direction from the beam axis at the centre, the
+    #    pattern weight, and the twin's envelope
+    p_dir = ground_points(r_mid, theta, p_ref)
+    delta = np.degrees(np.arctan2(p_dir[..., 0] - pos_c[:, None, 0], p_dir[..., 1] - pos_c[:, None, 1])) \
+        - beam_j[:, None]
+    w = pattern_weight(delta, beta_per_deg2, k) * (np.abs(delta) <= dwell_half_width_deg) * valid
+    if twin_null:
+        p_tw = ground_points(r_mid, 2.0 * twin_axis_deg - theta, p_ref)
+        d_tw = np.degrees(np.arctan2(p_tw[..., 0] - pos_c[:, None, 0], p_tw[..., 1] - pos_c[:, None, 1])) \
+            - beam_j[:, None]
+        t_c = np.interp(idx_c, n, slow_time_s)
+        w = _orthogonalise(w, pattern_weight(d_tw, beta_per_deg2, k) * (w != 0), g, n_a, t_c, twin_orders,
+                           twin_max_corr2)
+    gain = np.bincount(gi[valid], weights=(w**2)[valid], minlength=n_a)
+    pos_dwell = np.stack([np.bincount(gi[valid], weights=(w**2 * pos_c[:, None, i])[valid], minlength=n_a)
+                          for i in range(3)], axis=-1) / np.maximum(gain, 1e-300)[:, None]
+
+    # 3. exact range history of P(r, theta) at each sub-aperture centre: |P - p_j|^2 = rho^2 + 2 rho b + c
+    rr = np.asarray(range_m, dtype=np.float64)
+    rho = np.sqrt(np.maximum(rr**2 - p_ref[2] ** 2, 0.0))                    # [n_r]
+    u = np.stack([np.sin(np.radians(theta)), np.cos(np.radians(theta))], axis=-1)   # [n_sub, n_loc, 2]
+    dg = p_ref[None, :2] - pos_c[:, :2]                                      # [n_sub, 2]
+    b = np.einsum("jli,ji->jl", u, dg)
+    c = np.sum(dg**2, axis=1) + pos_c[:, 2] ** 2
+    r_jr = np.sqrt(rho**2 + 2.0 * rho * b[:, :, None] + c[:, None, None])   # [n_sub, n_loc, n_r]
+    # Doppler of P at the centre, 2 v.(P - p_j) / (lambda |P - p_j|), as an FFT bin (mod PRF)
+    vd = np.einsum("ji,ji->j", vel_c[:, :2], dg) - vel_c[:, 2] * pos_c[:, 2]
+    vu = np.einsum("jli,ji->jl", u, vel_c[:, :2])
+    f_hz = 2.0 * (vd[:, None, None] + rho * vu[:, :, None]) / (lam * r_jr)
+    pos_bin = np.mod(f_hz / prf_hz * n_fft, n_fft)
+    i0 = np.floor(pos_bin).astype(np.int64)
+    frac = (pos_bin - i0).astype(np.float32)
+    base = (np.arange(n_sub)[:, None, None] * n_fft) * n_r + np.arange(n_r)[None, None, :]
+    f0 = base + i0 * n_r
+    f1 = base + np.mod(i0 + 1, n_fft) * n_r
+    # FFT bins count from the sub-aperture's first pulse: move the phase origin to its centre
+    # exact phase of P at t_j (minus the t_ref range), with the FFT's origin moved to the centre
+    focus = _cis_cycles(2.0 * (r_jr - rr) / lam + f_hz * (0.5 * (L - 1) / prf_hz), np.complex64)
+    del r_jr, f_hz, pos_bin
+    zs = spec[0][f0] * (1 - frac) + spec[0][f1] * frac                       # linear interpolation in Doppler
+    zd = spec[1][f0] * (1 - frac) + spec[1][f1] * frac
+    # rotation by the offset of P(r, theta) itself from the beam axis: parallax makes it range dependent
+    # (the antenna is up to 130 m from p_ref when the beam passes a direction)
+    th = np.radians(theta)[:, :, None]
+    rho32 = rho.astype(np.float32)
+    kd = np.arctan2(rho32 * np.sin(th).astype(np.float32) + dg[:, None, None, 0].astype(np.float32),
+                    rho32 * np.cos(th).astype(np.float32) + dg[:, None, None, 1].astype(np.float32))
+    kd = (np.float32(np.degrees(k)) * kd - (k * beam_j[:, None, None]).astype(np.float32))   # k delta
+    ek = np.exp(kd)
+    half_w = (0.5 * w[:, :, None]).astype(np.float32)
+    ch = half_w * (ek + 1.0 / ek)                                           # w cosh(k delta)
+    sh = half_w * (ek - 1.0 / ek)                                           # w sinh(k delta)
+    del kd, ek
+    s_part = (ch * zs - sh * zd) * focus                                     # S' = s cosh - d sinh
+    d_part = (ch * zd - sh * zs) * focus                                     # D' = d cosh - s sinh
+
+    # 4. sum over the dwell: every (sub-aperture, direction) adds into its global direction
+    acc = scipy.sparse.csr_matrix((valid.ravel().astype(np.float32), (gi.ravel(), np.arange(gi.size))),
+                                  shape=(n_a, gi.size))
+    s_rot = acc @ s_part.reshape(gi.size, n_r)
+    d_rot = acc @ d_part.reshape(gi.size, n_r)
+    return s_rot.astype(np.complex64), d_rot.astype(np.complex64), gain, pos_dwell
+
+
+def _orthogonalise(w, e, g, n_a, t_s, n_orders=1, max_corr2=0.9):
+    """Make each direction's weights w [n_sub, n_loc] orthogonal, over its whole dwell, to the twin's
+    envelope e and to e (t - t_dir)^p, p < n_orders (a twin slightly off the mirror direction has a
+    residual Doppler: the first-order term nulls its leakage too).
+
+    Only where the twin is distinct from the direction (envelope correlation^2 < 0.9): near the flight
+    axis the twin is the direction itself and nulling it would null the target.
+    """
+    valid = (g >= 0) & (g < n_a)
+    gi = np.clip(g, 0, n_a - 1)
+    gv = gi[valid]
+
+    def dsum(x):
+        return np.bincount(gv, weights=x[valid], minlength=n_a)
+
+    ww = dsum(w * w)
+    t_dir = dsum(w * w * t_s[:, None]) / np.maximum(ww, 1e-300)
+    tau = (t_s[:, None] - t_dir[gi]) / 0.05                                  # scaled, for conditioning
+    basis = [e * tau**p for p in range(n_orders)]
+    gram = np.stack([np.stack([dsum(bi * bj) for bj in basis], -1) for bi in basis], -2)   # [n_a, P, P]
+    proj = np.stack([dsum(w * bi) for bi in basis], -1)                                   # [n_a, P]
+    ee, we = gram[:, 0, 0], proj[:, 0]
+    distinct = (ee * ww > 0) & (we**2 < max_corr2 * np.maximum(ee * ww, 1e-300))
+    eye = np.eye(n_orders)
+    coef = np.linalg.solve(np.where(distinct[:, None, None], gram, eye), proj[..., None])[..., 0]
+    coef = np.where(distinct[:, None], coef, 0.0)
+    return w - sum(coef[gi][..., p] * basis[p] for p in range(n_orders))
+
+
+def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: float, beta_per_deg2: float,
+                beamwidth_deg: float, angle_step_deg: float, range_oversample: int, threshold_db: float,
+                dynamic_range_db: float, position_ref_m: list, sub_pulses: int = 40,
+                dwell_half_width_deg: float = 3.2, twin_null: bool = True, twin_orders: int = 1,
+                twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5, diff_gain_db: float = 0.0,
+                diff_phase_deg: float = 0.0, boresight_offset_deg: float = 0.0) -> StageData:
+    """Stage ``dwell_image``: the monopulse image from whole-dwell sums (module docstring).
+
+    Same output variables and grid conventions as ``chain.monopulse_image`` (range at t_ref oversampled
+    x ``range_oversample``, azimuth at t_ref on ``angle_step_deg`` bins, real-beam image, ground cells).
+    """
+    range_m = data["range_m"]
+    beam = data["scan_angle_deg"]
+    p_ref = np.asarray(position_ref_m, dtype=np.float64)
+    angle_deg = image_angle_grid(beam, beamwidth_deg, angle_step_deg)
+    vel = data["velocity_mps"]
+    m_ref = int(np.argmin(np.abs(data["slow_time_s"] - data.attrs.get("t_ref_s", data["slow_time_s"][0]))))
+    twin_axis = float(np.degrees(np.arctan2(vel[m_ref, 0], vel[m_ref, 1])))
+    diff = data["diff"]
+    if diff_gain_db or diff_phase_deg:           # the calibration's channel imbalance divided out first
+        imbalance = 10 ** (diff_gain_db / 20) * np.exp(1j * np.radians(diff_phase_deg))
+        diff = (diff / np.complex64(imbalance)).astype(np.complex64)
+    s_rot, d_rot, gain, pos_dwell = dwell_focus(
+        data["sum"], diff, slow_time_s=data["slow_time_s"], scan_angle_deg=beam,
+        position_m=data["position_m"], velocity_mps=vel, range_m=range_m, angle_deg=angle_deg, fc_hz=fc_hz,
+        prf_hz=prf_hz,
+        slope_per_deg=slope_per_deg, beta_per_deg2=beta_per_deg2, position_ref_m=p_ref,
+        sub_pulses=sub_pulses, dwell_half_width_deg=dwell_half_width_deg, twin_null=twin_null,
+        twin_axis_deg=twin_axis, twin_orders=twin_orders, twin_max_corr2=twin_max_corr2)
+    looked = gain > 0
+    s = oversample_range(s_rot[looked], range_oversample)
+    dz = oversample_range(d_rot[looked], range_oversample)
+    dr = (range_m[1] - range_m[0]) / range_oversample
+    range_os = range_m[0] + dr * np.arange(s.shape[1])
+    power = (s.real**2 + s.imag**2).astype(np.float64)
+    ratio = (dz.real * s.real + dz.imag * s.imag) / np.maximum(power, 1e-30)
+    floor = float(np.median(power))
+    level = max(floor * 10 ** (threshold_db / 10), power.max() * 10 ** (-dynamic_range_db / 10))
+    max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
+    keep = (power > level) & (np.abs(ratio) < max_ratio)
+    i_dir, i_r = np.nonzero(keep)
+    # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from the
+    # dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
+    p_dw = pos_dwell[looked][i_dir]
+    p_dir = ground_points(range_os[i_r], angle_deg[looked][i_dir], p_ref)
+    az_dw = np.degrees(np.arctan2(p_dir[:, 0] - p_dw[:, 0], p_dir[:, 1] - p_dw[:, 1]))
+    az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio[keep]) / slope_per_deg + boresight_offset_deg,
+                               p_dw, p_ref)
+    fin = np.isfinite(az)
+    az = np.where(fin, az, angle_deg[looked][i_dir])
+    w = power[keep]
+    n_a = len(angle_deg)
+    step = angle_step_deg
+    a_idx = np.rint((az - angle_deg[0]) / step).astype(np.int64)
+    inside = (a_idx >= 0) & (a_idx < n_a)
+    image = np.bincount(i_r[inside] * n_a + a_idx[inside], weights=w[inside],
+                        minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
+    ground = ground_points(range_os[i_r[inside]], az[inside], p_ref)
+
+    # real-beam image: incoherent sum power of each sub-aperture at its beam angle (t_ref mapping)
+    n_sub = len(beam) // sub_pulses
+    mm = n_sub * sub_pulses
+    x = data["sum"][:mm].reshape(n_sub, sub_pulses, -1)
+    rb_power = np.sum(x.real**2 + x.imag**2, axis=1)
+    beam_j = beam[:mm].reshape(n_sub, sub_pulses).mean(axis=1)
+    pos_j = data["position_m"][:mm].reshape(n_sub, sub_pulses, 3).mean(axis=1)
+    n_r = len(range_m)
+    rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_sub, n_r)),
+                                   np.broadcast_to(beam_j[:, None], (n_sub, n_r)), pos_j[:, None, :], p_ref)
+    rb_idx = np.rint((rb_az - angle_deg[0]) / step)
+    good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
+    rb_flat = np.broadcast_to(np.arange(n_r), (n_sub, n_r))[good] * n_a + rb_idx[good].astype(np.int64)
+    real_beam = np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)
+
+    out = StageData(attrs=dict(data.attrs))
+    out.add("range_m", range_os, ("range_m",), "m", "slant range from the antenna at t_ref")
+    out.add("angle_deg", angle_deg, ("angle_deg",), "deg", "azimuth from the antenna at t_ref")
+    out.add("range_native_m", range_m, ("range_native_m",), "m", "slant range, native sampling")
+    out.add("image", image.astype(np.float32), ("range_m", "angle_deg"), "1",
+            "monopulse image over each direction's dwell, rotated sum power")
+    out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
+            "real-beam image: sum power against beam angle")
+    out.add("dwell_gain", gain, ("angle_deg",), "1", "matched-filter gain sum w^2 of each direction's dwell")
+    out.add("cell", np.arange(int(inside.sum())), ("cell",), "1", "projected cell")
+    out.add("cell_x_m", ground[:, 0], ("cell",), "m", "ground x of each projected cell")
+    out.add("cell_y_m", ground[:, 1], ("cell",), "m", "ground y of each projected cell")
+    out.add("cell_power", w[inside].astype(np.float32), ("cell",), "1", "power of each projected cell")
+    out.attrs.update(range_oversample=range_oversample, angle_step_deg=angle_step_deg,
+                     slope_per_deg=slope_per_deg, position_ref_m=list(map(float, p_ref)), imaging="dwell",
+                     sub_pulses=sub_pulses, dwell_half_width_deg=dwell_half_width_deg, twin_null=bool(twin_null))
+    return out
+
+
+def pattern_beta_per_deg2(cube) -> float:
+    """beta of the Gaussian beams (the dwell weights' envelope): the cube's, or, for a cube without
+    ``/antenna``, the one of two beams crossing at -3 dB with its sum beamwidth (the ratio itself comes
+    from the calibration in use, never from this)."""
+    if cube.antenna and "beta_per_deg2" in cube.antenna:
+        return float(cube.antenna["beta_per_deg2"])
+    from ..dsp.antenna import MonopulseAntenna
+
+    return MonopulseAntenna(cube.radar["beamwidth_3db_deg"]).beta_per_deg2
+
+
+def dwell_stages(cube, proc: dict, geo: dict):
+    """The stage(s) that replace ``doppler_spectra`` + ``monopulse_image`` when imaging == dwell."""
+    from ..runner import Stage
+
+    geo["doppler_resolution_hz"] = 1.0 / dwell_duration_s(cube)
+    cal = geo["calibration"]                     # the chain's monopulse calibration (slope, imbalance, offset)
+    two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
+    step_deg = float(np.median(np.abs(np.diff(cube.scan_angle_deg))))          # scan per pulse
+    # sub-aperture: the beam moves SUB_APERTURE_DEG (40 pulses for the paper's 30 deg/s at 2.5 kHz)
+    sub_pulses = int(np.clip(round(SUB_APERTURE_DEG / max(step_deg, 1e-9)), 4, max(4, cube.n_pulses // 4)))
+    # mirror directions (same Doppler) are parted only by the beam: inside one dwell window of each
+    # other they are integrated together (resolved_flags' angle gate)
+    geo["resolution_angle_gate_deg"] = 2.0 * DWELL_HALF_WIDTH_BEAMS * two_way_deg
+    return [Stage("dwell_image", dwell_image, {
+        "sub_pulses": sub_pulses, "dwell_half_width_deg": DWELL_HALF_WIDTH_BEAMS * two_way_deg,
+        "fc_hz": cube.radar["fc_hz"], "prf_hz": cube.radar["prf_hz"], "slope_per_deg": float(cal.slope_per_deg),
+        "diff_gain_db": float(cal.diff_gain_db), "diff_phase_deg": float(cal.diff_phase_deg),
+        "boresight_offset_deg": float(cal.boresight_offset_deg),
+        "beta_per_deg2": pattern_beta_per_deg2(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
+        "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
+        "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
+        "position_ref_m": [float(v) for v in geo["p_ref"]]})]
+
+
+def dwell_duration_s(cube) -> float:
+    """T_dwell: the time the scan keeps a direction inside the two-way 3 dB beam (its Doppler
+    resolution is 1/T_dwell; 0.142 s, 354 pulses, for the paper's 4.25 deg at 30 deg/s)."""
+    rate_dps = float(np.median(np.abs(np.diff(cube.scan_angle_deg)))) * cube.radar["prf_hz"]
+    t_scan = cube.n_pulses / cube.radar["prf_hz"]
+    two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
+    return min(two_way_deg / max(rate_dps, 1e-12), t_scan)
+
+
+# ----------------------------------------------------------------------------------------------
+# IAA Doppler estimator (processing.doppler_estimator: iaa)
+# ----------------------------------------------------------------------------------------------
+def iaa_doppler(y_sum, y_diff, steering, *, t_s=None, prf_hz=None, n_iter=10, noise_power=None,
+                grid_oversample=4, active=None):
+    """Iterative adaptive approach (IAA; Yardibi et al. 2010, single snapshot) per range cell.
+
+    ``y_sum``, ``y_diff``: [n_cpi, L, n_r] slow-time samples of each CPI; ``steering``: [n_cpi, L, K]
+    the output cells' steering vectors a_z(n) = exp(j 2 pi f_z (t_n - t_c)).  IAA runs on a uniform grid
+    of ``grid_oversample`` x L cells over the whole PRF (``t_s`` [n_cpi, L] times from the CPI centre),
+    so every echo in the CPI is modelled: from the periodogram p_g = |a_g^H y|^2 / L^2, each iteration
+    forms R = A diag(p) A^H + sigma^2 I per range cell and sets s_g = a_g^H R^-1 y / (a_g^H R^-1 a_g),
+    p_g = |s_g|^2.  The output cells get the same adaptive filters from the final R; the difference
+    channel too (the sum channel's R), so a single scatterer keeps Re(s_diff / s_sum) = Delta/Sigma.
+    Without ``t_s`` the output cells are the grid.  ``active`` [n_cpi, n_r] (bool) limits IAA to the
+    range cells that hold an echo; the others get the periodogram.  Vectorised over CPIs and range
+    cells (batched L x L solves).  Cost per iteration ~ n_active L^2 (K_grid + L).
+
+    Returns (s_sum, s_diff): [n_cpi, K, n_r] complex64 amplitude estimates (per-sample amplitude; the
+    FFT zoom's value divided by its coherent gain).
+    """
+    n_cpi, L, n_r = y_sum.shape
+    a_out = steering.astype(np.complex64)                                    # [n_cpi, L, K]
+    if t_s is None:
+        a_grid = a_out
+    else:
+        f_g = np.arange(grid_oversample * L) * (prf_hz / (grid_oversample * L))
+        a_grid = np.exp(2j * np.pi * np.asarray(t_s)[:, :, None] * f_g[None, None, :]).astype(np.complex64)
+    ys = np.moveaxis(y_sum, 2, 1).astype(np.complex64)                       # [n_cpi, n_r, L]
+    yd = np.moveaxis(y_diff, 2, 1).astype(np.complex64)
+    if noise_power is None:
+        noise_power = float(np.median(ys.real**2 + ys.imag**2))
+    out_s = np.einsum("clk,crl->crk", np.conj(a_out), ys) / L                # periodogram (FFT zoom / L)
+    out_d = np.einsum("clk,crl->crk", np.conj(a_out), yd) / L
+    if active is None:
+        active = np.ones((n_cpi, n_r), bool)
+    # the neighbours of an active cell are active too: the powers are smoothed over +-1 range cell
+    # (adjacent range cells as extra snapshots), so the adaptive filters vary smoothly with range and
+    # the range profile of each Doppler cell stays a band-limited, interpolable pulse
+    active = active | np.roll(active, 1, axis=1) | np.roll(active, -1, axis=1)
+    ic, ir = np.nonzero(active)
+    if len(ic):
+        ag, ao = a_grid[ic], a_out[ic]                                       # [n_act, L, K]
+        y1, y2 = ys[ic, ir], yd[ic, ir]                                      # [n_act, L]
+        s_all = np.einsum("clk,crl->crk", np.conj(a_grid), ys) / L           # periodogram, every cell
+        eye = np.eye(L, dtype=np.complex64) * np.complex64(noise_power)
+        for it in range(n_iter + 1):
+            p_all = s_all.real**2 + s_all.imag**2
+            p_all = (p_all + np.roll(p_all, 1, axis=1) + np.roll(p_all, -1, axis=1)) / 3.0
+            p = p_all[ic, ir].astype(np.complex64)
+            r_mat = np.matmul(ag * p[:, None, :], np.conj(np.swapaxes(ag, 1, 2))) + eye   # A diag(p) A^H
+            a_use = ag if it < n_iter else ao                                # last pass: output cells
+            rhs = np.concatenate([a_use, y1[:, :, None], y2[:, :, None]], axis=2)
+            sol = np.linalg.solve(r_mat, rhs)
+            den = np.einsum("alk,alk->ak", np.conj(a_use), sol[:, :, :-2]).real
+            s = np.einsum("alk,al->ak", np.conj(a_use), sol[:, :, -2]) / den
+            if it < n_iter:
+                s_all[ic, ir] = s
+        out_s[ic, ir] = s
+        out_d[ic, ir] = np.einsum("alk,al->ak", np.conj(ao), sol[:, :, -1]) / den
+    return np.moveaxis(out_s, 1, 2).astype(np.complex64), np.moveaxis(out_d, 1, 2).astype(np.complex64)

@@ -1,0 +1,197 @@
+"""Whole-dwell monopulse imaging (``processing.imaging: dwell``, fwdlook_cli/dwell.py) and the IAA
+Doppler estimator (``processing.doppler_estimator: iaa``)."""
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+from fwdlook_cli.dsp.antenna import MonopulseAntenna
+from fwdlook_cli.forward.chain import chain_geometry
+from fwdlook_cli.forward.dwell import iaa_doppler
+from fwdlook_cli.forward.evaluate import resolved_flags, target_metrics
+from fwdlook_cli.forward.process import process_cube
+from fwdlook_cli.scenario.overlay import resolve_with_config
+from fwdlook_cli.forward.simulate import simulate_scenario
+from fwdlook_cli.testing import tiny_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
+C = 299_792_458.0
+
+
+def test_rotated_monopulse_ratio_is_the_offset_from_the_imaged_direction():
+    """s cosh(k delta) - d sinh(k delta) and d cosh - s sinh have the ratio tanh(k (d - delta)) for
+    the two Gaussian beams, whatever the beam's offset delta from the imaged direction."""
+    ant = MonopulseAntenna(6.0, 1.5)
+    k = ant.slope_per_deg
+    d = np.linspace(-4.0, 4.0, 81)[:, None]             # target offset from the beam axis
+    delta = np.linspace(-3.0, 3.0, 61)[None, :]        # imaged direction's offset from the axis
+    s, dd = ant.two_way_gains(d)
+    s_rot = s * np.cosh(k * delta) - dd * np.sinh(k * delta)
+    d_rot = dd * np.cosh(k * delta) - s * np.sinh(k * delta)
+    np.testing.assert_allclose(d_rot / s_rot, np.tanh(k * (d - delta)), atol=1e-12)
+
+
+def test_dwell_images_the_tiny_scene(tmp_path):
+    """Fast end-to-end check: the tiny scene (3 points, 400 pulses) with imaging: dwell, every target
+    within half a range cell and a tenth of the beamwidth, as the CPI chain's test asks."""
+    scn = tiny_scenario(processing={"method": "tracking", "imaging": "dwell", "q": 1})
+    cube, _ = simulate_scenario(scn)
+    m = process_cube(cube, scn, tmp_path, quiet=True, png=False)
+    rows = m["targets"]
+    assert all(r["detected"] for r in rows)
+    half_cell = C / (2 * scn["radar"]["bandwidth_hz"]) / 2
+    assert max(abs(r["range_error_m"]) for r in rows) < half_cell
+    assert max(abs(r["azimuth_error_deg"]) for r in rows) < 0.6
+    assert m["params"]["imaging"] == "dwell"
+
+
+def _two_points_at_5_deg(imaging, tmp_path):
+    """Two equal points 0.5 deg apart (4.75 and 5.25 deg at t_ref), same slant range at t_ref, in the
+    paper's radar and motion (a = 50), scan shortened to 0..10 deg to keep the test fast."""
+    raw = yaml.safe_load((ROOT / "scenarios" / "paper_fig6_a50.yaml").read_text())
+    raw["antenna"].update(scan_start_deg=0.0, scan_stop_deg=10.0)
+    t_ref = (10.0 / 30.0) / 2
+    y_ref = 240.0 * t_ref + 0.5 * 50.0 * t_ref**2
+    ground = np.sqrt(1500.0**2 - 50.0**2)
+    pts = [[float(ground * np.sin(np.radians(a))), float(y_ref + ground * np.cos(np.radians(a)))]
+           for a in (4.75, 5.25)]
+    raw["scene"] = {"kind": "points", "points_m": pts, "amplitude": 1.0}
+    raw["radar"]["range_window_m"] = [1300.0, 1700.0]
+    scn = resolve_with_config(raw, "two-points", str(ROOT / "configs" / "tracking.yaml"),
+                              [f"processing.imaging={imaging}", "processing.q=1"])
+    cube, _ = simulate_scenario(scn)
+    process_cube(cube, scn, tmp_path, quiet=True, png=False)
+    with h5py.File(tmp_path / "image.h5", "r") as f:
+        image, range_m, angle_deg = f["image"][()], f["range_m"][()], f["angle_deg"][()]
+    p_ref = chain_geometry(cube, scn["processing"])["p_ref"]
+    truth = cube.truth_xyz_m()
+    # search window +-0.2 deg: less than half the separation, so the neighbour is never taken
+    return target_metrics(image, range_m, angle_deg, truth, cube.truth["amplitude"], p_ref,
+                          bandwidth_hz=cube.radar["bandwidth_hz"], angle_window_deg=0.2)
+
+
+def test_two_points_half_a_degree_apart_dwell_separates_cpi_mixes(tmp_path):
+    """Two equal points 0.5 deg apart in one range cell at 5 deg: their Doppler differs by
+    2 v sin(5 deg) (0.5 deg) / lambda = 22 Hz, below a 32-pulse CPI's 78 Hz (the CPI image mixes them:
+    its monopulse ratio is their power centroid) and 3 times the dwell's 1/T_dwell = 7 Hz (the dwell
+    image resolves both, each within 0.1 deg)."""
+    dwell = _two_points_at_5_deg("dwell", tmp_path / "dwell")
+    assert all(r["detected"] for r in dwell)
+    assert max(abs(r["azimuth_error_deg"]) for r in dwell) <= 0.1
+    cpi = _two_points_at_5_deg("cpi", tmp_path / "cpi")
+    worst = max(abs(r["azimuth_error_deg"]) if r["detected"] else np.inf for r in cpi)
+    assert worst > 0.1
+
+
+def test_iaa_separates_two_tones_closer_than_a_doppler_cell():
+    """Two tones 30 Hz apart in a 32-pulse CPI at 2.5 kHz (0.38 of a Doppler cell, PRF/32 = 78 Hz):
+    the periodogram shows one peak, IAA two at the right frequencies, and the difference channel
+    estimated with the same adaptive filters keeps each tone's ratio."""
+    L, prf = 32, 2500.0
+    t = (np.arange(L) - (L - 1) / 2) / prf
+    f = np.linspace(-300.0, 300.0, 121)
+    a = np.exp(2j * np.pi * t[:, None] * f[None, :])[None]
+    f1, f2, r1, r2 = 10.0, 40.0, 0.3, -0.2
+    rng = np.random.default_rng(0)
+    tone1, tone2 = np.exp(2j * np.pi * f1 * t), np.exp(2j * np.pi * f2 * t + 1.0j)
+    noise = 0.01 * (rng.standard_normal((1, L, 4)) + 1j * rng.standard_normal((1, L, 4)))
+    ys = ((tone1 + tone2)[None, :, None] + noise).astype(np.complex64)
+    yd = ((r1 * tone1 + r2 * tone2)[None, :, None] * np.ones((1, 1, 4))).astype(np.complex64)
+
+    def peaks(p):
+        return [f[i] for i in range(1, len(f) - 1) if p[i] > p[i - 1] and p[i] >= p[i + 1] and p[i] > 0.1 * p.max()]
+
+    fft = np.abs(np.einsum("lk,l->k", np.conj(a[0]), ys[0, :, 0])) ** 2
+    assert len(peaks(fft)) == 1
+    s, sd = iaa_doppler(ys, yd, a, n_iter=15, noise_power=2e-4)
+    for col in range(4):
+        pk = peaks(np.abs(s[0, :, col]) ** 2)
+        assert len(pk) == 2
+        # single-snapshot IAA pulls coherent tones inwards by about a tenth of a cell (5 Hz here)
+        assert abs(pk[0] - f1) <= 6.0 and abs(pk[1] - f2) <= 6.0
+        # each peak's ratio is its own tone's, the other one's leakage under 20 %: (r1 - r2) 0.2 = 0.1
+        ratio = [np.real(sd[0, np.argmin(abs(f - p)), col] / s[0, np.argmin(abs(f - p)), col]) for p in pk]
+        assert abs(ratio[0] - r1) < 0.1 and abs(ratio[1] - r2) < 0.1
+
+
+def test_resolved_flags_follow_the_imagings_doppler_resolution():
+    """The paper lattice seen from t_ref (a = 0, centre): with a 32-pulse CPI (78 Hz) only the columns
+    |x| >= 180 m are resolved (30 targets, as before); with the dwell's 1/T_dwell = 7 Hz every
+    neighbour pair 1 deg apart is resolved in Doppler except around boresight, and mirror pairs +-x,
+    same Doppler, are resolved only when the two-way beam parts them."""
+    x = np.tile(np.arange(-10, 11) * 30.0, 3)
+    y = np.repeat([1670.0, 1700.0, 1730.0], 21)
+    p_ref = np.array([0.0, 120.0, 50.0])
+    d = np.stack([x, y, np.zeros_like(x)], 1) - p_ref
+    rng, az = np.linalg.norm(d, axis=1), np.degrees(np.arctan2(d[:, 0], d[:, 1]))
+    kw = dict(bandwidth_hz=50e6, wavelength_m=C / 18e9, speed_mps=240.0, prf_hz=2500.0, cpi=32,
+              depression_deg=1.7, beamwidth_two_way_deg=4.25)
+    cpi = resolved_flags(rng, az, **kw)
+    assert cpi.sum() == 30 and np.all(cpi == (np.abs(x) >= 180))
+    # x = 0 and +-30 m: 1.1 deg apart, Doppler 2 v (1 - cos 1.1 deg) / lambda = 5.3 Hz < 7 Hz; the mirror
+    # pairs +-30 and +-60 m (same Doppler) 2.2 and 4.4 deg apart, inside one dwell window (2 x 0.75 x
+    # 4.25 = 6.4 deg): unresolved.  From |x| = 90 m (mirror 6.5 deg, neighbours >= 12 Hz): resolved.
+    dwell = resolved_flags(rng, az, **{**kw, "beamwidth_two_way_deg": 6.375}, doppler_resolution_hz=1 / 0.142)
+    assert np.all(dwell == (np.abs(x) >= 90))
+
+
+def _run(scenario, tmp_path, *overrides):
+    path = ROOT / "scenarios" / scenario
+    scn = resolve_with_config(yaml.safe_load(path.read_text()), str(path), str(ROOT / "configs" / "tracking.yaml"),
+                              list(overrides))
+    cube, _ = simulate_scenario(scn)
+    return process_cube(cube, scn, tmp_path, quiet=True, png=False)
+
+
+def test_isolated_targets_azimuth_dwell(tmp_path):
+    """Isolated scene (11 points, a = 50, SNR 20 dB), tracking preset (imaging: dwell): azimuth RMS
+    <= 0.03 deg (issue 9), every point within 0.3 m, and a 3 dB angle width under the CPI image's
+    0.26 deg (the dwell's resolved cell is one angle bin wide: 0.05-0.1 deg)."""
+    m = _run("isolated_a50.yaml", tmp_path)
+    assert m["params"]["imaging"] == "dwell"
+    rows = m["targets"]
+    assert all(r["detected"] for r in rows)
+    az = np.array([r["azimuth_error_deg"] for r in rows])
+    assert np.sqrt(np.mean(az**2)) <= 0.03
+    assert np.max(np.abs([r["range_error_m"] for r in rows])) <= 0.3
+    assert np.median([r["angle_width_3db_deg"] for r in rows]) < 0.26
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["paper_fig5_a0.yaml", "paper_fig6_a10.yaml", "paper_fig6_a50.yaml"])
+def test_dwell_lattice_away_from_boresight(scenario, tmp_path):
+    """Full lattice, one run, dwell: every target with |x| >= 120 m (42 of 63, |theta| >= 4.3 deg)
+    detected, within 0.3 m, azimuth RMS <= 0.1 deg and max <= 0.3 deg (the CPI image: 0.6 m and
+    0.13-0.15 deg RMS on the same targets)."""
+    m = _run(scenario, tmp_path)
+    outer = [r for r in m["targets"] if abs(r["x_m"]) >= 120.0]
+    assert len(outer) == 42 and all(r["detected"] for r in outer)
+    assert max(abs(r["range_error_m"]) for r in outer) <= 0.3
+    az = np.array([r["azimuth_error_deg"] for r in outer])
+    assert np.sqrt(np.mean(az**2)) <= 0.1 and np.max(np.abs(az)) <= 0.3
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 9's full-lattice criterion is not met near boresight: "
+                   "|x| <= 90 m (mirror pairs +-x share one Doppler history, x = 0 and +-30 m are 5 Hz apart) "
+                   "mix; measured 63/63/60 detected, max 1.36/1.25/1.38 m, az RMS 0.14/0.13/0.16 deg")
+@pytest.mark.parametrize("scenario", ["paper_fig5_a0.yaml", "paper_fig6_a10.yaml", "paper_fig6_a50.yaml"])
+def test_dwell_lattice_all_63_issue9(scenario, tmp_path):
+    """Issue 9: all 63 detected, every one within 0.3 m, azimuth RMS <= 0.1 deg and max <= 0.3 deg."""
+    m = _run(scenario, tmp_path)
+    rows = m["targets"]
+    assert all(r["detected"] for r in rows)
+    assert max(abs(r["range_error_m"]) for r in rows) <= 0.3
+    az = np.array([r["azimuth_error_deg"] for r in rows])
+    assert np.sqrt(np.mean(az**2)) <= 0.1 and np.max(np.abs(az)) <= 0.3
+
+
+def test_iaa_with_dwell_is_bad_input():
+    """IAA is the per-CPI Doppler estimator: asked for with imaging: dwell it is a user error (exit 2)."""
+    from fwdlook_cli.errors import BadInput
+
+    with pytest.raises(BadInput, match="processing.doppler_estimator"):
+        tiny_scenario(processing={"imaging": "dwell", "doppler_estimator": "iaa"})
+    assert tiny_scenario(processing={"imaging": "cpi", "doppler_estimator": "iaa"})["processing"]["imaging"] == "cpi"
