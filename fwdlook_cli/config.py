@@ -277,8 +277,8 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "height_m": Field(num(0.0, 1e5), 50.0, "antenna height at t = 0 (NOTES.md: 50 m)"),
     },
     "scene": {
-        "kind": Field(choice("lattice", "points"), "lattice", "lattice | points"),
-        "center_m": Field(vector(2), [0.0, 1700.0], "ground (x, y) of the lattice centre"),
+        "kind": Field(choice("lattice", "points", "image"), "lattice", "lattice | points | image"),
+        "center_m": Field(vector(2), [0.0, 1700.0], "ground (x, y) of the lattice or image centre"),
         "lattice": {
             "nx": Field(integer(1, 10_000), 21, "points across x"),
             "ny": Field(integer(1, 10_000), 3, "points along y"),
@@ -287,6 +287,20 @@ FORWARD_SCHEMA: dict[str, Any] = {
             "x_offset": Field(integer(0, 10_000), 0, "first column kept (0 <= x_offset < x_stride)"),
         },
         "points_m": Field(optional(points_list), None, "kind: points, ground (x, y) list, z = 0"),
+        "image": {  # kind: image (fwdlook_cli/scene_image.py)
+            "file": Field(optional(text), None,
+                          "reflectivity map: PNG, TIFF, .npy, path.h5:/dataset, or procedural:roads"),
+            "pixel_spacing_m": Field(num(0.01, 1000.0), 3.0, "square pixel size on the ground"),
+            "orientation_deg": Field(num(-360.0, 360.0), 0.0,
+                                     "azimuth of the image's up direction, from +y towards +x"),
+            "intensity": Field(choice("amplitude", "power"), "amplitude",
+                               "pixel value is the amplitude, or the power (amplitude = sqrt)"),
+            "threshold": Field(num(0.0, 1.0, hi_open=True), 0.0,
+                               "drop pixels below this normalised amplitude (max pixel = 1)"),
+            "speckle": Field(boolean, True, "random phase per pixel from noise.seed"),
+            "size_px": Field(vector(2, integer(8, 4096)), [200, 200], "procedural:roads: [nx, ny] pixels"),
+            "procedural_seed": Field(integer(0), 0, "procedural:roads: seed of the field texture"),
+        },
         "amplitude": Field(amplitude, 1.0, "common amplitude, or one per point"),
     },
     "noise": {
@@ -465,6 +479,10 @@ def scene_points(scn: dict):
               if i % lat["x_stride"] == lat["x_offset"]]
         ys = [cy + (j - (lat["ny"] - 1) / 2) * lat["spacing_m"] for j in range(lat["ny"])]
         pts = [[x, y] for y in ys for x in xs]
+    elif sc["kind"] == "image":
+        from .scene_image import image_scene_points
+
+        return image_scene_points(scn)         # arrays: [n, 2] ground points, complex amplitudes
     else:
         pts = sc["points_m"]
     amp = sc["amplitude"]
@@ -486,6 +504,10 @@ def _forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> Non
                        f"({lat['x_stride']}) and nx ({lat['nx']})")
     if sc["kind"] == "points" and sc["points_m"] is None:
         raise BadInput(f"{source}: scene.points_m: required when scene.kind is points")
+    if sc["kind"] == "image":
+        from .scene_image import check_image_scene
+
+        check_image_scene(scn, source)
     try:
         from .antenna import MonopulseAntenna
 

@@ -77,12 +77,15 @@ def scene_geometry(scn: dict):
     position_m, velocity_mps = platform_state(slow_time_s, plat["speed_mps"], plat["accel_mps2"],
                                               plat["height_m"])
     pts, amps = scene_points(scn)
-    targets_m = np.column_stack([np.asarray(pts, dtype=np.float64), np.zeros(len(pts))])
-    return slow_time_s, position_m, velocity_mps, targets_m, np.asarray(amps, dtype=np.float64)
+    targets_m = np.column_stack([np.asarray(pts, dtype=np.float64).reshape(-1, 2), np.zeros(len(pts))])
+    amps = np.asarray(amps)                       # complex for a speckled image scene
+    return slow_time_s, position_m, velocity_mps, targets_m, amps.astype(
+        np.complex128 if np.iscomplexobj(amps) else np.float64)
 
 
 def scene_range_extent_m(scn: dict):
     """Smallest and largest slant range of any scene point over the whole scan."""
+    from .scene_sim import range_extent_m
+
     _, position_m, _, targets_m, _ = scene_geometry(scn)
-    r = slant_range_m(position_m, targets_m)
-    return float(r.min()), float(r.max())
+    return range_extent_m(position_m, targets_m)

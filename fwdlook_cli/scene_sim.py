@@ -48,6 +48,7 @@ from .pulse import TABLE_OVERSAMPLE, CompressedPulse
 from .simulate import SimulationStats
 
 NUFFT_EPS = 1e-6
+AUTO_DIRECT_TAPS = 2e7   # method auto: direct taps below this many kernel samples in all, else nufft
 
 
 def gate_angle_deg(antenna: MonopulseAntenna, gain_threshold_db: float) -> float:
@@ -148,24 +149,16 @@ def simulate_scene_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, a
     Same arguments and results as ``simulate.simulate_echo`` (plus the work layout); see the module
     docstring for the method and the memory bound.
     """
-    dr = float(range_m[1] - range_m[0])
-    fs_hz = C_MPS / (2.0 * dr)
-    if method == "auto":
-        try:
-            import finufft  # noqa: F401
-            method = "nufft"
-        except ImportError:
-            method = "direct"
-    if method == "nufft" and not np.isclose(fs_hz, pulse.fs_hz, rtol=1e-9):
-        method = "direct"                  # the kernel table's step is tied to the pulse's own fs
-    if method not in ("nufft", "direct"):
+    if method not in ("auto", "nufft", "direct"):
         raise ValueError(f"method {method!r}; allowed: auto, nufft, direct")
     n_p, n_r = len(slow_time_s), len(range_m)
     range_m = np.asarray(range_m, dtype=np.float64)
     position_m = np.asarray(position_m, dtype=np.float64)
     beam = np.asarray(beam_deg, dtype=np.float64)
     tgt = np.asarray(targets_m, dtype=np.float64).reshape(-1, 3)
-    amps = np.asarray(amplitudes, dtype=np.float64).reshape(-1)
+    amps = np.asarray(amplitudes).reshape(-1)
+    dr = float(range_m[1] - range_m[0])
+    fs_hz = C_MPS / (2.0 * dr)
     half = int(np.ceil(C_MPS * pulse.support_s / 2.0 / dr))
     width = 2 * half + 1
 
@@ -174,6 +167,19 @@ def simulate_scene_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, a
     live = (n1 >= n0) & (amps != 0.0)
     t_idx = np.nonzero(live)[0]
     n0, n1 = n0[t_idx], n1[t_idx]
+    amp_abs = np.abs(amps).astype(np.float64)
+    # a complex amplitude |a| exp(j phi) turns the carrier phase -2 pi cyc into -2 pi (cyc - phi / 2 pi)
+    amp_cyc = np.angle(amps) / (2.0 * np.pi) if np.iscomplexobj(amps) else None
+    if method == "auto":
+        est_taps = float(np.sum(n1 - n0 + 1)) * width
+        method = "direct" if est_taps < AUTO_DIRECT_TAPS else "nufft"
+        if method == "nufft":
+            try:
+                import finufft  # noqa: F401
+            except ImportError:
+                method = "direct"
+    if method == "nufft" and not np.isclose(fs_hz, pulse.fs_hz, rtol=1e-9):
+        method = "direct"                  # the kernel table's step is tied to the pulse's own fs
 
     echo_sum = np.zeros((n_p, n_r), np.complex64)
     echo_diff = np.zeros((n_p, n_r), np.complex64)
@@ -228,13 +234,17 @@ def simulate_scene_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, a
             delay /= dr                                                  # fractional sample index
             keep &= (delay > -half - 1) & (delay < n_r + half)           # kernel touches the window
             n_idx = np.broadcast_to(pulse_of, keep.shape)[keep]          # pulse within the block
-            amp = np.broadcast_to(amps[tk][None, :], keep.shape)[keep]
+            amp = np.broadcast_to(amp_abs[tk][None, :], keep.shape)[keep]
+            if amp_cyc is not None:
+                a_cyc = np.broadcast_to(amp_cyc[tk][None, :], keep.shape)[keep]
             r, off, delay = r[keep], off[keep], delay[keep]
             if len(r) == 0:
                 continue
             g_sum, g_diff = antenna.two_way_gains(off)
             # eq. (5): carrier phase -4 pi fc R / c, reduced in float64 before float32 trigonometry
             cyc = (2.0 * fc_hz / C_MPS) * r
+            if amp_cyc is not None:
+                cyc -= a_cyc
             cyc -= np.floor(cyc)
             cyc32 = (2.0 * np.pi) * cyc.astype(np.float32)
             g_sum *= amp
@@ -298,3 +308,29 @@ def simulate_scene_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, a
                             samples_written=int(kept_total) * width)
     return echo_sum, echo_diff, stats
 
+
+
+def range_extent_m(position_m, targets_m, *, dense_limit=20_000_000, stride=8):
+    """Smallest and largest slant range (eq. 1) of any target over the track, without a dense array.
+
+    Exact (dense over targets x pulses) up to ``dense_limit`` pairs; beyond, the range is evaluated
+    every ``stride`` pulses (and at the last) in target chunks and widened by the largest distance the
+    antenna moves in stride/2 pulses, a strict bound on how far the range can go between samples.
+    """
+    from .geometry import slant_range_m
+
+    position_m = np.asarray(position_m, dtype=np.float64)
+    tgt = np.asarray(targets_m, dtype=np.float64).reshape(-1, 3)
+    n_p = len(position_m)
+    if len(tgt) * n_p <= dense_limit:
+        r = slant_range_m(position_m, tgt)
+        return float(r.min()), float(r.max())
+    idx = np.unique(np.r_[np.arange(0, n_p, stride), n_p - 1])
+    step = np.max(np.linalg.norm(np.diff(position_m, axis=0), axis=1)) if n_p > 1 else 0.0
+    margin = step * (stride / 2.0 + 1.0)
+    lo, hi = np.inf, -np.inf
+    chunk = max(1, dense_limit // len(idx))
+    for k in range(0, len(tgt), chunk):
+        r = slant_range_m(position_m[idx], tgt[k:k + chunk])
+        lo, hi = min(lo, float(r.min())), max(hi, float(r.max()))
+    return lo - margin, hi + margin

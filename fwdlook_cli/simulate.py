@@ -116,13 +116,14 @@ def noise_sigma_for(snr_db, amplitudes) -> float:
     """sigma of the complex noise per sample for the scenario's SNR definition (module docstring)."""
     if snr_db is None:
         return 0.0
-    return float(np.max(amplitudes)) / 10.0 ** (snr_db / 20.0)
+    return float(np.max(np.abs(amplitudes))) / 10.0 ** (snr_db / 20.0)
 
 
 def simulate_scenario(scn: dict):
     """Simulate a resolved forward-looking scenario: returns (RawCube, SimulationStats)."""
     from .config import dump_scenario, scenario_hash
     from .cube import RawCube
+    from .scene_sim import range_extent_m, simulate_scene_echo
 
     radar, ant = scn["radar"], scn["antenna"]
     slow_time_s, position_m, velocity_mps, targets_m, amps = scene_geometry(scn)
@@ -131,14 +132,13 @@ def simulate_scenario(scn: dict):
     antenna = MonopulseAntenna(ant["beamwidth_3db_deg"], ant["squint_deg"])
     beam_deg = scan_angle_deg(slow_time_s, ant["scan_start_deg"], ant["scan_rate_dps"])
     if radar["range_window_m"] == "auto":
-        r = slant_range_m(position_m, targets_m)
-        range_m = auto_range_axis_m(r.min(), r.max(), radar["fs_hz"], pulse)
+        range_m = auto_range_axis_m(*range_extent_m(position_m, targets_m), radar["fs_hz"], pulse)
     else:
         near, far = radar["range_window_m"]
         dr = C_MPS / (2.0 * radar["fs_hz"])
         range_m = near + dr * np.arange(int(np.floor((far - near) / dr)) + 1)
     sigma = noise_sigma_for(scn["noise"]["snr_db"], amps)
-    echo_sum, echo_diff, stats = simulate_echo(
+    echo_sum, echo_diff, stats = simulate_scene_echo(   # scene_sim.py: gated pairs only, any scene size
         slow_time_s, position_m, beam_deg, range_m, targets_m, amps, fc_hz=radar["fc_hz"],
         pulse=pulse, antenna=antenna, gain_threshold_db=scn["simulation"]["gain_threshold_db"],
         noise_sigma=sigma, seed=scn["noise"]["seed"])
@@ -150,8 +150,9 @@ def simulate_scenario(scn: dict):
                "pulse_width_s": radar["pulse_width_s"], "range_weighting": radar["range_weighting"]},
         antenna={"squint_deg": ant["squint_deg"], "monopulse_slope_per_deg": antenna.slope_per_deg,
                  "beta_per_deg2": antenna.beta_per_deg2},
-        truth={"x_m": targets_m[:, 0].copy(), "y_m": targets_m[:, 1].copy(),
-               "z_m": targets_m[:, 2].copy(), "amplitude": amps.astype(np.float64)},
+        truth=None if scn["scene"]["kind"] == "image" else   # an image's truth is its map (scene_metrics)
+        {"x_m": targets_m[:, 0].copy(), "y_m": targets_m[:, 1].copy(),
+         "z_m": targets_m[:, 2].copy(), "amplitude": amps.astype(np.float64)},
         scenario_yaml=dump_scenario(scn),
         noise={"snr_db": np.nan if scn["noise"]["snr_db"] is None else scn["noise"]["snr_db"],
                "sigma": sigma, "seed": scn["noise"]["seed"]},
