@@ -169,7 +169,7 @@ def simulate_scene_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, a
     n0, n1 = n0[t_idx], n1[t_idx]
     amp_abs = np.abs(amps).astype(np.float64)
     # a complex amplitude |a| exp(j phi) turns the carrier phase -2 pi cyc into -2 pi (cyc - phi / 2 pi)
-    amp_cyc = np.angle(amps) / (2.0 * np.pi) if np.iscomplexobj(amps) else None
+    amp_cyc = np.angle(amps) / (2.0 * np.pi) if np.iscomplexobj(amps) or np.any(amps < 0) else None
     if method == "auto":
         est_taps = float(np.sum(n1 - n0 + 1)) * width
         method = "direct" if est_taps < AUTO_DIRECT_TAPS else "nufft"
