@@ -85,7 +85,10 @@ def visible_intervals(position_m, beam_deg, targets_m, gate_deg, velocity_bound_
     sub = np.unique(np.linspace(0, n_p - 1, 17).astype(np.int64))
     track = position_m[sub, :2]
     gap = np.max(np.linalg.norm(np.diff(position_m[:, :2], axis=0), axis=1)) * np.max(np.diff(sub)) if len(sub) > 1 else 0.0
-    rho = np.min(np.linalg.norm(targets_m[:, None, :2] - track[None, :, :], axis=2), axis=1) - 0.5 * gap
+    rho = np.full(k, np.inf)
+    for p in track:                                              # K-sized temporaries only
+        rho = np.minimum(rho, np.hypot(targets_m[:, 0] - p[0], targets_m[:, 1] - p[1]))
+    rho -= 0.5 * gap
     speed = float(np.max(np.linalg.norm(np.diff(position_m[:, :2], axis=0), axis=1)))  # m per pulse
     if np.min(rho) <= 0.0:
         return full
