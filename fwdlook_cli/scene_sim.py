@@ -24,13 +24,18 @@ and the compressed pulse of ``pulse.CompressedPulse``; a pair whose two-way powe
   interpolation: DTFT of the table times sinc^2), kept up to ``oversample`` x fs / 2, so the only
   departures from the per-tap simulator are the kernel's spectrum beyond that band and the NUFFT
   tolerance.  ``method="direct"``: each pair writes the 2 ceil(T/dr)+1 range samples its kernel
-  reaches, as ``simulate_echo`` does, but for the gated pairs only.  ``auto`` picks nufft when
-  finufft is importable (measured faster at every size: README "Extended scenes").
-* **Memory bound.**  Besides the two complex64 output arrays (8 n_pulses n_range bytes each), peak
-  working memory is about ``max_chunk_pairs`` x 200 bytes (pair arrays: position, range, azimuth,
-  gains, two strengths) plus the block's modes (os x block_pulses x segment x 16 bytes x 4) and
-  K x 40 bytes of per-target intervals; the defaults (1e6 pairs, 32-pulse blocks) keep it near
-  250 MB plus the scene itself, whatever the number of scatterers.
+  reaches, as ``simulate_echo`` does, but for the gated pairs only.  ``auto``: direct while the
+  taps in all (gated pairs x kernel width) stay under ``AUTO_DIRECT_TAPS`` (the paper lattice:
+  the exact simulator's output to float32 rounding), nufft beyond (measured faster there: README,
+  "Extended scenes"; also its error against the exact simulator).
+* **Threads.**  Pulse blocks are shared among ``workers`` threads (default: the CPUs this process
+  may use); numpy's ufuncs and finufft (through ctypes) release the GIL.
+* **Memory bound.**  Besides the two complex64 outputs (8 n_pulses n_range bytes each) and
+  per-target arrays (positions, amplitudes, intervals: about 100 bytes per scatterer), each worker
+  holds one chunk of at most ``max_chunk_pairs`` pairs (about 250 bytes per pair in temporaries)
+  and its block's modes (2 channels x oversample x block_pulses x segment x 16 bytes: 2 MB for the
+  paper radar).  With the defaults (1e6 pairs, 32-pulse blocks, 2 workers) that is about 0.6 GB
+  whatever the number of scatterers, plus 100 bytes per scatterer.
 """
 from __future__ import annotations
 
