@@ -5,7 +5,8 @@ t_ref (``process.py``).  Its ground truth is the scene's map (``scene_image.py``
 
 * **Road-edge range error** (procedural roads, whose edges are known exactly): the image is summed
   over azimuth bins of ``EDGE_ANGLE_BIN_DEG``; in each bin the true slant range of the edge is that
-  of the point where the bin's centre ray from the antenna at t_ref meets the edge line (z = 0), and
+  of the point where the ray at the bin's mean column azimuth from the antenna at t_ref meets the
+  edge line (z = 0), and
   the measured range is the power peak within +-``EDGE_WINDOW_M`` of it (less than half of the
   narrowest road, so the road's other edge is never taken), refined by a parabola through log
   power.  A bin whose peak falls on the window's edge counts as not found.  Per edge: the error
@@ -82,7 +83,10 @@ def road_edge_errors(image, range_m, angle_deg, p_ref, edges, *, center_m, orien
     n_bins = int(bins.max()) + 1
     prof = np.zeros((len(range_m), n_bins))
     np.add.at(prof.T, bins, image.T)                    # sum power over each angle bin
-    centres = lo + (np.arange(n_bins) + 0.5) * angle_bin_deg
+    # each bin's azimuth is the mean of its columns' (the bin is summed over them), not its mid-point
+    n_in = np.bincount(bins, minlength=n_bins)
+    centres = np.where(n_in > 0, np.bincount(bins, weights=angle_deg, minlength=n_bins) / np.maximum(n_in, 1),
+                       lo + (np.arange(n_bins) + 0.5) * angle_bin_deg)
     half_w = int(np.ceil(window_m / dr))
     out = {}
     for name, v0, ang in edges:
