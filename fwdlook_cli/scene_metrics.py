@@ -6,10 +6,9 @@ t_ref (``process.py``).  Its ground truth is the scene's map (``scene_image.py``
 * **Road-edge range error** (procedural roads, whose edges are known exactly): the image is summed
   over azimuth bins of ``EDGE_ANGLE_BIN_DEG``; in each bin the true slant range of the edge is that
   of the point where the ray at the bin's mean column azimuth from the antenna at t_ref meets the
-  edge line (z = 0), and
-  the measured range is the power peak within +-``EDGE_WINDOW_M`` of it (less than half of the
-  narrowest road, so the road's other edge is never taken), refined by a parabola through log
-  power.  A bin whose peak falls on the window's edge counts as not found.  Per edge: the error
+  edge line (z = 0), and the measured range is the power peak within +-``EDGE_WINDOW_M`` of it
+  (less than half of the narrowest road, so the road's other edge is never taken), refined by a
+  parabola through log power.  A bin whose peak falls on the window's edge counts as not found.  Per edge: the error
   along its length (one value per bin), its median, rms and max |error|.
 * **Entropy** -sum p ln p with p = P / sum P, and **contrast** std(P) / mean(P), over the image
   pixels inside the map's footprint.
