@@ -286,11 +286,13 @@ def validate(path, overrides):
 
 @cli.command()
 @json_option
-def bench(as_json):
+@click.option("--scene", "scene", is_flag=True,
+              help="Also time the scene simulator at 1e3..1e6 scatterers (minutes; scene_sim_* keys).")
+def bench(as_json, scene):
     """Timings measured in one process on the paper cube (ratios to one plain 2-D FFT)."""
     from .report.bench import print_bench
 
-    print_bench(as_json)
+    print_bench(as_json, scene=scene)
 
 
 def main(argv=None):

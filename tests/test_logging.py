@@ -27,7 +27,8 @@ def test_run_progress_and_closing_table(tmp_path, capsys):
     assert code == 0 and out.strip() == str(tmp_path / "r" / "metrics.json")
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
     lines = err.splitlines()
-    assert any(ln.startswith("[7/7] monopulse_image") for ln in lines)
+    # the preset images over the whole dwell: stages 1-5, then dwell_image as the last of 6
+    assert any(ln.startswith("[6/6] dwell_image") for ln in lines)
     table = lines[next(i for i, ln in enumerate(lines) if ln.startswith(f"{tmp_path / 'r'}: tiny, tracking")):]
     assert len(table) <= 12                                # short: a headline and one line per figure
     cells = {ln[:32].strip(): ln[32:].split() for ln in table[1:]}
@@ -103,4 +104,4 @@ def test_bench_shows_progress(capsys, monkeypatch):
     assert code == 0
     assert "fft2_s" in json.loads(out)
     steps = [ln for ln in err.splitlines() if ln.startswith("bench [")]
-    assert [s.split("]")[0] for s in steps] == [f"bench [{i}/8" for i in range(1, 9)]
+    assert [s.split("]")[0] for s in steps] == [f"bench [{i}/9" for i in range(1, 10)]

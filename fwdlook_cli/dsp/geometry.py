@@ -83,3 +83,27 @@ def azimuth_at_t_ref(range_m, azimuth_deg, position_at_measure_m, position_ref_m
     gx = position_at_measure_m[..., 0] + s * u[..., 0]
     gy = position_at_measure_m[..., 1] + s * u[..., 1]
     return np.degrees(np.arctan2(gx - position_ref_m[0], gy - position_ref_m[1])), gx, gy
+
+
+def range_extent_m(position_m, targets_m, *, dense_limit=20_000_000, stride=8):
+    """Smallest and largest slant range (eq. 1) of any target over the track, without a dense array.
+
+    Exact (dense over targets x pulses) up to ``dense_limit`` pairs; beyond, the range is evaluated
+    every ``stride`` pulses (and at the last) in target chunks and widened by the largest distance the
+    antenna moves in stride/2 pulses, a strict bound on how far the range can go between samples.
+    """
+    position_m = np.asarray(position_m, dtype=np.float64)
+    tgt = np.asarray(targets_m, dtype=np.float64).reshape(-1, 3)
+    n_p = len(position_m)
+    if len(tgt) * n_p <= dense_limit:
+        r = slant_range_m(position_m, tgt)
+        return float(r.min()), float(r.max())
+    idx = np.unique(np.r_[np.arange(0, n_p, stride), n_p - 1])
+    step = np.max(np.linalg.norm(np.diff(position_m, axis=0), axis=1)) if n_p > 1 else 0.0
+    margin = step * (stride / 2.0 + 1.0)
+    lo, hi = np.inf, -np.inf
+    chunk = max(1, dense_limit // len(idx))
+    for k in range(0, len(tgt), chunk):
+        r = slant_range_m(position_m[idx], tgt[k:k + chunk])
+        lo, hi = min(lo, float(r.min())), max(hi, float(r.max()))
+    return lo - margin, hi + margin

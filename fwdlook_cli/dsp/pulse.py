@@ -99,4 +99,4 @@ def noise_sigma_for(snr_db, amplitudes) -> float:
     """sigma of the complex noise per sample for the scenario's SNR definition (``forward/simulate.py`` module docstring)."""
     if snr_db is None:
         return 0.0
-    return float(np.max(amplitudes)) / 10.0 ** (snr_db / 20.0)
+    return float(np.max(np.abs(amplitudes))) / 10.0 ** (snr_db / 20.0)

@@ -104,7 +104,8 @@ def plan_for_scenario(scn: dict) -> dict:
 
     t, pos, vel, targets, _ = scene_geometry(scn)
     ant, radar = scn["antenna"], scn["radar"]
-    r = slant_range_m(pos, targets)
+    stride = max(1, int(np.ceil(len(targets) * len(t) / 2e7)))  # an extended scene: a sample of its points
+    r = slant_range_m(pos, targets[::stride])
     return plan_geometry(t, pos, vel, scan_angle_deg(t, ant["scan_start_deg"], ant["scan_rate_dps"]),
                          fc_hz=radar["fc_hz"], prf_hz=radar["prf_hz"], fs_hz=radar["fs_hz"],
                          beamwidth_deg=ant["beamwidth_3db_deg"], reference_range_m=float(np.median(r)),

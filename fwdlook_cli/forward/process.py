@@ -143,6 +143,10 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         "summary": summarize(rows) if rows else {"n_targets": 0, "detected": 0},
         "timing_s": timing,
     }
+    if scn["scene"]["kind"] == "image":                  # extended scene: metrics against its map
+        from .scene_metrics import scene_metrics
+
+        metrics["scene"] = scene_metrics(final["image"], final["range_m"], final["angle_deg"], geo["p_ref"], scn)
     atomic_write_text(run_dir / "metrics.json", json.dumps(metrics, indent=1, allow_nan=False))
     atomic_write_text(run_dir / "scenario.yaml", dump_scenario(scn))
     if png:

@@ -24,7 +24,6 @@ the in-band SNR.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,16 +33,10 @@ from ..scenario.forward import scene_geometry
 from ..dsp.pulse import CompressedPulse
 from ..dsp.pulse import auto_range_axis_m, noise_sigma_for
 from ..dsp.noise import band_limited_noise
+from ..dsp.geometry import range_extent_m
+from .scene_sim import SimulationStats, simulate_scene_echo
 
 RANGE_GUARD_SAMPLES = 8
-
-
-@dataclass(frozen=True)
-class SimulationStats:
-    n_pairs: int          # targets x pulses
-    n_pairs_kept: int     # pairs above the gain threshold
-    kernel_samples: int   # range samples one pair writes
-    samples_written: int  # n_pairs_kept x kernel_samples
 
 
 def simulate_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, amplitudes, *, fc_hz,
@@ -136,14 +129,13 @@ def simulate_scenario(scn: dict):
     antenna = antenna_from_scenario(ant)
     beam_deg = scan_angle_deg(slow_time_s, ant["scan_start_deg"], ant["scan_rate_dps"])
     if radar["range_window_m"] == "auto":
-        r = slant_range_m(position_m, targets_m)
-        range_m = auto_range_axis_m(r.min(), r.max(), radar["fs_hz"], pulse)
+        range_m = auto_range_axis_m(*range_extent_m(position_m, targets_m), radar["fs_hz"], pulse)
     else:
         near, far = radar["range_window_m"]
         dr = C_MPS / (2.0 * radar["fs_hz"])
         range_m = near + dr * np.arange(int(np.floor((far - near) / dr)) + 1)
     sigma = noise_sigma_for(scn["noise"]["snr_db"], amps)
-    echo_sum, echo_diff, stats = simulate_echo(
+    echo_sum, echo_diff, stats = simulate_scene_echo(   # scene_sim.py: gated pairs only, any scene size
         slow_time_s, position_m, beam_deg, range_m, targets_m, amps, fc_hz=radar["fc_hz"],
         pulse=pulse, antenna=antenna, gain_threshold_db=scn["simulation"]["gain_threshold_db"],
         noise_sigma=sigma, seed=scn["noise"]["seed"], diff_gain_db=ant["diff_gain_db"],
@@ -155,8 +147,9 @@ def simulate_scenario(scn: dict):
                "prf_hz": radar["prf_hz"], "beamwidth_3db_deg": ant["beamwidth_3db_deg"],
                "pulse_width_s": radar["pulse_width_s"], "range_weighting": radar["range_weighting"]},
         antenna=antenna_group(antenna, ant["diff_gain_db"], ant["diff_phase_deg"]),
-        truth={"x_m": targets_m[:, 0].copy(), "y_m": targets_m[:, 1].copy(),
-               "z_m": targets_m[:, 2].copy(), "amplitude": amps.astype(np.float64)},
+        truth=None if scn["scene"]["kind"] == "image" else   # an image's truth is its map (scene_metrics)
+        {"x_m": targets_m[:, 0].copy(), "y_m": targets_m[:, 1].copy(),
+         "z_m": targets_m[:, 2].copy(), "amplitude": amps.astype(np.float64)},
         scenario_yaml=dump_scenario(scn),
         noise={"snr_db": np.nan if scn["noise"]["snr_db"] is None else scn["noise"]["snr_db"],
                "sigma": sigma, "seed": scn["noise"]["seed"],

@@ -110,8 +110,12 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     return out
 
 
-def print_bench(as_json: bool = False) -> None:
+def print_bench(as_json: bool = False, scene: bool = False) -> None:
     result = run_bench()
+    if scene:                                  # scene_bench.py: one child process per scene size
+        from .scene_bench import run_scene_bench
+
+        result.update(run_scene_bench())
     if as_json:
         print(json.dumps(result, indent=2))
     else:
@@ -119,6 +123,9 @@ def print_bench(as_json: bool = False) -> None:
             if key == "ratios_to_fft2":
                 for k, v in value.items():
                     print(f"  {k:<22s} {v:10.1f} x fft2")
+            elif isinstance(value, dict):
+                for k, v in value.items():
+                    print(f"{key}[{k}]".ljust(24) + f" {v:10.1f}")
             elif key.endswith("_db"):
                 print(f"{key:<24s} {value:10.1f} dB")
             elif isinstance(value, float):

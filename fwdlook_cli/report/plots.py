@@ -127,7 +127,7 @@ def stability_map(path, rows, grid_keys, *, error_key="max_abs_range_error_m"):
 
 
 # ----------------------------------------------------------------------------------------------
-# Report and reproduce figures (fwdlook report, python -m fwdlook_cli.reproduce)
+# Report and reproduce figures (fwdlook report, python -m fwdlook_cli.report.reproduce)
 # ----------------------------------------------------------------------------------------------
 def _db(power, ref, dynamic_range_db):
     p = np.asarray(power, dtype=np.float64)

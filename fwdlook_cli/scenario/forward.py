@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from ..dsp.antenna import AntennaDesignError, antenna_from_scenario
-from ..dsp.geometry import platform_state, slant_range_m
+from ..dsp.geometry import platform_state, range_extent_m
 from ..errors import BadInput
 from .fields import _show, Field, calibration_setting, amplitude, auto_or, boolean, choice, integer, num, optional, points_list, range_window, text, vector
 
@@ -61,8 +61,8 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "height_m": Field(num(0.0, 1e5), 50.0, "antenna height at t = 0 (NOTES.md: 50 m)"),
     },
     "scene": {
-        "kind": Field(choice("lattice", "points"), "lattice", "lattice | points"),
-        "center_m": Field(vector(2), [0.0, 1700.0], "ground (x, y) of the lattice centre"),
+        "kind": Field(choice("lattice", "points", "image"), "lattice", "lattice | points | image"),
+        "center_m": Field(vector(2), [0.0, 1700.0], "ground (x, y) of the lattice or image centre"),
         "lattice": {
             "nx": Field(integer(1, 10_000), 21, "points across x"),
             "ny": Field(integer(1, 10_000), 3, "points along y"),
@@ -71,6 +71,20 @@ FORWARD_SCHEMA: dict[str, Any] = {
             "x_offset": Field(integer(0, 10_000), 0, "first column kept (0 <= x_offset < x_stride)"),
         },
         "points_m": Field(optional(points_list), None, "kind: points, ground (x, y) list, z = 0"),
+        "image": {  # kind: image (fwdlook_cli/scene_image.py)
+            "file": Field(optional(text), None,
+                          "reflectivity map: PNG, TIFF, .npy, path.h5:/dataset, or procedural:roads"),
+            "pixel_spacing_m": Field(num(0.01, 1000.0), 3.0, "square pixel size on the ground"),
+            "orientation_deg": Field(num(-360.0, 360.0), 0.0,
+                                     "azimuth of the image's up direction, from +y towards +x"),
+            "intensity": Field(choice("amplitude", "power"), "amplitude",
+                               "pixel value is the amplitude, or the power (amplitude = sqrt)"),
+            "threshold": Field(num(0.0, 1.0, hi_open=True), 0.0,
+                               "drop pixels below this normalised amplitude (max pixel = 1)"),
+            "speckle": Field(boolean, True, "random phase per pixel from noise.seed"),
+            "size_px": Field(vector(2, integer(8, 4096)), [200, 200], "procedural:roads: [nx, ny] pixels"),
+            "procedural_seed": Field(integer(0), 0, "procedural:roads: seed of the field texture"),
+        },
         "amplitude": Field(amplitude, 1.0, "common amplitude, or one per point"),
     },
     "noise": {
@@ -150,6 +164,10 @@ def scene_points(scn: dict):
               if i % lat["x_stride"] == lat["x_offset"]]
         ys = [cy + (j - (lat["ny"] - 1) / 2) * lat["spacing_m"] for j in range(lat["ny"])]
         pts = [[x, y] for y in ys for x in xs]
+    elif sc["kind"] == "image":
+        from .scene_image import image_scene_points
+
+        return image_scene_points(scn)         # arrays: [n, 2] ground points, complex amplitudes
     else:
         pts = sc["points_m"]
     amp = sc["amplitude"]
@@ -179,10 +197,14 @@ def _antenna_checks(ant: dict, source: str) -> None:
 
 def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None:
     radar, ant, sc, proc = scn["radar"], scn["antenna"], scn["scene"], scn["processing"]
+    if sc["kind"] == "image":
+        from .scene_image import check_image_scene
+
+        check_image_scene(scn, source)
     if ant["scan_stop_deg"] > ant["scan_start_deg"] and (sc["kind"] != "points" or sc["points_m"]):
         from .sizes import forward_sizes_check
 
-        forward_sizes_check(scn, source)        # before any array: pulses, pairs, echo bytes
+        forward_sizes_check(scn, source)        # before any array: pulses, scatterers, echo bytes
     if radar["fs_hz"] < radar["bandwidth_hz"]:
         raise BadInput(f"{source}: radar.fs_hz = {radar['fs_hz']:g}: must be >= radar.bandwidth_hz "
                        f"= {radar['bandwidth_hz']:g} (complex sampling of the compressed pulse)")
@@ -231,12 +253,13 @@ def scene_geometry(scn: dict):
     position_m, velocity_mps = platform_state(slow_time_s, plat["speed_mps"], plat["accel_mps2"],
                                               plat["height_m"])
     pts, amps = scene_points(scn)
-    targets_m = np.column_stack([np.asarray(pts, dtype=np.float64), np.zeros(len(pts))])
-    return slow_time_s, position_m, velocity_mps, targets_m, np.asarray(amps, dtype=np.float64)
+    targets_m = np.column_stack([np.asarray(pts, dtype=np.float64).reshape(-1, 2), np.zeros(len(pts))])
+    amps = np.asarray(amps)                       # complex for a speckled image scene
+    return slow_time_s, position_m, velocity_mps, targets_m, amps.astype(
+        np.complex128 if np.iscomplexobj(amps) else np.float64)
 
 
 def scene_range_extent_m(scn: dict):
     """Smallest and largest slant range of any scene point over the whole scan."""
     _, position_m, _, targets_m, _ = scene_geometry(scn)
-    r = slant_range_m(position_m, targets_m)
-    return float(r.min()), float(r.max())
+    return range_extent_m(position_m, targets_m)

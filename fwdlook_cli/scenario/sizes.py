@@ -6,7 +6,7 @@ import math
 from ..errors import BadInput
 from ..limits import MAX_PULSES, check_cube_bytes, gib, limit_source, max_cube_bytes
 
-PAIR_BYTES = 64                 # simulate_echo per target-pulse pair: range, offset, gains, mask, coefficients
+SCATTERER_BYTES = 128           # scene_sim per scatterer: position, amplitude, visible interval, work lists
 EXTENT_SAMPLES = 4097           # antenna positions at which the range extent is estimated
 
 
@@ -35,12 +35,19 @@ def forward_sizes_check(scn: dict, source: str) -> None:
         lat = sc["lattice"]
         n_x = len(range(lat["x_offset"], lat["nx"], lat["x_stride"]))
         n_targets = n_x * lat["ny"]
+    elif sc["kind"] == "image":
+        from .scene_image import image_scene_points
+
+        pts_img, _ = image_scene_points(scn)    # the map's pixels above the threshold (bounded by the file)
+        n_targets = len(pts_img)
     else:
         n_targets = len(sc["points_m"] or ())
-    pair_bytes = float(n_targets) * m * PAIR_BYTES
-    if pair_bytes > limit:
-        raise BadInput(f"{source}: scene: {n_targets:,} targets x {m:,} pulses = {n_targets * m:,} target-pulse "
-                       f"pairs need {gib(pair_bytes)} to simulate; over {where} = {gib(limit)}")
+    # the scene simulator (forward/scene_sim.py) works in bounded chunks: its memory grows with the
+    # scatterer count, not with the target-pulse pairs
+    scatterer_bytes = float(n_targets) * SCATTERER_BYTES
+    if scatterer_bytes > limit:
+        raise BadInput(f"{source}: scene: {n_targets:,} scatterers need {gib(scatterer_bytes)} to simulate; "
+                       f"over {where} = {gib(limit)}")
     dr = C_MPS / (2.0 * radar["fs_hz"])
     if radar["range_window_m"] == "auto":
         r_min, r_max = _range_extent_estimate_m(scn, m, n_targets)
@@ -78,7 +85,12 @@ def _range_extent_estimate_m(scn: dict, m: int, n_targets: int):
         half_x, half_y = (lat["nx"] - 1) / 2 * lat["spacing_m"], (lat["ny"] - 1) / 2 * lat["spacing_m"]
         x0, x1, y0, y1 = cx - half_x, cx + half_x, cy - half_y, cy + half_y
     else:
-        pts = np.asarray(sc["points_m"], dtype=np.float64)
+        if sc["kind"] == "image":
+            from .scene_image import image_scene_points
+
+            pts = np.asarray(image_scene_points(scn)[0], dtype=np.float64)
+        else:
+            pts = np.asarray(sc["points_m"], dtype=np.float64)
         x0, x1, y0, y1 = pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(), pts[:, 1].max()
     dz2 = pos[:, 2] ** 2
     near_dx = np.clip(pos[:, 0], x0, x1) - pos[:, 0]
