@@ -244,11 +244,17 @@ def validate(path, overrides):
 
 @cli.command()
 @json_option
-def bench(as_json):
+@click.option("--scaling", is_flag=True, help="The scaling series instead: pulses 1250-20000, range bins "
+              "256-4096, fitted exponents per stage and a log-log plot (minutes).")
+@click.option("--plot", "plot_path", default="runs/bench/scaling.png", show_default=True, metavar="PNG",
+              help="Where --scaling draws its plot.")
+@click.option("--repeats", type=click.IntRange(1, 50), default=3, show_default=True,
+              help="Chain runs per measurement (medians).")
+def bench(as_json, scaling, plot_path, repeats):
     """Timings measured in one process on the paper cube (ratios to one plain 2-D FFT)."""
     from .report.bench import print_bench
 
-    print_bench(as_json)
+    print_bench(as_json, scaling=scaling, plot_path=plot_path, repeats=repeats)
 
 
 def main(argv=None):

@@ -24,8 +24,7 @@ import numpy as np
 import scipy.fft
 
 from ..dsp.geometry import C_MPS, ambiguity_number
-from ..dsp.keystone_czt import KeystonePlan
-from ..dsp.keystone import keystone_dft, keystone_sinc
+from .keystone_fast import keystone_both
 from ..dsp.keystone_common import _cis as _cis_cycles
 from .motion import DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector
 from ..runner import Stage
@@ -131,32 +130,20 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
         t0_sub = (m0 - np.arange(q)) / q                  # global origin in each sub-sequence's samples
         alpha_cols = np.tile(alpha, q)                    # column (q, k) -> index q*n_f + k
         t0_cols = np.repeat(t0_sub, n_f)
-        x = np.concatenate([x_sum.reshape(p, q * n_f), x_diff.reshape(p, q * n_f)], axis=1)
-        alpha2, t02 = np.tile(alpha_cols, 2), np.tile(t0_cols, 2)
+        tracking = None
         if method == "tracking":
             if q != 1:
                 raise ValueError("tracking keystone runs on the whole sequence (q = 1)")
             hist = DopplerPhaseHistory(t, data["velocity_mps"], data["scan_angle_deg"], depression_deg,
                                        fc_hz, t_ref_s)
-            scale = np.tile(1.0 + fr_hz / fc_hz, 2)[None, :]     # Doppler at f_r scales by (fc+fr)/fc
-            x = x * _cis(-hist.phase_rad(t)[:, None] * scale)    # demodulate the predicted history
-            ambiguity_used = 0
-        else:
-            ambiguity_used = ambiguity
-        if implementation == "czt":
-            y = KeystonePlan(p, alpha2, t0_index=t02)(x, ambiguity=ambiguity_used)
-        elif implementation == "dft":
-            y = keystone_dft(x, alpha2, t0_index=t02, ambiguity=ambiguity_used).astype(np.complex64)
-        elif implementation == "sinc":
-            ref = 0.0 if method == "tracking" else doppler_ref_hz / (prf_hz / q)
-            y = keystone_sinc(x, alpha2, t0_index=t02, doppler_ref=ref, n_taps=n_taps).astype(np.complex64)
-        else:
-            raise ValueError(f"keystone implementation {implementation!r}; allowed: czt, dft, sinc")
-        if method == "tracking":
-            tau = alpha2[None, :] * (np.arange(p)[:, None] - t02[None, :]) + t02[None, :]
-            y = y * _cis(hist.phase_rad(t[0] + tau / prf_hz) * scale)  # remodulate at the new times
-        y_sum = y[:, : q * n_f].reshape(p, q, n_f)
-        y_diff = y[:, q * n_f:].reshape(p, q, n_f)
+            tracking = (hist, t, prf_hz, 1.0 + fr_hz / fc_hz)    # Doppler at f_r scales by (fc+fr)/fc
+        ref = 0.0 if method == "tracking" else doppler_ref_hz / (prf_hz / q)
+        # one geometry, both channels: chirps, demodulation and remodulation computed once
+        y_sum, y_diff = keystone_both(x_sum.reshape(p, q * n_f), x_diff.reshape(p, q * n_f), alpha=alpha_cols,
+                                      t0_index=t0_cols, implementation=implementation,
+                                      ambiguity=0 if method == "tracking" else ambiguity,
+                                      doppler_ref=ref, n_taps=n_taps, tracking=tracking)
+        y_sum, y_diff = y_sum.reshape(p, q, n_f), y_diff.reshape(p, q, n_f)
     else:
         raise ValueError(f"method {method!r}; allowed: none, bulk, beam, traditional, decimation, tracking")
     out.add("sum_f", y_sum, dims, "1", f"sum channel after the {method} correction")
