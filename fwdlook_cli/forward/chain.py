@@ -25,6 +25,7 @@ import scipy.fft
 
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both
+from ..dsp.imaging import azimuth_at_t_ref_cells, kept_cells
 from ..dsp.keystone_common import _cis as _cis_cycles
 from .motion import DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector
 from ..runner import Stage
@@ -308,24 +309,19 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     more than ``dynamic_range_db`` under its peak, or with |d| beyond ``max_offset_beamwidths`` x the
     beamwidth, are not projected.  The real-beam image (CPI sum power at the beam angle) is made too.
     """
-    s = oversample_range(data["sum_z"], range_oversample)
-    dz = oversample_range(data["diff_z"], range_oversample)
     range_m = data["range_m"]
     dr = (range_m[1] - range_m[0]) / range_oversample
-    range_os = range_m[0] + dr * np.arange(s.shape[2])
-    power = (s.real**2 + s.imag**2).astype(np.float32)
-    ratio = (dz.real * s.real + dz.imag * s.imag) / np.maximum(power, 1e-30)
-    floor = np.median(power.reshape(power.shape[0], -1), axis=1)
-    peak = power.reshape(power.shape[0], -1).max(axis=1)
-    level = np.maximum(floor * 10 ** (threshold_db / 10), peak * 10 ** (-dynamic_range_db / 10))
+    range_os = range_m[0] + dr * np.arange(range_m.shape[0] * range_oversample)
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
-    keep = (power > level[:, None, None]) & (np.abs(ratio) < max_ratio)
-    i_cpi, _, i_r = np.nonzero(keep)
-    offset = np.arctanh(ratio[keep]) / slope_per_deg
+    # cells over the CPI level, oversampling only the Doppler rows that can hold one (dsp.imaging)
+    i_cpi, i_r, ratio_kept, power_kept, power_native = kept_cells(
+        data["sum_z"], data["diff_z"], range_oversample=range_oversample, threshold_db=threshold_db,
+        dynamic_range_db=dynamic_range_db, max_ratio=max_ratio)
+    offset = np.arctanh(ratio_kept) / slope_per_deg
     beam = data["cpi_beam_deg"][i_cpi]
     p_ref = np.asarray(position_ref_m, dtype=np.float64)
-    az_ref, gx, gy = azimuth_at_t_ref(range_os[i_r], beam + offset, data["cpi_position_m"][i_cpi], p_ref)
-    w = power[keep].astype(np.float64)
+    az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam + offset, data["cpi_position_m"][i_cpi], p_ref)
+    w = power_kept.astype(np.float64)
     ok = np.isfinite(az_ref)
     beam_all = data["cpi_beam_deg"]
     a0 = np.floor((beam_all.min() - beamwidth_deg) / angle_step_deg) * angle_step_deg
@@ -337,7 +333,7 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     image = np.bincount(flat, weights=w[ok][inside], minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
 
     # real-beam image: incoherent CPI sum power at the beam angle (same t_ref angle mapping)
-    rb_power = np.sum(np.abs(data["sum_z"]) ** 2, axis=1)                      # [n_cpi, n_r]
+    rb_power = power_native.sum(axis=1, dtype=np.float64)                      # [n_cpi, n_r]
     n_cpi, n_r = rb_power.shape
     rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_cpi, n_r)),
                                    np.broadcast_to(beam_all[:, None], (n_cpi, n_r)),
