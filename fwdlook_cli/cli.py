@@ -101,14 +101,17 @@ def _default_run_dir(scn, output):
     return Path(output) if output else Path("runs") / scn["name"]
 
 
-def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube"):
+def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", keep_stages="all"):
     if scn["kind"] == "isar":
         from .isar.process import process_isar_cube
 
+        if keep_stages != "all":
+            raise BadInput(f"{source}: --keep-stages {keep_stages}: the ISAR chain keeps every stage; allowed: all")
         return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
     from .forward.process import process_cube
 
-    return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source)
+    return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source,
+                        keep_stages=keep_stages)
 
 
 def _print_summary(metrics, run_dir, quiet):
@@ -122,6 +125,10 @@ def _print_summary(metrics, run_dir, quiet):
 config_option = click.option("-c", "--config", "config", default=None, metavar="CONFIG.yaml",
                              help="Processing preset merged over the scenario's processing section.")
 raw_option = click.option("--raw", "raw", default=None, metavar="RAW.h5", help="Process this cube instead of simulating.")
+keep_stages_option = click.option(
+    "--keep-stages", "keep_stages", type=click.Choice(["all", "last", "none"]), default="all", show_default=True,
+    help="Stage files written: all (resumable), last (the image stage and the Doppler spectra the metrics "
+         "read), none (fastest; a rerun recomputes everything).")
 output_dir_option = click.option("-o", "--output", "output", default=None, metavar="RUN_DIR",
                                  help="Run directory (default runs/<scenario name>).")
 
@@ -134,12 +141,13 @@ output_dir_option = click.option("-o", "--output", "output", default=None, metav
 @set_option
 @click.option("--from-stage", "from_stage", default=None, help="Recompute from this stage on.")
 @click.option("--force", is_flag=True, help="Recompute every stage.")
+@keep_stages_option
 @quiet_option
-def process(source, output, config, raw, overrides, from_stage, force, quiet):
+def process(source, output, config, raw, overrides, from_stage, force, keep_stages, quiet):
     """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
     scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet)
     run_dir = _default_run_dir(scn, output)
-    metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source)
+    metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages)
     _print_summary(metrics, run_dir, quiet)
 
 
@@ -150,8 +158,9 @@ def process(source, output, config, raw, overrides, from_stage, force, quiet):
 @raw_option
 @set_option
 @click.option("--force", is_flag=True, help="Recompute every stage.")
+@keep_stages_option
 @quiet_option
-def run(scenario, output, config, raw, overrides, force, quiet):
+def run(scenario, output, config, raw, overrides, force, keep_stages, quiet):
     """The main job: simulate (or load --raw), process and report into RUN_DIR."""
     from .io.raw import write_raw
 
@@ -160,7 +169,7 @@ def run(scenario, output, config, raw, overrides, force, quiet):
     run_dir.mkdir(parents=True, exist_ok=True)
     if not raw:
         write_raw(run_dir / "raw.h5", cube)
-    metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario)
+    metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages)
     _print_summary(metrics, run_dir, quiet)
     click.echo(str(run_dir / "metrics.json"))
 

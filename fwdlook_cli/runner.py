@@ -22,13 +22,18 @@ from typing import Callable
 
 
 from .errors import BadInput
-from .io.stagefile import StageData, _canon, read_stage, stage_file_key, write_stage
+from .io.stagefile import StageData, _canon, read_stage, write_stage
+from .io.stageview import reshaped_views, view_file_key, virtual_layout
 
 @dataclass
 class Stage:
     name: str
     fn: Callable[..., StageData]
     params: dict
+    view: bool = False        # a re-layout: its file stores virtual datasets onto the previous file
+
+
+KEEP_STAGES = ("all", "last", "none")
 
 
 def stage_key(name: str, params: dict, previous_key: str) -> str:
@@ -42,8 +47,19 @@ def stage_key(name: str, params: dict, previous_key: str) -> str:
 
 
 def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir: Path, *,
-               force: bool = False, from_stage: str | None = None, quiet: bool = False):
-    """Run ``stages`` in order over ``source``; returns (last StageData, timings dict, keys dict)."""
+               force: bool = False, from_stage: str | None = None, quiet: bool = False,
+               keep: str = "all", captured: dict | None = None):
+    """Run ``stages`` in order over ``source``; returns (last StageData, timings dict, keys dict).
+
+    ``keep``: ``all`` writes every stage file (a killed run resumes after the last finished stage);
+    ``last`` writes only the final stage and the stages named in ``captured``; ``none`` writes none.
+    With ``all`` the first missing or stale file decides where the chain starts; otherwise the latest
+    valid file does (the earlier ones were never kept).  ``captured``: {stage name: None}, filled with
+    each named stage's output (computed now or read from its file).
+    """
+    if keep not in KEEP_STAGES:
+        raise BadInput(f"--keep-stages {keep}: allowed: {', '.join(KEEP_STAGES)}")
+    captured = {} if captured is None else captured
     names = [s.name for s in stages]
     if from_stage is not None and from_stage not in names:
         raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
@@ -56,29 +72,41 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
         key = stage_key(st.name, st.params, key)
         keys.append(key)
         paths.append(stage_dir / f"{i + 1:02d}_{st.name}.h5")
-    # the first stage that must run: forced, missing, or stale
-    first = recompute_from
-    for i, path in enumerate(paths):
-        if i >= first:
-            break
-        if stage_file_key(path) != keys[i]:
-            first = i
-            break
+    first = _first_to_run(paths, keys, recompute_from, keep, [names.index(n) for n in captured])
+    kept = set(range(len(stages))) if keep == "all" else (
+        {len(stages) - 1} | {names.index(n) for n in captured} if keep == "last" else set())
     timings: dict[str, float] = {}
     data = source if first == 0 else read_stage(paths[first - 1])
+    written_prev = first > 0            # the input of stage `first` is on disk
     for i, st in enumerate(stages):
         if i < first:
             timings[st.name] = 0.0
+            if st.name in captured:
+                captured[st.name] = read_stage(paths[i])
             continue
         t0 = time.perf_counter()
-        data = st.fn(data, **st.params)
+        out = st.fn(data, **st.params)
         t_compute = time.perf_counter() - t0
-        write_stage(paths[i], data, stage=st.name, key=keys[i], input_key=keys[i - 1] if i else source_key,
-                    params=st.params, extra_attrs={"compute_s": t_compute})
+        if i in kept:
+            extra, virtual = {"compute_s": t_compute}, None
+            if st.view and written_prev and not _is_view(paths[i - 1]):
+                virtual = _virtual_layouts(out, data, paths[i - 1])
+                if virtual:
+                    extra.update(view_source=paths[i - 1].name, view_source_sha256=keys[i - 1])
+            write_stage(paths[i], out, stage=st.name, key=keys[i], input_key=keys[i - 1] if i else source_key,
+                        params=st.params, extra_attrs=extra, virtual=virtual)
+        written_prev = i in kept
+        data = out
+        if st.name in captured:
+            captured[st.name] = out
         timings[st.name] = time.perf_counter() - t0
         if not quiet:
+            what = ("view" if st.view and i in kept else "write") if i in kept else "not kept"
             print(f"[{i + 1}/{len(stages)}] {st.name:<18s} {t_compute * 1e3:8.1f} ms compute, "
-                  f"{(timings[st.name] - t_compute) * 1e3:6.1f} ms write", file=sys.stderr)
+                  f"{(timings[st.name] - t_compute) * 1e3:6.1f} ms {what}", file=sys.stderr)
+    for i, path in enumerate(paths):     # what this run's policy does not keep goes
+        if i not in kept:
+            path.unlink(missing_ok=True)
     if first == len(stages) and not quiet:
         print(f"all {len(stages)} stages up to date (reused)", file=sys.stderr)
     if first == len(stages):
@@ -86,3 +114,41 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     elif first > 0 and not quiet:
         print(f"reused stages 1-{first} ({', '.join(names[:first])})", file=sys.stderr)
     return data, timings, dict(zip(names, keys))
+
+
+def _first_to_run(paths, keys, recompute_from: int, keep: str, needed: list[int]) -> int:
+    """Index of the first stage to compute (see :func:`run_stages`)."""
+    def valid(i):
+        return view_file_key(paths[i]) == keys[i]
+
+    if keep == "all":
+        first = recompute_from
+        for i in range(recompute_from):
+            if not valid(i):
+                return i
+        return first
+    first = 0
+    for i in reversed(range(recompute_from)):
+        if valid(i):
+            first = i + 1
+            break
+    for i in sorted(needed, reverse=True):       # a stage the caller needs must be valid or recomputed
+        if i < first and not valid(i):
+            first = next((j + 1 for j in reversed(range(i)) if valid(j)), 0)
+    return first
+
+
+def _is_view(path: Path) -> bool:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return "view_source" in f.attrs
+
+
+def _virtual_layouts(out: StageData, previous: StageData, previous_path: Path) -> dict:
+    """Virtual layouts for the arrays of ``out`` that reshape arrays of the previous (written) stage."""
+    layouts = {}
+    for name in reshaped_views(out, previous):
+        src = previous.vars[name].data
+        layouts[name] = virtual_layout(previous_path, name, out.vars[name].data.shape, src.dtype, src.shape)
+    return layouts

@@ -425,12 +425,12 @@ def build_forward_stages(cube, proc: dict):
         curvature = "off"       # bulk and beam already shift by the whole predicted range history
     stages = [
         Stage("range_fft", range_fft, {"fs_hz": cube.radar["fs_hz"]}),
-        Stage("decimate", decimate, {"q": q}),
+        Stage("decimate", decimate, {"q": q}, view=True),
         Stage("keystone", keystone_stage, {
             "method": method, "implementation": proc["keystone"], "fc_hz": fc, "prf_hz": prf,
             "t_ref_s": geo["t_ref_s"], "ambiguity": ambiguity, "doppler_ref_hz": geo["f_dc0_hz"],
             "depression_deg": geo["depression_deg"], "reference_range_m": geo["reference_range_m"]}),
-        Stage("regroup", regroup, {}),
+        Stage("regroup", regroup, {}, view=True),
         Stage("range_curvature", range_curvature, {
             "model": curvature, "radial_accel_mps2": geo["radial_accel_mps2"], "t_ref_s": geo["t_ref_s"],
             "prf_hz": prf, "depression_deg": geo["depression_deg"],

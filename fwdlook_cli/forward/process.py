@@ -49,7 +49,7 @@ def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_
 
 
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
-                 png=True, source: str = "raw cube") -> dict:
+                 png=True, source: str = "raw cube", keep_stages: str = "all") -> dict:
     """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics.
 
     The run directory's outputs of an earlier run are removed first and ``scenario.yaml`` is written
@@ -58,7 +58,6 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     """
     from .chain import build_forward_stages
     from .evaluate import dwell_profile_metrics, summarize, target_metrics
-    from ..io.stagefile import read_stage
     from ..runner import run_stages
 
     run_dir = Path(run_dir)
@@ -81,8 +80,9 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
     for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):
         (run_dir / name).unlink(missing_ok=True)
+    captured = {"doppler_spectra": None}          # the dwell metrics read the spectra
     final, timings, keys = run_stages(stages, src, cube_hash(cube), run_dir, force=force,
-                                      from_stage=from_stage, quiet=quiet)
+                                      from_stage=from_stage, quiet=quiet, keep=keep_stages, captured=captured)
     t_out = time.perf_counter()
     ground, gx, gy = ground_image(final["cell_x_m"], final["cell_y_m"], final["cell_power"],
                                   step_m=float(cube.range_spacing_m) / 2)
@@ -105,7 +105,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                                beamwidth_two_way_deg=MonopulseAntenna(bw, squint).two_way_3db_width_deg())
         for row, flag in zip(rows, flags):
             row["resolved"] = bool(flag)
-        spectra = read_stage(run_dir / "stages" / f"{len(stages) - 1:02d}_doppler_spectra.h5")
+        spectra = captured["doppler_spectra"]
         beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
         if np.isfinite(beta):
             dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],

@@ -61,10 +61,14 @@ def _canon(value):
 
 
 PROVENANCE_KEYS = ("format", "stage", "config_sha256", "input_sha256", "settings", "software",
-                   "software_version", "created_utc", "compute_s")
+                   "software_version", "created_utc", "compute_s", "view_source", "view_source_sha256")
 
 def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key: str, params: dict,
-                extra_attrs: dict | None = None) -> None:
+                extra_attrs: dict | None = None, virtual: dict | None = None) -> None:
+    """``virtual``: {var name: h5py.VirtualLayout} for arrays stored as views of another file
+    (:mod:`io.stageview`); every other array is written in full, uncompressed and contiguous (complex
+    stage data compresses to 90-95 % at 30 times the write time: README, Speed)."""
+    virtual = virtual or {}
     with atomic_h5(path) as f:
         for k, v in {**data.attrs, **(extra_attrs or {})}.items():
             if k not in PROVENANCE_KEYS:
@@ -83,7 +87,11 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
         for name, var in data.vars.items():
             if var.dims == (name,):
                 continue
-            ds = put(f, name, var.data, var.units, var.long_name)
+            if name in virtual:
+                ds = f.create_virtual_dataset(name, virtual[name])
+                ds.attrs["units"], ds.attrs["long_name"] = var.units, var.long_name
+            else:
+                ds = put(f, name, var.data, var.units, var.long_name)
             ds.attrs["dims"] = json.dumps(list(var.dims))
             for axis, dim in enumerate(var.dims):
                 if dim not in scales or scales[dim].shape[0] != var.data.shape[axis]:
