@@ -78,6 +78,9 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
         f.attrs["config_sha256"] = key
         f.attrs["input_sha256"] = input_key
         f.attrs["settings"] = json.dumps(_canon(params), sort_keys=True, default=str)
+        for k in ("view_source", "view_source_sha256"):          # a view's source (io.stageview)
+            if k in (extra_attrs or {}):
+                f.attrs[k] = extra_attrs[k]
         scales = {}
         for name, var in data.vars.items():  # coordinates first, as dimension scales
             if var.dims == (name,):
