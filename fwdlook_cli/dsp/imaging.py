@@ -57,16 +57,26 @@ BLOCK_CELLS = 1 << 20       # oversampled cells per block: temporaries of ~8 MB,
 
 def kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,
                max_ratio: float, margin_db: float = 6.0, block_cells: int = BLOCK_CELLS):
-    """:func:`kept_cells_block` over blocks of whole CPIs (every quantity is per CPI, so blocking
-    changes nothing but the size of the temporaries); the results concatenated in CPI order."""
+    """:func:`kept_cells_block` over blocks of whole CPIs, concatenated (see :func:`iter_kept_cells`)."""
+    parts = list(iter_kept_cells(sum_z, diff_z, range_oversample=range_oversample, threshold_db=threshold_db,
+                                 dynamic_range_db=dynamic_range_db, max_ratio=max_ratio, margin_db=margin_db,
+                                 block_cells=block_cells))
+    return tuple(np.concatenate([p[k] for p in parts]) for k in range(1, 6))
+
+
+def iter_kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,
+                    max_ratio: float, margin_db: float = 6.0, block_cells: int = BLOCK_CELLS):
+    """Per block of whole CPIs (every quantity is per CPI, so blocking changes nothing but the size of
+    the temporaries): (first CPI, i_cpi, i_range_os, ratio, power, native power) with global CPI
+    indices."""
     n_cpi, n_dop, n_r = sum_z.shape
     step = max(1, int(block_cells) // max(1, n_dop * n_r * range_oversample))
-    parts = [kept_cells_block(sum_z[i:i + step], diff_z[i:i + step], range_oversample=range_oversample,
-                              threshold_db=threshold_db, dynamic_range_db=dynamic_range_db,
-                              max_ratio=max_ratio, margin_db=margin_db) for i in range(0, n_cpi, step)]
-    starts = range(0, n_cpi, step)
-    return (np.concatenate([p[0] + i for p, i in zip(parts, starts)]),
-            *(np.concatenate([p[k] for p in parts]) for k in (1, 2, 3, 4)))
+    for c0 in range(0, n_cpi, step):
+        i_cpi, i_r, ratio, power, p0 = kept_cells_block(
+            sum_z[c0:c0 + step], diff_z[c0:c0 + step], range_oversample=range_oversample,
+            threshold_db=threshold_db, dynamic_range_db=dynamic_range_db, max_ratio=max_ratio,
+            margin_db=margin_db)
+        yield c0, i_cpi + c0, i_r, ratio, power, p0
 
 
 def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,

@@ -26,7 +26,7 @@ import scipy.fft
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both
 from ..dsp.blas import batched_matmul
-from ..dsp.imaging import azimuth_at_t_ref_cells, kept_cells
+from ..dsp.imaging import azimuth_at_t_ref_cells, iter_kept_cells
 from ..dsp.keystone_common import _cis as _cis_cycles
 from .motion import DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector
 from ..runner import Stage
@@ -314,27 +314,34 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     dr = (range_m[1] - range_m[0]) / range_oversample
     range_os = range_m[0] + dr * np.arange(range_m.shape[0] * range_oversample)
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
-    # cells over the CPI level, oversampling only the Doppler rows that can hold one (dsp.imaging)
-    i_cpi, i_r, ratio_kept, power_kept, power_native = kept_cells(
-        data["sum_z"], data["diff_z"], range_oversample=range_oversample, threshold_db=threshold_db,
-        dynamic_range_db=dynamic_range_db, max_ratio=max_ratio)
-    offset = np.arctanh(ratio_kept) / slope_per_deg
-    beam = data["cpi_beam_deg"][i_cpi]
     p_ref = np.asarray(position_ref_m, dtype=np.float64)
-    az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam + offset, data["cpi_position_m"][i_cpi], p_ref)
-    w = power_kept.astype(np.float64)
-    ok = np.isfinite(az_ref)
     beam_all = data["cpi_beam_deg"]
     a0 = np.floor((beam_all.min() - beamwidth_deg) / angle_step_deg) * angle_step_deg
     n_a = int(np.ceil((beam_all.max() + beamwidth_deg - a0) / angle_step_deg)) + 1
     angle_deg = a0 + angle_step_deg * np.arange(n_a)
-    a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
-    inside = (a_idx >= 0) & (a_idx < n_a)
-    flat = i_r[ok][inside] * n_a + a_idx[inside]
-    image = np.bincount(flat, weights=w[ok][inside], minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
+    image = np.zeros(len(range_os) * n_a)
+    rb_power = np.zeros(data["sum_z"].shape[::2])                              # [n_cpi, n_r]
+    cells = []
+    # cells over the CPI level, oversampling only the Doppler rows that can hold one, one block of
+    # whole CPIs at a time (dsp.imaging): geometry and projection per block, the image accumulated
+    for c0, i_cpi, i_r, ratio_kept, power_kept, power_native in iter_kept_cells(
+            data["sum_z"], data["diff_z"], range_oversample=range_oversample, threshold_db=threshold_db,
+            dynamic_range_db=dynamic_range_db, max_ratio=max_ratio):
+        rb_power[c0:c0 + len(power_native)] = power_native.sum(axis=1, dtype=np.float64)
+        offset = np.arctanh(ratio_kept) / slope_per_deg
+        beam = data["cpi_beam_deg"][i_cpi]
+        az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam + offset, data["cpi_position_m"][i_cpi], p_ref)
+        w = power_kept.astype(np.float64)
+        ok = np.isfinite(az_ref)
+        a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
+        inside = (a_idx >= 0) & (a_idx < n_a)
+        flat = i_r[ok][inside] * n_a + a_idx[inside]
+        image += np.bincount(flat, weights=w[ok][inside], minlength=len(range_os) * n_a)
+        cells.append((gx[ok], gy[ok], w[ok]))
+    image = image.reshape(len(range_os), n_a)
+    gx, gy, w = (np.concatenate([c[k] for c in cells]) for k in range(3))
 
     # real-beam image: incoherent CPI sum power at the beam angle (same t_ref angle mapping)
-    rb_power = power_native.sum(axis=1, dtype=np.float64)                      # [n_cpi, n_r]
     n_cpi, n_r = rb_power.shape
     rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_cpi, n_r)),
                                    np.broadcast_to(beam_all[:, None], (n_cpi, n_r)),
@@ -352,10 +359,10 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
             "real-beam image, sum power against beam angle")
     # kept cells, for the ground projection and diagnostics
-    out.add("cell", np.arange(int(ok.sum())), ("cell",), "1", "projected Doppler cell")
-    out.add("cell_x_m", gx[ok], ("cell",), "m", "ground x of each projected cell")
-    out.add("cell_y_m", gy[ok], ("cell",), "m", "ground y of each projected cell")
-    out.add("cell_power", w[ok].astype(np.float32), ("cell",), "1", "sum power of each projected cell")
+    out.add("cell", np.arange(len(w)), ("cell",), "1", "projected Doppler cell")
+    out.add("cell_x_m", gx, ("cell",), "m", "ground x of each projected cell")
+    out.add("cell_y_m", gy, ("cell",), "m", "ground y of each projected cell")
+    out.add("cell_power", w.astype(np.float32), ("cell",), "1", "sum power of each projected cell")
     out.attrs.update(range_oversample=range_oversample, angle_step_deg=angle_step_deg,
                      slope_per_deg=slope_per_deg, position_ref_m=list(map(float, p_ref)))
     return out

@@ -42,14 +42,41 @@ def history_phase_shifted(derivs, dt_s):
     return acc
 
 
+BLOCK_BYTES = 2 << 20       # CZT work buffer per column block (L x columns x 8 bytes): ~50 columns at L = 5000
+
+
 def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, doppler_ref=0.0,
-                  n_taps=16, tracking=None):
+                  n_taps=16, tracking=None, block_bytes: int = BLOCK_BYTES):
     """Keystone of both channels ([n_slow, n_cols] each) sharing one geometry; returns (y_sum, y_diff).
 
     ``tracking``: None, or (hist, slow_time_s, prf_hz, scale) for the tracking keystone: demodulate by
     exp(-j Psi(t) scale), resample with F = 0, remodulate by exp(j Psi(t0 + tau/PRF) scale) with
-    scale = (f_c + f_r)/f_c per column.
+    scale = (f_c + f_r)/f_c per column.  Columns are independent, so the work runs over blocks of
+    range-frequency columns (plan, chirps and buffers of one block at a time: bounded memory, the
+    same numbers).
     """
+    p, n_cols = x_sum.shape
+    alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n_cols,))
+    t0_index = np.broadcast_to(np.asarray(t0_index, dtype=np.float64), (n_cols,))
+    nfft = 2 * p if implementation == "czt" else p
+    step = max(1, int(block_bytes) // (8 * nfft))
+    y_sum = np.empty((p, n_cols), np.complex64)
+    y_diff = np.empty((p, n_cols), np.complex64)
+    for lo in range(0, n_cols, step):
+        blk = slice(lo, min(n_cols, lo + step))
+        trk = None
+        if tracking is not None:
+            hist, t, prf_hz, scale = tracking
+            trk = (hist, t, prf_hz, np.broadcast_to(scale, (n_cols,))[blk])
+        y_sum[:, blk], y_diff[:, blk] = _keystone_block(
+            x_sum[:, blk], x_diff[:, blk], alpha=alpha[blk], t0_index=t0_index[blk],
+            implementation=implementation, doppler_ref=doppler_ref, n_taps=n_taps, tracking=trk,
+            ambiguity=ambiguity if np.ndim(ambiguity) == 0 else np.asarray(ambiguity)[blk])
+    return y_sum, y_diff
+
+
+def _keystone_block(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, doppler_ref, n_taps,
+                    tracking):
     p = x_sum.shape[0]
     demod = remod = None
     plan = KeystonePlan(p, alpha, t0_index=t0_index) if implementation == "czt" else None

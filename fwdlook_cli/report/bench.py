@@ -97,6 +97,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         out[f"chain_{method}_peak_rss_x_cube"] = t["peak_rss_x_cube"]
         out[f"chain_{method}_peak_rss_mib"] = (None if t["peak_rss_above_base_bytes"] is None
                                                else t["peak_rss_above_base_bytes"] / 2**20)
+        out["interpreter_base_mib"] = (t.get("interpreter_base_bytes") or 0) / 2**20
     # the reference again after the chains (load drifts on a shared machine): median of both sets
     fft2_after = _times(lambda: scipy.fft.fft2(x, workers=-1), FFT2_REPEATS)
     out["fft2_median_before_after"] = [out["fft2_s"], statistics.median(fft2_after)]

@@ -53,29 +53,69 @@ def peak_rss_bytes() -> int | None:
     return None if hwm is None else hwm * 1024
 
 
-def time_chain(cube, scn: dict, repeats: int = 3) -> dict:
+def time_chain(cube, scn: dict, repeats: int = 3, rss: bool = True) -> dict:
     """Run the whole chain ``repeats`` times as ``fwdlook process`` runs it (every stage recomputed,
-    every stage file, image.h5 and metrics.json written; no PNG); medians per stage and in total,
-    and the peak RSS of the first run above the RSS before it, in bytes and as a multiple of the cube
-    (both channels)."""
+    every stage file, image.h5 and metrics.json written; no PNG): medians per stage and in total.
+    With ``rss``, the chain's peak RSS is measured once more in a fresh interpreter
+    (:func:`chain_peak_rss`), since a warm process reuses memory it already holds."""
     from ..forward.process import process_cube
 
     per_stage: dict[str, list[float]] = {}
-    peak_above = None
-    for rep in range(max(1, int(repeats))):
+    for _ in range(max(1, int(repeats))):
         with tempfile.TemporaryDirectory() as tmp:
-            base = reset_peak_rss() if rep == 0 else None
             metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False)
-            if base is not None:
-                peak = peak_rss_bytes()
-                peak_above = None if peak is None else max(0, peak - base)
         for stage, seconds in metrics["timing_s"].items():
             per_stage.setdefault(stage, []).append(float(seconds))
-    cube_bytes = cube.sum.nbytes + (cube.diff.nbytes if cube.diff is not None else 0)
     out = {k: statistics.median(v) for k, v in per_stage.items()}
-    return {"stages_s": {k: v for k, v in out.items() if k != "total"}, "total_s": out["total"],
-            "peak_rss_above_base_bytes": peak_above, "cube_bytes": cube_bytes,
-            "peak_rss_x_cube": None if peak_above is None else peak_above / cube_bytes}
+    result = {"stages_s": {k: v for k, v in out.items() if k != "total"}, "total_s": out["total"]}
+    if rss:
+        result.update(chain_peak_rss(cube, scn))
+    return result
+
+
+def chain_peak_rss(cube, scn: dict) -> dict:
+    """Peak RSS of ``process_cube`` in a fresh interpreter: after the imports (the interpreter base)
+    the cube is read from HDF5 and the chain run once; the high-water mark minus the base, in bytes
+    and as a multiple of the cube (both channels; the cube itself counts)."""
+    import json
+    import subprocess
+    import sys
+
+    from ..io.raw import write_raw
+
+    cube_bytes = cube.sum.nbytes + (cube.diff.nbytes if cube.diff is not None else 0)
+    with tempfile.TemporaryDirectory() as tmp:
+        raw = Path(tmp) / "raw.h5"
+        write_raw(raw, cube)
+        (Path(tmp) / "scn.json").write_text(json.dumps(scn, default=float))
+        code = "from fwdlook_cli.report.benchtools import _rss_probe; _rss_probe()"
+        res = subprocess.run([sys.executable, "-c", code, str(raw), str(Path(tmp) / "scn.json"), tmp],
+                             capture_output=True, text=True, check=False)
+    try:
+        probe = json.loads(res.stdout.strip().splitlines()[-1])
+    except (IndexError, ValueError):
+        return {"peak_rss_above_base_bytes": None, "cube_bytes": cube_bytes, "peak_rss_x_cube": None}
+    above = probe["hwm"] - probe["base"] if probe["hwm"] and probe["base"] else None
+    return {"peak_rss_above_base_bytes": above, "cube_bytes": cube_bytes, "interpreter_base_bytes": probe["base"],
+            "peak_rss_x_cube": None if above is None else above / cube_bytes}
+
+
+def _rss_probe() -> None:
+    """Child of :func:`chain_peak_rss`: argv = RAW.h5 SCENARIO.json TMPDIR; prints {base, hwm}."""
+    import json
+    import sys
+
+    from ..forward.process import process_cube
+    from ..io.raw import read_raw
+    import fwdlook_cli.forward.chain  # noqa: F401  (everything the chain imports, before the base)
+    import fwdlook_cli.forward.evaluate  # noqa: F401,E501
+
+    raw, scn_path, tmp = sys.argv[1:4]
+    scn = json.loads(Path(scn_path).read_text())
+    base = reset_peak_rss()
+    cube = read_raw(raw)
+    process_cube(cube, scn, Path(tmp) / "run", force=True, quiet=True, png=False)
+    print(json.dumps({"base": base, "hwm": peak_rss_bytes()}))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -129,7 +169,7 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
                 scn = scaling_scenario(paper, *shape)
                 scn["processing"] = dict(scn["processing"], method=method)
                 cube, _ = simulate_scenario(scn)
-                t = time_chain(cube, scn, repeats=repeats)
+                t = time_chain(cube, scn, repeats=repeats, rss=False)
                 rows.append({"shape": list(cube.sum.shape), **t["stages_s"], "total": t["total_s"]})
                 if progress:
                     progress(f"scaling {axis} {method} {cube.sum.shape}: {t['total_s']:.2f} s")
