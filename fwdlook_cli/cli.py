@@ -111,7 +111,7 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", ke
     from .forward.process import process_cube
 
     return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source,
-                        keep_stages=keep_stages)
+                        keep_stages=keep_stages, release_cube=True)
 
 
 def _print_summary(metrics, run_dir, quiet):

@@ -77,6 +77,7 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
         {len(stages) - 1} | {names.index(n) for n in captured} if keep == "last" else set())
     timings: dict[str, float] = {}
     data = source if first == 0 else read_stage(paths[first - 1])
+    del source                          # the input cube is freed once stage 1 has consumed it
     written_prev = first > 0            # the input of stage `first` is on disk
     for i, st in enumerate(stages):
         if i < first:

@@ -52,7 +52,7 @@ def oversample_rows(x, factor: int):
     return scipy.fft.ifft(pad, axis=-1, workers=-1, overwrite_x=True)
 
 
-BLOCK_CELLS = 1 << 20       # oversampled cells per block: temporaries of ~8 MB, reused from the heap
+BLOCK_CELLS = 1 << 18       # oversampled cells per block: temporaries of a few MB, reused from the heap
 
 
 def kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,

@@ -319,7 +319,6 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     a0 = np.floor((beam_all.min() - beamwidth_deg) / angle_step_deg) * angle_step_deg
     n_a = int(np.ceil((beam_all.max() + beamwidth_deg - a0) / angle_step_deg)) + 1
     angle_deg = a0 + angle_step_deg * np.arange(n_a)
-    image = np.zeros(len(range_os) * n_a)
     rb_power = np.zeros(data["sum_z"].shape[::2])                              # [n_cpi, n_r]
     cells = []
     # cells over the CPI level, oversampling only the Doppler rows that can hold one, one block of
@@ -336,10 +335,10 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
         a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
         inside = (a_idx >= 0) & (a_idx < n_a)
         flat = i_r[ok][inside] * n_a + a_idx[inside]
-        image += np.bincount(flat, weights=w[ok][inside], minlength=len(range_os) * n_a)
-        cells.append((gx[ok], gy[ok], w[ok]))
-    image = image.reshape(len(range_os), n_a)
-    gx, gy, w = (np.concatenate([c[k] for c in cells]) for k in range(3))
+        cells.append((gx[ok], gy[ok], w[ok], flat, w[ok][inside]))
+    gx, gy, w, flat, w_in = (np.concatenate([c[k] for c in cells]) for k in range(5))
+    image = np.bincount(flat, weights=w_in, minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
+    del flat, w_in
 
     # real-beam image: incoherent CPI sum power at the beam angle (same t_ref angle mapping)
     n_cpi, n_r = rb_power.shape

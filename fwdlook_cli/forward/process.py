@@ -49,7 +49,7 @@ def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_
 
 
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
-                 png=True, source: str = "raw cube", keep_stages: str = "all") -> dict:
+                 png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False) -> dict:
     """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics.
 
     The run directory's outputs of an earlier run are removed first and ``scenario.yaml`` is written
@@ -81,7 +81,13 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):
         (run_dir / name).unlink(missing_ok=True)
     captured = {"doppler_spectra": None}          # the dwell metrics read the spectra
-    final, timings, keys = run_stages(stages, src, cube_hash(cube), run_dir, force=force,
+    src_key, holder = cube_hash(cube), [src]
+    del src
+    if release_cube:         # the CLI's cube: its echoes are needed by stage 1 only (memory: README, Speed);
+        # zero-stride stand-ins keep the shapes (n_pulses, n_range) and hold no memory
+        cube.sum = np.broadcast_to(np.zeros((), cube.sum.dtype), cube.sum.shape)
+        cube.diff = np.broadcast_to(np.zeros((), cube.diff.dtype), cube.diff.shape)
+    final, timings, keys = run_stages(stages, holder.pop(), src_key, run_dir, force=force,
                                       from_stage=from_stage, quiet=quiet, keep=keep_stages, captured=captured)
     t_out = time.perf_counter()
     ground, gx, gy = ground_image(final["cell_x_m"], final["cell_y_m"], final["cell_power"],

@@ -114,7 +114,7 @@ def _rss_probe() -> None:
     scn = json.loads(Path(scn_path).read_text())
     base = reset_peak_rss()
     cube = read_raw(raw)
-    process_cube(cube, scn, Path(tmp) / "run", force=True, quiet=True, png=False)
+    process_cube(cube, scn, Path(tmp) / "run", force=True, quiet=True, png=False, release_cube=True)
     print(json.dumps({"base": base, "hwm": peak_rss_bytes()}))
 
 
