@@ -259,9 +259,20 @@ def validate(path, overrides):
               help="Where --scaling draws its plot.")
 @click.option("--repeats", type=click.IntRange(1, 50), default=3, show_default=True,
               help="Chain runs per measurement (medians).")
-def bench(as_json, scaling, plot_path, repeats):
+@click.option("--write-cube", "write_cube", default=None, metavar="RAW.h5",
+              help="Only write a cheap cube of --shape (three points, the paper's radar) for memory runs.")
+@click.option("--shape", nargs=2, type=click.IntRange(32, 1 << 20), default=(16384, 4096), show_default=True,
+              metavar="PULSES RANGE", help="Shape of --write-cube.")
+def bench(as_json, scaling, plot_path, repeats, write_cube, shape):
     """Timings measured in one process on the paper cube (ratios to one plain 2-D FFT)."""
     from .report.bench import print_bench
+
+    if write_cube:
+        from .report.benchtools import write_scaling_cube
+
+        write_scaling_cube(write_cube, *shape)
+        click.echo(write_cube)
+        return
 
     print_bench(as_json, scaling=scaling, plot_path=plot_path, repeats=repeats)
 

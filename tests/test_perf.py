@@ -76,6 +76,18 @@ def test_shared_chirp_tracking_keystone_matches_the_direct_formula(tracking_case
     assert ys.dtype == np.complex64
 
 
+@pytest.mark.parametrize("tracking", [False, True])
+def test_keystone_column_blocks_change_nothing(tracking_case, tracking):
+    c = tracking_case
+    trk = (c["hist"], c["t"], c["prf"], c["scale"]) if tracking else None
+    kw = dict(alpha=c["alpha"], t0_index=c["t0"], implementation="czt", ambiguity=0 if tracking else 3,
+              tracking=trk)
+    whole = keystone_both(c["xs"], c["xd"], block_bytes=1 << 30, **kw)
+    tiny = keystone_both(c["xs"], c["xd"], block_bytes=1, **kw)          # one column per block
+    for a, b in zip(whole, tiny):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_taylor_history_equals_the_spline_at_the_resampled_times(tracking_case):
     from fwdlook_cli.forward.keystone_fast import history_phase_shifted, history_taylor
 

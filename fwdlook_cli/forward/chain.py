@@ -171,24 +171,38 @@ def range_curvature(data: StageData, *, model: str, radial_accel_mps2: float, t_
     t = data["slow_time_s"] - t_ref_s
     fr_hz = data["fr_hz"]
     if model == "eq12":
-        h = _cis(2.0 * np.pi * fr_hz[None, :] * radial_accel_mps2 * (t**2)[:, None] / C_MPS)
+        def phase_rows(b):          # the compensation phase of the pulses in block b (rad)
+            return 2.0 * np.pi * fr_hz[None, :] * radial_accel_mps2 * (t[b] ** 2)[:, None] / C_MPS
     elif model == "beam":
         env_m = keystone_residual_envelope_m(data["slow_time_s"], data["position_m"], data["velocity_mps"],
                                              t_ref_s, prf_hz, data["scan_angle_deg"], depression_deg,
                                              reference_range_m)
-        h = _cis(4.0 * np.pi * fr_hz[None, :] * env_m[:, None] / C_MPS)
+
+        def phase_rows(b):
+            return 4.0 * np.pi * fr_hz[None, :] * env_m[b][:, None] / C_MPS
     elif model == "off":
-        h = None
+        phase_rows = None
     else:
         raise ValueError(f"curvature model {model!r}; allowed: off, eq12, beam")
-    for ch in ("sum", "diff"):
-        x = data[f"{ch}_f"]
-        if h is not None:
-            x = x * h
-        out.add(ch, scipy.fft.ifft(x, axis=1, workers=-1).astype(np.complex64, copy=False),
-                ("slow_time_s", "range_m"), "1", f"{ch} channel, motion compensated, range time")
+    # h = exp(j phase), x * h, ifft over range: one block of pulses at a time, h shared by both channels
+    y_sum, y_diff = _compensate_rows(data["sum_f"], data["diff_f"], phase_rows)
+    for ch, y in (("sum", y_sum), ("diff", y_diff)):
+        out.add(ch, y, ("slow_time_s", "range_m"), "1", f"{ch} channel, motion compensated, range time")
     out.attrs.update(range_curvature=model, radial_accel_mps2=float(radial_accel_mps2))
     return out
+
+
+def _compensate_rows(x_sum, x_diff, phase_rows, block_bytes: int = 1 << 20):
+    """ifft over range of ``x * exp(j phase)`` for both channels, one block of pulses at a time (the
+    phase and h of a block only: no cube-sized temporary)."""
+    y_sum, y_diff = np.empty(x_sum.shape, np.complex64), np.empty(x_diff.shape, np.complex64)
+    step = max(1, block_bytes // max(1, 8 * x_sum.shape[1]))
+    for lo in range(0, x_sum.shape[0], step):
+        b = slice(lo, lo + step)
+        h = None if phase_rows is None else _cis(phase_rows(b))
+        for x, y in ((x_sum, y_sum), (x_diff, y_diff)):
+            y[b] = scipy.fft.ifft(x[b] if h is None else x[b] * h, axis=1, workers=-1)
+    return y_sum, y_diff
 
 
 # ----------------------------------------------------------------------------------------------
@@ -299,6 +313,15 @@ def azimuth_at_t_ref(range_m, azimuth_deg, position_at_measure_m, position_ref_m
     return np.degrees(np.arctan2(gx - position_ref_m[0], gy - position_ref_m[1])), gx, gy
 
 
+def _concat_column(parts: list, k: int):
+    """Concatenate item ``k`` of every tuple in ``parts``, dropping each part's reference as it goes."""
+    arrays = []
+    for i, part in enumerate(parts):
+        arrays.append(part[k])
+        parts[i] = part[:k] + (None,) + part[k + 1:]
+    return np.concatenate(arrays)
+
+
 def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: float, angle_step_deg: float,
                     range_oversample: int, threshold_db: float, dynamic_range_db: float,
                     position_ref_m: list, max_offset_beamwidths: float = 0.5) -> StageData:
@@ -336,9 +359,10 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
         inside = (a_idx >= 0) & (a_idx < n_a)
         flat = i_r[ok][inside] * n_a + a_idx[inside]
         cells.append((gx[ok], gy[ok], w[ok], flat, w[ok][inside]))
-    gx, gy, w, flat, w_in = (np.concatenate([c[k] for c in cells]) for k in range(5))
+    flat, w_in = _concat_column(cells, 3), _concat_column(cells, 4)       # each part freed as it goes
     image = np.bincount(flat, weights=w_in, minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
     del flat, w_in
+    gx, gy, w = _concat_column(cells, 0), _concat_column(cells, 1), _concat_column(cells, 2)
 
     # real-beam image: incoherent CPI sum power at the beam angle (same t_ref angle mapping)
     n_cpi, n_r = rb_power.shape

@@ -107,8 +107,10 @@ def _rss_probe() -> None:
 
     from ..forward.process import process_cube
     from ..io.raw import read_raw
-    import fwdlook_cli.forward.chain  # noqa: F401  (everything the chain imports, before the base)
-    import fwdlook_cli.forward.evaluate  # noqa: F401,E501
+    import importlib
+
+    for name in ("fwdlook_cli.forward.chain", "fwdlook_cli.forward.evaluate"):   # before the base
+        importlib.import_module(name)
 
     raw, scn_path, tmp = sys.argv[1:4]
     scn = json.loads(Path(scn_path).read_text())
@@ -212,3 +214,18 @@ def _plot_scaling(result: dict, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def write_scaling_cube(path, n_pulses: int, n_range: int, paper: dict | None = None) -> dict:
+    """A cheap big cube for memory measurements: :func:`scaling_scenario` (three points, the paper's
+    radar and motion, the PRF scaled with the pulse count) simulated and written as a raw cube.
+    Returns the scenario (its ``processing`` section is the paper's)."""
+    from ..forward.simulate import simulate_scenario
+    from ..io.raw import write_raw
+    from ..scenario.loader import load_scenario
+
+    paper = paper or load_scenario(Path(__file__).resolve().parents[2] / "scenarios" / "paper_fig6_a50.yaml")
+    scn = scaling_scenario(paper, n_pulses, n_range)
+    cube, _ = simulate_scenario(scn)
+    write_raw(path, cube)
+    return scn
