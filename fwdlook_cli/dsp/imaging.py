@@ -142,3 +142,38 @@ def azimuth_at_t_ref_cells(range_m, azimuth_deg, position_at_measure_m, position
     ey = s * uy
     ey += dy
     return np.degrees(np.arctan2(ex, ey)), ex + position_ref_m[0], ey + position_ref_m[1]
+
+
+def oversample_profiles(x, factor: int):
+    """:func:`dsp.peaks.oversample_profile` of every row of ``x`` [rows, n] at once (complex128, the same
+    zero-padding and Nyquist split)."""
+    x = np.asarray(x, dtype=np.complex128)
+    if factor == 1:
+        return x.copy()
+    n = x.shape[-1]
+    m = n * factor
+    spec = np.fft.fft(x, axis=-1)
+    padded = np.zeros(x.shape[:-1] + (m,), dtype=np.complex128)
+    if n % 2:
+        half = (n + 1) // 2
+        padded[..., :half] = spec[..., :half]
+        padded[..., m - (n - half):] = spec[..., half:]
+    else:
+        half = n // 2
+        padded[..., :half] = spec[..., :half]
+        if half > 0:
+            padded[..., m - half + 1:] = spec[..., half + 1:]
+        padded[..., half] += 0.5 * spec[..., half]
+        padded[..., m - half] += 0.5 * spec[..., half]
+    return np.fft.ifft(padded, axis=-1) * factor
+
+
+def best_ratio_index(meas, ideal) -> int:
+    """Index the sequential rule ``if meas/ideal > best or best_meas == 0: take it`` ends on: the
+    first maximum of meas/ideal when it is positive, else the last index."""
+    ratio = np.asarray(meas, float) / np.asarray(ideal, float)
+    if len(ratio) == 0:
+        raise ValueError("empty dwell")
+    if not np.any(ratio > 0):
+        return len(ratio) - 1
+    return int(np.argmax(ratio))

@@ -39,7 +39,7 @@ def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_
         r = put_scale(f, "range_m", final["range_m"], "m", "slant range from the antenna at t_ref")
         a = put_scale(f, "angle_deg", final["angle_deg"], "deg", "azimuth atan2(dx, dy) from the antenna at t_ref")
         rn = put_scale(f, "range_native_m", final["range_native_m"], "m", "slant range, native sampling")
-        z = {"compression": "gzip", "compression_opts": 1, "shuffle": True}   # images are mostly empty
+        z = {"compression": "gzip", "compression_opts": 1}   # images are mostly empty (8 %; shuffle: 1.6x slower, same size)
         put(f, "image", final["image"], "1", "monopulse image: sum power in (range, angle)", dims=(r, a), **z)
         put(f, "real_beam", final["real_beam"], "1", "real-beam image: sum power against beam angle",
             dims=(rn, a), **z)
