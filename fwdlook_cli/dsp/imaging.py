@@ -99,19 +99,23 @@ def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: floa
     rows = np.flatnonzero(row_max.reshape(-1) >= level_lo.repeat(n_dop) * 10 ** (-margin_db / 10))
     row_cpi = rows // n_dop
     s = oversample_rows(sum_z.reshape(-1, n_r)[rows], range_oversample)
-    d = oversample_rows(diff_z.reshape(-1, n_r)[rows], range_oversample)
     power = power_f32(s)
     # exact oversampled peak per CPI from the selected rows (the peak row is always among them)
     peak = np.zeros(n_cpi)
     if len(rows):
         np.maximum.at(peak, row_cpi, power.max(axis=1).astype(np.float64))
     level = np.maximum(floor * thr, peak * dyn)
-    # power test first, on the whole selected rows; the ratio only on the cells that pass it
+    # power test first, on the whole selected rows; the difference channel is oversampled only in
+    # the rows with a cell that passes it (signal rows), the ratio only on those cells
     n_os = power.shape[1]
     flat = np.flatnonzero(power > level[row_cpi][:, None])
     i_row, i_r = np.divmod(flat, n_os)
-    sk, dk, pk = s.reshape(-1)[flat], d.reshape(-1)[flat], power.reshape(-1)[flat]
-    del s, d, power
+    sk, pk = s.reshape(-1)[flat], power.reshape(-1)[flat]
+    del s, power
+    hit = np.unique(i_row)
+    d = oversample_rows(diff_z.reshape(-1, n_r)[rows[hit]], range_oversample)
+    dk = d[np.searchsorted(hit, i_row), i_r]
+    del d
     ratio = np.multiply(dk.real, sk.real)                   # Re(d conj s) / |s|^2, float32
     ratio += dk.imag * sk.imag
     ratio /= np.maximum(pk, np.float32(1e-30))
