@@ -262,3 +262,29 @@ def test_peak_rss_sees_a_temporary_allocation():
     a = np.ones(64 * 2**20 // 8)                    # 64 MiB touched, then freed
     del a
     assert peak_rss_bytes() - base >= 60 * 2**20
+
+
+def test_scaling_scenario_has_the_requested_shape():
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.report.benchtools import scaling_scenario
+    from fwdlook_cli.scenario.loader import load_scenario
+    from pathlib import Path
+
+    paper = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "paper_fig6_a50.yaml")
+    cube, _ = simulate_scenario(scaling_scenario(paper, 250, 256))
+    assert cube.sum.shape == (250, 256)
+    assert cube.radar["prf_hz"] == pytest.approx(250.0)        # the same 1 s scan at a tenth of the PRF
+
+
+def test_chain_timing_reports_every_stage_and_the_peak_rss(tiny_raw):
+    from fwdlook_cli.io.raw import read_raw
+    from fwdlook_cli.report.benchtools import time_chain
+    from fwdlook_cli.testing import tiny_scenario
+
+    cube = read_raw(tiny_raw)
+    t = time_chain(cube, tiny_scenario(), repeats=1)
+    assert list(t["stages_s"]) == ["range_fft", "decimate", "keystone", "regroup", "range_curvature",
+                                   "doppler_spectra", "monopulse_image", "outputs"]
+    assert t["total_s"] >= sum(t["stages_s"].values()) * 0.99
+    if t["peak_rss_x_cube"] is not None:                       # Linux: measured in a fresh interpreter
+        assert t["peak_rss_above_base_bytes"] > cube.sum.nbytes  # at least the cube it read
