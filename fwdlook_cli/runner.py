@@ -12,6 +12,7 @@ last finished stage.  ``force`` recomputes every stage; ``from_stage`` recompute
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import sys
@@ -23,7 +24,7 @@ from typing import Callable
 
 from .errors import BadInput
 from .io.stagefile import StageData, _canon, read_stage, write_stage
-from .io.stageview import reshaped_views, view_file_key, virtual_layout
+from .io.stageview import read_stage_lazy, reshaped_views, view_file_key, virtual_layout
 
 @dataclass
 class Stage:
@@ -31,6 +32,7 @@ class Stage:
     fn: Callable[..., StageData]
     params: dict
     view: bool = False        # a re-layout: its file stores virtual datasets onto the previous file
+    lazy_input: bool = False  # reads its input block by block: given the previous file's datasets
 
 
 KEEP_STAGES = ("all", "last", "none")
@@ -55,7 +57,9 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     ``last`` writes only the final stage and the stages named in ``captured``; ``none`` writes none.
     With ``all`` the first missing or stale file decides where the chain starts; otherwise the latest
     valid file does (the earlier ones were never kept).  ``captured``: {stage name: None}, filled with
-    each named stage's output (computed now or read from its file).
+    a function returning each named stage's output (read from its file when kept, so that the output
+    is not held in memory meanwhile).  A ``lazy_input`` stage after a written stage gets that file's
+    large arrays as open datasets instead of the arrays in memory (bounded memory; the same numbers).
     """
     if keep not in KEEP_STAGES:
         raise BadInput(f"--keep-stages {keep}: allowed: {', '.join(KEEP_STAGES)}")
@@ -76,14 +80,21 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     kept = set(range(len(stages))) if keep == "all" else (
         {len(stages) - 1} | {names.index(n) for n in captured} if keep == "last" else set())
     timings: dict[str, float] = {}
-    data = source if first == 0 else read_stage(paths[first - 1])
+    open_files = []
+    if first == 0:
+        data = source
+    elif first < len(stages) and stages[first].lazy_input:
+        data, fh = read_stage_lazy(paths[first - 1])
+        open_files.append(fh)
+    else:
+        data = read_stage(paths[first - 1])
     del source                          # the input cube is freed once stage 1 has consumed it
     written_prev = first > 0            # the input of stage `first` is on disk
     for i, st in enumerate(stages):
         if i < first:
             timings[st.name] = 0.0
             if st.name in captured:
-                captured[st.name] = read_stage(paths[i])
+                captured[st.name] = functools.partial(read_stage, paths[i])
             continue
         t0 = time.perf_counter()
         out = st.fn(data, **st.params)
@@ -97,9 +108,17 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
             write_stage(paths[i], out, stage=st.name, key=keys[i], input_key=keys[i - 1] if i else source_key,
                         params=st.params, extra_attrs=extra, virtual=virtual)
         written_prev = i in kept
-        data = out
+        for fh in open_files:           # a lazy input is consumed
+            fh.close()
+        open_files = []
         if st.name in captured:
-            captured[st.name] = out
+            captured[st.name] = functools.partial(read_stage, paths[i]) if i in kept else (lambda out=out: out)
+        if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input:
+            del out
+            data, fh = read_stage_lazy(paths[i])
+            open_files.append(fh)
+        else:
+            data = out
         timings[st.name] = time.perf_counter() - t0
         if not quiet:
             what = ("view" if st.view and i in kept else "write") if i in kept else "not kept"

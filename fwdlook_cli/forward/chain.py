@@ -473,6 +473,6 @@ def build_forward_stages(cube, proc: dict):
             "slope_per_deg": monopulse_slope(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
             "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
             "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
-            "position_ref_m": [float(v) for v in geo["p_ref"]]}),
+            "position_ref_m": [float(v) for v in geo["p_ref"]]}, lazy_input=True),
     ]
     return src, stages, geo

@@ -111,7 +111,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                                beamwidth_two_way_deg=MonopulseAntenna(bw, squint).two_way_3db_width_deg())
         for row, flag in zip(rows, flags):
             row["resolved"] = bool(flag)
-        spectra = captured["doppler_spectra"]
+        spectra = captured["doppler_spectra"]()
         beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
         if np.isfinite(beta):
             dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
@@ -120,6 +120,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                 row["image_islr_db"], row["image_pslr_db"] = row["islr_db"], row["pslr_db"]
                 row["image_range_width_3db_m"] = row["range_width_3db_m"]
                 row.update(extra)
+        del spectra                                   # 2x the cube: not held while the PNG is drawn
     timings["outputs"] = time.perf_counter() - t_out
     timing = {k: float(v) for k, v in timings.items()}
     timing["total"] = time.perf_counter() - t_start
