@@ -119,14 +119,17 @@ def _default_run_dir(scn, output):
     return Path(output) if output else Path("runs") / scn["name"]
 
 
-def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube"):
+def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", keep_stages="all"):
     if scn["kind"] == "isar":
         from .isar.process import process_isar_cube
 
+        if keep_stages != "all":
+            raise BadInput(f"{source}: --keep-stages {keep_stages}: the ISAR chain keeps every stage; allowed: all")
         return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
     from .forward.process import process_cube
 
-    return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source)
+    return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source,
+                        keep_stages=keep_stages, release_cube=True)
 
 
 def _print_summary(metrics, run_dir, quiet):
@@ -140,6 +143,10 @@ def _print_summary(metrics, run_dir, quiet):
 config_option = click.option("-c", "--config", "config", default=None, metavar="CONFIG.yaml",
                              help="Processing preset merged over the scenario's processing section.")
 raw_option = click.option("--raw", "raw", default=None, metavar="RAW.h5", help="Process this cube instead of simulating.")
+keep_stages_option = click.option(
+    "--keep-stages", "keep_stages", type=click.Choice(["all", "last", "none"]), default="all", show_default=True,
+    help="Stage files written: all (resumable), last (the image stage and the Doppler spectra the metrics "
+         "read), none (fastest; a rerun recomputes everything).")
 output_dir_option = click.option("-o", "--output", "output", default=None, metavar="RUN_DIR",
                                  help="Run directory (default runs/<scenario name>).")
 
@@ -153,8 +160,9 @@ output_dir_option = click.option("-o", "--output", "output", default=None, metav
 @click.option("--from-stage", "from_stage", default=None, help="Recompute from this stage on.")
 @click.option("--force", is_flag=True, help="Recompute every stage.")
 @overwrite_option
+@keep_stages_option
 @quiet_option
-def process(source, output, config, raw, overrides, from_stage, force, overwrite, quiet):
+def process(source, output, config, raw, overrides, from_stage, force, overwrite, keep_stages, quiet):
     """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
     from .io.outputs import prepare_run_dir
 
@@ -163,7 +171,7 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
 
     scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
     run_dir = _default_run_dir(scn, output)
-    metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source)
+    metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages)
     _print_summary(metrics, run_dir, quiet)
 
 
@@ -175,8 +183,9 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
 @set_option
 @click.option("--force", is_flag=True, help="Recompute every stage.")
 @overwrite_option
+@keep_stages_option
 @quiet_option
-def run(scenario, output, config, raw, overrides, force, overwrite, quiet):
+def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages, quiet):
     """The main job: simulate (or load --raw), process and report into RUN_DIR."""
     from .io.raw import write_raw
     from .io.outputs import prepare_run_dir
@@ -191,7 +200,7 @@ def run(scenario, output, config, raw, overrides, force, overwrite, quiet):
     run_dir = _default_run_dir(scn, output)
     if writes_raw:
         write_raw(run_dir / "raw.h5", cube)
-    metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario)
+    metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages)
     _print_summary(metrics, run_dir, quiet)
     click.echo(str(run_dir / "metrics.json"))
 
@@ -286,13 +295,30 @@ def validate(path, overrides):
 
 @cli.command()
 @json_option
+@click.option("--scaling", is_flag=True, help="The scaling series instead: pulses 1250-20000, range bins "
+              "256-4096, fitted exponents per stage and a log-log plot (minutes).")
+@click.option("--plot", "plot_path", default="runs/bench/scaling.png", show_default=True, metavar="PNG",
+              help="Where --scaling draws its plot.")
+@click.option("--repeats", type=click.IntRange(1, 50), default=3, show_default=True,
+              help="Chain runs per measurement (medians).")
+@click.option("--write-cube", "write_cube", default=None, metavar="RAW.h5",
+              help="Only write a cheap cube of --shape (three points, the paper's radar) for memory runs.")
+@click.option("--shape", nargs=2, type=click.IntRange(32, 1 << 20), default=(16384, 4096), show_default=True,
+              metavar="PULSES RANGE", help="Shape of --write-cube.")
 @click.option("--scene", "scene", is_flag=True,
               help="Also time the scene simulator at 1e3..1e6 scatterers (minutes; scene_sim_* keys).")
-def bench(as_json, scene):
+def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene):
     """Timings measured in one process on the paper cube (ratios to one plain 2-D FFT)."""
     from .report.bench import print_bench
 
-    print_bench(as_json, scene=scene)
+    if write_cube:
+        from .report.benchtools import write_scaling_cube
+
+        write_scaling_cube(write_cube, *shape)
+        click.echo(write_cube)
+        return
+
+    print_bench(as_json, scaling=scaling, plot_path=plot_path, repeats=repeats, scene=scene)
 
 
 def main(argv=None):

@@ -49,13 +49,14 @@ def _cis(cycles, dtype=np.complex128):
     """``exp(j 2 pi cycles)`` with the phase reduced mod 1 cycle in float64 first; the cosine and sine
     are then taken in the output's precision (float32 for complex64: 2e-7 rad, below its resolution)."""
     dtype = np.dtype(dtype)
-    ph = np.mod(cycles, 1.0)
+    ph = np.asarray(cycles, dtype=np.float64)
+    ph = ph - np.rint(ph)            # reduced to [-1/2, 1/2] cycle (np.mod is ~30 times slower)
     ph *= 2.0 * np.pi
     real = np.float32 if dtype == np.complex64 else np.float64
     ph = ph.astype(real, copy=False)
     out = np.empty(ph.shape, dtype=dtype)
-    np.cos(ph, out=out.real)
-    np.sin(ph, out=out.imag)
+    out.real = np.cos(ph)            # contiguous cos/sin, then one strided copy each (faster than
+    out.imag = np.sin(ph)            # writing the ufunc's output through the strided view)
     return out
 
 

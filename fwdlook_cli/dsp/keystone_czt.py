@@ -100,8 +100,8 @@ class KeystonePlan:
         # the filter depends on alpha only: compute it once per distinct alpha (decimated layouts
         # repeat the same range-frequency alphas for every sub-sequence and channel)
         alpha_u, inverse = np.unique(alpha, return_inverse=True)
-        h = _cis(-(alpha_u / (2.0 * n)) * (d**2)[:, None])
-        self._filt = sfft.fft(h, axis=0, workers=-1).astype(self.dtype)[:, inverse]
+        h = _cis(-(alpha_u / (2.0 * n)) * (d**2)[:, None], self.dtype)   # phase reduced in float64
+        self._filt = sfft.fft(h, axis=0, workers=-1, overwrite_x=True)[:, inverse]
         del h
 
         # output chirp for F = 0: (1/n) W^(c_min m' + m'^2/2), a function of alpha only
@@ -135,7 +135,15 @@ class KeystonePlan:
             self._post_cache[key] = post
         return post
 
-    def __call__(self, x, *, ambiguity=0):
+    def post_cycles_f0(self):
+        """The F = 0 output chirp's phase per column, in cycles (float64 [n_slow, n_cols]), without
+        the 1/n: a caller that multiplies the output by its own phase (the tracking keystone's
+        remodulation) adds it here and passes ``post=(1/n) exp(j 2 pi (both))`` to the call."""
+        m = np.arange(self.n_slow, dtype=np.float64)[:, None]
+        base = (self._alpha_unique / self.n_slow) * (self._c_min * m + 0.5 * m**2)
+        return base[:, self._alpha_inverse]
+
+    def __call__(self, x, *, ambiguity=0, post=None):
         """Keystone `x` (``[n_slow, n_cols]``) with Doppler ambiguity number(s) `ambiguity`.
 
         Parameters
@@ -144,6 +152,9 @@ class KeystonePlan:
             Slow time along axis 0.  Cast to the plan's dtype if needed.
         ambiguity : int or array_like of int, shape (n_cols,), optional
             Doppler ambiguity number ``F`` (eq. 15-17), scalar or per column.
+        post : ndarray, shape (n_slow, n_cols), optional
+            The output chirp to use instead of the plan's (see :meth:`post_cycles_f0`); then
+            ``ambiguity`` is ignored.
 
         Returns
         -------
@@ -156,7 +167,8 @@ class KeystonePlan:
         nc = x.shape[1]
         if self.n_cols not in (1, nc):
             raise ValueError(f"x has {nc} columns, the plan expects {self.n_cols}")
-        post = self._post_chirp(ambiguity)
+        if post is None:
+            post = self._post_chirp(ambiguity)
         if post.shape[1] not in (1, nc):
             raise ValueError(f"ambiguity has {post.shape[1]} columns, x has {nc}")
         if x.dtype != self.dtype:

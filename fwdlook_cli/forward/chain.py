@@ -24,15 +24,15 @@ import numpy as np
 import scipy.fft
 
 from ..dsp.geometry import C_MPS, ambiguity_number
-from ..dsp.keystone_czt import KeystonePlan
-from ..dsp.keystone import keystone_dft, keystone_sinc
+from .keystone_fast import keystone_both
+from ..dsp.blas import batched_matmul
+from ..dsp.imaging import azimuth_at_t_ref_cells, iter_kept_cells
 from ..dsp.keystone_common import _cis as _cis_cycles
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion,
                      keystone_residual_envelope_m, reference_depression_deg, unit_vector)
 from ..runner import Stage
 from ..io.stagefile import StageData
 from ..dsp.geometry import azimuth_at_t_ref
-from ..dsp.peaks import oversample_range
 
 CONTEXT = ("slow_time_s", "scan_angle_deg", "position_m", "velocity_mps", "xyz")
 KEYSTONE_METHODS = ("traditional", "decimation", "tracking")
@@ -134,32 +134,20 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
         t0_sub = (m0 - np.arange(q)) / q                  # global origin in each sub-sequence's samples
         alpha_cols = np.tile(alpha, q)                    # column (q, k) -> index q*n_f + k
         t0_cols = np.repeat(t0_sub, n_f)
-        x = np.concatenate([x_sum.reshape(p, q * n_f), x_diff.reshape(p, q * n_f)], axis=1)
-        alpha2, t02 = np.tile(alpha_cols, 2), np.tile(t0_cols, 2)
+        tracking = None
         if method == "tracking":
             if q != 1:
                 raise ValueError("tracking keystone runs on the whole sequence (q = 1)")
             hist = DopplerPhaseHistory(t, data["velocity_mps"], data["scan_angle_deg"], depression_deg,
                                        fc_hz, t_ref_s)
-            scale = np.tile(1.0 + fr_hz / fc_hz, 2)[None, :]     # Doppler at f_r scales by (fc+fr)/fc
-            x = x * _cis(-hist.phase_rad(t)[:, None] * scale)    # demodulate the predicted history
-            ambiguity_used = 0
-        else:
-            ambiguity_used = ambiguity
-        if implementation == "czt":
-            y = KeystonePlan(p, alpha2, t0_index=t02)(x, ambiguity=ambiguity_used)
-        elif implementation == "dft":
-            y = keystone_dft(x, alpha2, t0_index=t02, ambiguity=ambiguity_used).astype(np.complex64)
-        elif implementation == "sinc":
-            ref = 0.0 if method == "tracking" else doppler_ref_hz / (prf_hz / q)
-            y = keystone_sinc(x, alpha2, t0_index=t02, doppler_ref=ref, n_taps=n_taps).astype(np.complex64)
-        else:
-            raise ValueError(f"keystone implementation {implementation!r}; allowed: czt, dft, sinc")
-        if method == "tracking":
-            tau = alpha2[None, :] * (np.arange(p)[:, None] - t02[None, :]) + t02[None, :]
-            y = y * _cis(hist.phase_rad(t[0] + tau / prf_hz) * scale)  # remodulate at the new times
-        y_sum = y[:, : q * n_f].reshape(p, q, n_f)
-        y_diff = y[:, q * n_f:].reshape(p, q, n_f)
+            tracking = (hist, t, prf_hz, 1.0 + fr_hz / fc_hz)    # Doppler at f_r scales by (fc+fr)/fc
+        ref = 0.0 if method == "tracking" else doppler_ref_hz / (prf_hz / q)
+        # one geometry, both channels: chirps, demodulation and remodulation computed once
+        y_sum, y_diff = keystone_both(x_sum.reshape(p, q * n_f), x_diff.reshape(p, q * n_f), alpha=alpha_cols,
+                                      t0_index=t0_cols, implementation=implementation,
+                                      ambiguity=0 if method == "tracking" else ambiguity,
+                                      doppler_ref=ref, n_taps=n_taps, tracking=tracking)
+        y_sum, y_diff = y_sum.reshape(p, q, n_f), y_diff.reshape(p, q, n_f)
     else:
         raise ValueError(f"method {method!r}; allowed: none, bulk, beam, traditional, decimation, tracking")
     out.add("sum_f", y_sum, dims, "1", f"sum channel after the {method} correction")
@@ -185,24 +173,38 @@ def range_curvature(data: StageData, *, model: str, radial_accel_mps2: float, t_
     t = data["slow_time_s"] - t_ref_s
     fr_hz = data["fr_hz"]
     if model == "eq12":
-        h = _cis(2.0 * np.pi * fr_hz[None, :] * radial_accel_mps2 * (t**2)[:, None] / C_MPS)
+        def phase_rows(b):          # the compensation phase of the pulses in block b (rad)
+            return 2.0 * np.pi * fr_hz[None, :] * radial_accel_mps2 * (t[b] ** 2)[:, None] / C_MPS
     elif model == "beam":
         env_m = keystone_residual_envelope_m(data["slow_time_s"], data["position_m"], data["velocity_mps"],
                                              t_ref_s, prf_hz, data["scan_angle_deg"], depression_deg,
                                              reference_range_m)
-        h = _cis(4.0 * np.pi * fr_hz[None, :] * env_m[:, None] / C_MPS)
+
+        def phase_rows(b):
+            return 4.0 * np.pi * fr_hz[None, :] * env_m[b][:, None] / C_MPS
     elif model == "off":
-        h = None
+        phase_rows = None
     else:
         raise ValueError(f"curvature model {model!r}; allowed: off, eq12, beam")
-    for ch in ("sum", "diff"):
-        x = data[f"{ch}_f"]
-        if h is not None:
-            x = x * h
-        out.add(ch, scipy.fft.ifft(x, axis=1, workers=-1).astype(np.complex64, copy=False),
-                ("slow_time_s", "range_m"), "1", f"{ch} channel, motion compensated, range time")
+    # h = exp(j phase), x * h, ifft over range: one block of pulses at a time, h shared by both channels
+    y_sum, y_diff = _compensate_rows(data["sum_f"], data["diff_f"], phase_rows)
+    for ch, y in (("sum", y_sum), ("diff", y_diff)):
+        out.add(ch, y, ("slow_time_s", "range_m"), "1", f"{ch} channel, motion compensated, range time")
     out.attrs.update(range_curvature=model, radial_accel_mps2=float(radial_accel_mps2))
     return out
+
+
+def _compensate_rows(x_sum, x_diff, phase_rows, block_bytes: int = 1 << 20):
+    """ifft over range of ``x * exp(j phase)`` for both channels, one block of pulses at a time (the
+    phase and h of a block only: no cube-sized temporary)."""
+    y_sum, y_diff = np.empty(x_sum.shape, np.complex64), np.empty(x_diff.shape, np.complex64)
+    step = max(1, block_bytes // max(1, 8 * x_sum.shape[1]))
+    for lo in range(0, x_sum.shape[0], step):
+        b = slice(lo, lo + step)
+        h = None if phase_rows is None else _cis(phase_rows(b))
+        for x, y in ((x_sum, y_sum), (x_diff, y_diff)):
+            y[b] = scipy.fft.ifft(x[b] if h is None else x[b] * h, axis=1, workers=-1)
+    return y_sum, y_diff
 
 
 # ----------------------------------------------------------------------------------------------
@@ -279,20 +281,21 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     e = w[None, None, :] * _cis(-2.0 * np.pi * f_z[:, :, None] * (t_cpi - t_c[:, None])[:, None, :])
     e = e.astype(np.complex64)
     n_r = data["sum"].shape[1]
-    x = np.concatenate([data["sum"][:m].reshape(n_cpi, cpi, n_r), data["diff"][:m].reshape(n_cpi, cpi, n_r)],
-                       axis=2)
-    z = np.matmul(e, x)
+    # one small product per CPI and channel, the BLAS on one thread (dsp.blas: no pool stalls)
+    z_sum = batched_matmul(e, data["sum"][:m].reshape(n_cpi, cpi, n_r))
+    z_diff = batched_matmul(e, data["diff"][:m].reshape(n_cpi, cpi, n_r))
     if estimator == "iaa":      # processing.doppler_estimator: iaa (dwell.iaa_doppler), same cells and scale
         from .dwell import iaa_doppler
 
+        x_sum, x_diff = data["sum"][:m].reshape(n_cpi, cpi, n_r), data["diff"][:m].reshape(n_cpi, cpi, n_r)
         a = _cis(2.0 * np.pi * (t_cpi - t_c[:, None])[:, :, None] * f_z[:, None, :])    # [n_cpi, cpi, K]
-        pz = np.abs(z[:, :, :n_r]) ** 2
+        pz = np.abs(z_sum) ** 2
         floor = np.median(pz.reshape(n_cpi, -1), axis=1)
         active = pz.max(axis=1) > floor[:, None] * 10 ** (12.0 / 10)      # range cells holding an echo
-        s_s, s_d = iaa_doppler(x[:, :, :n_r], x[:, :, n_r:], a, t_s=t_cpi - t_c[:, None], prf_hz=prf_hz,
+        s_s, s_d = iaa_doppler(x_sum, x_diff, a, t_s=t_cpi - t_c[:, None], prf_hz=prf_hz,
                                n_iter=iaa_iterations, active=active,
-                               noise_power=float(np.median(np.abs(x[:, :, :n_r]) ** 2)))
-        z = np.concatenate([s_s, s_d], axis=2) * np.float32(w.sum())
+                               noise_power=float(np.median(np.abs(x_sum) ** 2)))
+        z_sum, z_diff = s_s * np.float32(w.sum()), s_d * np.float32(w.sum())
     out.add("cpi_time_s", t_c, ("cpi_time_s",), "s", "CPI centre time t_c")
     out.add("doppler_cell", np.arange(n_doppler), ("doppler_cell",), "1", "zoomed Doppler cell")
     out.vars["range_m"] = data.vars["range_m"]
@@ -304,8 +307,8 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     out.add("cpi_position_m", data["position_m"][:m].reshape(n_cpi, cpi, 3).mean(axis=1),
             ("cpi_time_s", "xyz"), "m", "mean antenna position in the CPI")
     out.add("doppler_hz", f_z, ("cpi_time_s", "doppler_cell"), "Hz", "true Doppler of each zoomed cell")
-    out.add("sum_z", z[:, :, :n_r], ("cpi_time_s", "doppler_cell", "range_m"), "1", "sum Doppler spectrum")
-    out.add("diff_z", z[:, :, n_r:], ("cpi_time_s", "doppler_cell", "range_m"), "1", "difference Doppler spectrum")
+    out.add("sum_z", z_sum, ("cpi_time_s", "doppler_cell", "range_m"), "1", "sum Doppler spectrum")
+    out.add("diff_z", z_diff, ("cpi_time_s", "doppler_cell", "range_m"), "1", "difference Doppler spectrum")
     out.attrs.update(cpi=cpi, coherent_gain=float(w.sum()), doppler_window=window)
     return out
 
@@ -313,6 +316,15 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
 # ----------------------------------------------------------------------------------------------
 # 7. monopulse image
 # ----------------------------------------------------------------------------------------------
+def _concat_column(parts: list, k: int):
+    """Concatenate item ``k`` of every tuple in ``parts``, dropping each part's reference as it goes."""
+    arrays = []
+    for i, part in enumerate(parts):
+        arrays.append(part[k])
+        parts[i] = part[:k] + (None,) + part[k + 1:]
+    return np.concatenate(arrays)
+
+
 def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: float, angle_step_deg: float,
                     range_oversample: int, threshold_db: float, dynamic_range_db: float,
                     position_ref_m: list, max_offset_beamwidths: float = 0.5, ratio_model: str = "tanh",
@@ -328,54 +340,51 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     more than ``dynamic_range_db`` under its peak, or with |d| beyond ``max_offset_beamwidths`` x the
     beamwidth, are not projected.  The real-beam image (CPI sum power at the beam angle) is made too.
     """
-    s = oversample_range(data["sum_z"], range_oversample)
-    dz = oversample_range(data["diff_z"], range_oversample)
     range_m = data["range_m"]
     dr = (range_m[1] - range_m[0]) / range_oversample
-    range_os = range_m[0] + dr * np.arange(s.shape[2])
-    power = (s.real**2 + s.imag**2).astype(np.float32)
-    table = None if ratio is None else (np.asarray(ratio_offset_deg, np.float64), np.asarray(ratio, np.float64))
-    # Re(diff conj(sum) / gamma) / |sum|^2, gamma = 10^(g/20) exp(j phi): the calibrated ratio
-    c, sn = np.cos(np.radians(diff_phase_deg)), np.sin(np.radians(diff_phase_deg))
-    inv_gain = 10.0 ** (-diff_gain_db / 20.0)
-    re_q = dz.real * s.real + dz.imag * s.imag
-    im_q = dz.imag * s.real - dz.real * s.imag
-    ratio = (inv_gain * (c * re_q + sn * im_q)) / np.maximum(power, 1e-30)
-    del re_q, im_q
-    floor = np.median(power.reshape(power.shape[0], -1), axis=1)
-    peak = power.reshape(power.shape[0], -1).max(axis=1)
-    level = np.maximum(floor * 10 ** (threshold_db / 10), peak * 10 ** (-dynamic_range_db / 10))
+    range_os = range_m[0] + dr * np.arange(range_m.shape[0] * range_oversample)
     half = max_offset_beamwidths * beamwidth_deg
+    max_ratio = np.tanh(slope_per_deg * half)
     if ratio_model == "tanh":
-        max_ratio = np.tanh(slope_per_deg * half)
-        keep = (power > level[:, None, None]) & (np.abs(ratio) < max_ratio)
-        offset = np.arctanh(ratio[keep]) / slope_per_deg
+        bounds = (-max_ratio, max_ratio)
     elif ratio_model == "table":
-        tab_d, tab_r = table
-        lo = float(np.interp(-half, tab_d, tab_r))
-        hi = float(np.interp(half, tab_d, tab_r))
-        keep = (power > level[:, None, None]) & (ratio > lo) & (ratio < hi)
-        offset = np.interp(ratio[keep], tab_r, tab_d)
+        tab_d, tab_r = np.asarray(ratio_offset_deg, np.float64), np.asarray(ratio, np.float64)
+        bounds = (float(np.interp(-half, tab_d, tab_r)), float(np.interp(half, tab_d, tab_r)))
     else:
         raise ValueError(f"ratio model {ratio_model!r}; allowed: tanh, table")
-    offset = offset + boresight_offset_deg
-    i_cpi, _, i_r = np.nonzero(keep)
-    beam = data["cpi_beam_deg"][i_cpi]
     p_ref = np.asarray(position_ref_m, dtype=np.float64)
-    az_ref, gx, gy = azimuth_at_t_ref(range_os[i_r], beam + offset, data["cpi_position_m"][i_cpi], p_ref)
-    w = power[keep].astype(np.float64)
-    ok = np.isfinite(az_ref)
     beam_all = data["cpi_beam_deg"]
     a0 = np.floor((beam_all.min() - beamwidth_deg) / angle_step_deg) * angle_step_deg
     n_a = int(np.ceil((beam_all.max() + beamwidth_deg - a0) / angle_step_deg)) + 1
     angle_deg = a0 + angle_step_deg * np.arange(n_a)
-    a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
-    inside = (a_idx >= 0) & (a_idx < n_a)
-    flat = i_r[ok][inside] * n_a + a_idx[inside]
-    image = np.bincount(flat, weights=w[ok][inside], minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
+    rb_power = np.zeros(data["sum_z"].shape[::2])                              # [n_cpi, n_r]
+    cells = []
+    # cells over the CPI level, oversampling only the Doppler rows that can hold one, one block of
+    # whole CPIs at a time (dsp.imaging): geometry and projection per block, the image accumulated
+    for c0, i_cpi, i_r, ratio_kept, power_kept, power_native in iter_kept_cells(
+            data["sum_z"], data["diff_z"], range_oversample=range_oversample, threshold_db=threshold_db,
+            dynamic_range_db=dynamic_range_db, max_ratio=max_ratio, ratio_bounds=bounds,
+            diff_gain_db=diff_gain_db, diff_phase_deg=diff_phase_deg):
+        rb_power[c0:c0 + len(power_native)] = power_native.sum(axis=1, dtype=np.float64)
+        if ratio_model == "tanh":
+            offset = np.arctanh(ratio_kept) / slope_per_deg        # exact inverse for the Gaussian beams
+        else:
+            offset = np.interp(ratio_kept, tab_r, tab_d)          # the monotone ratio table
+        offset = offset + boresight_offset_deg
+        beam = data["cpi_beam_deg"][i_cpi]
+        az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam + offset, data["cpi_position_m"][i_cpi], p_ref)
+        w = power_kept.astype(np.float64)
+        ok = np.isfinite(az_ref)
+        a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
+        inside = (a_idx >= 0) & (a_idx < n_a)
+        flat = i_r[ok][inside] * n_a + a_idx[inside]
+        cells.append((gx[ok], gy[ok], w[ok], flat, w[ok][inside]))
+    flat, w_in = _concat_column(cells, 3), _concat_column(cells, 4)       # each part freed as it goes
+    image = np.bincount(flat, weights=w_in, minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
+    del flat, w_in
+    gx, gy, w = _concat_column(cells, 0), _concat_column(cells, 1), _concat_column(cells, 2)
 
     # real-beam image: incoherent CPI sum power at the beam angle (same t_ref angle mapping)
-    rb_power = np.sum(np.abs(data["sum_z"]) ** 2, axis=1)                      # [n_cpi, n_r]
     n_cpi, n_r = rb_power.shape
     rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_cpi, n_r)),
                                    np.broadcast_to(beam_all[:, None], (n_cpi, n_r)),
@@ -393,10 +402,10 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
             "real-beam image, sum power against beam angle")
     # kept cells, for the ground projection and diagnostics
-    out.add("cell", np.arange(int(ok.sum())), ("cell",), "1", "projected Doppler cell")
-    out.add("cell_x_m", gx[ok], ("cell",), "m", "ground x of each projected cell")
-    out.add("cell_y_m", gy[ok], ("cell",), "m", "ground y of each projected cell")
-    out.add("cell_power", w[ok].astype(np.float32), ("cell",), "1", "sum power of each projected cell")
+    out.add("cell", np.arange(len(w)), ("cell",), "1", "projected Doppler cell")
+    out.add("cell_x_m", gx, ("cell",), "m", "ground x of each projected cell")
+    out.add("cell_y_m", gy, ("cell",), "m", "ground y of each projected cell")
+    out.add("cell_power", w.astype(np.float32), ("cell",), "1", "sum power of each projected cell")
     out.attrs.update(range_oversample=range_oversample, angle_step_deg=angle_step_deg,
                      slope_per_deg=slope_per_deg, position_ref_m=list(map(float, p_ref)))
     return out
@@ -470,12 +479,12 @@ def build_forward_stages(cube, proc: dict):
         curvature = "off"       # bulk and beam already shift by the whole predicted range history
     stages = [
         Stage("range_fft", range_fft, {"fs_hz": cube.radar["fs_hz"]}),
-        Stage("decimate", decimate, {"q": q}),
+        Stage("decimate", decimate, {"q": q}, view=True),
         Stage("keystone", keystone_stage, {
             "method": method, "implementation": proc["keystone"], "fc_hz": fc, "prf_hz": prf,
             "t_ref_s": geo["t_ref_s"], "ambiguity": ambiguity, "doppler_ref_hz": geo["f_dc0_hz"],
             "depression_deg": geo["depression_deg"], "reference_range_m": geo["reference_range_m"]}),
-        Stage("regroup", regroup, {}),
+        Stage("regroup", regroup, {}, view=True),
         Stage("range_curvature", range_curvature, {
             "model": curvature, "radial_accel_mps2": geo["radial_accel_mps2"], "t_ref_s": geo["t_ref_s"],
             "prf_hz": prf, "depression_deg": geo["depression_deg"],
@@ -489,7 +498,8 @@ def build_forward_stages(cube, proc: dict):
             "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
             "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
             "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
-            "position_ref_m": [float(v) for v in geo["p_ref"]], **geo["calibration"].stage_params()}),
+            "position_ref_m": [float(v) for v in geo["p_ref"]], **geo["calibration"].stage_params()},
+              lazy_input=True),
     ]
     if proc.get("imaging", "cpi") == "dwell":      # whole-dwell imaging replaces stages 6-7 (dwell.py)
         from .dwell import dwell_stages

@@ -160,7 +160,7 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
     from it; peak loss compares the strongest single-CPI sample with an ideally focused target
     (amplitude x two-way sum gain at that CPI's beam offset x the window's coherent gain).
     """
-    from ..dsp.peaks import oversample_profile
+    from ..dsp.imaging import best_ratio_index, oversample_profiles
 
     r_ref, _ = truth_at_t_ref(truth_xyz_m, np.asarray(position_ref_m))
     s = spectra["sum_z"]
@@ -181,16 +181,14 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
         if len(dwell) == 0 or i1 - i0 < 4:
             out.append({"peak_loss_db": None, "islr_db": None, "pslr_db": None, "range_width_3db_m": None})
             continue
-        acc = np.zeros((i1 - i0) * oversample)
-        best_meas, best_ideal = 0.0, 1e-300
-        for i in dwell:
-            z = int(np.argmax(np.abs(s[i, :, ic])))
-            prof = oversample_profile(s[i, z, i0:i1].astype(np.complex128), oversample)
-            acc += np.abs(prof) ** 2
-            meas = float(np.abs(s[i, z, max(0, ic - 1):ic + 2]).max())
-            ideal = amplitude[k] * sigma[i] ** 2 * cg
-            if meas / ideal > best_meas / best_ideal or best_meas == 0.0:
-                best_meas, best_ideal = meas, ideal
+        # every dwell CPI at once (dsp.imaging): its strongest Doppler cell at the target's range,
+        # that cell's profile oversampled, powers summed; the best single-CPI peak against ideal
+        z = np.argmax(np.abs(s[dwell, :, ic]), axis=1)
+        acc = np.sum(np.abs(oversample_profiles(s[dwell, z, i0:i1], oversample)) ** 2, axis=0)
+        meas = np.abs(s[dwell, z, max(0, ic - 1):ic + 2]).max(axis=1).astype(np.float64)
+        ideal = amplitude[k] * sigma[dwell] ** 2 * cg
+        j = best_ratio_index(meas, ideal)
+        best_meas, best_ideal = float(meas[j]), float(ideal[j])
         try:
             pm = profile_metrics(np.sqrt(acc), spacing=dr / oversample, oversample=1)
             islr, pslr, width = pm.islr_db, pm.pslr_db, pm.width_3db

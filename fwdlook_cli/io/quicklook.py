@@ -23,11 +23,20 @@ def save_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
     ``markers``: optional (x, y) arrays of truth positions drawn as open circles.
     """
     plt = _plt()
-    p = np.asarray(power, dtype=np.float64)
-    db = 10 * np.log10(np.maximum(p / max(p.max(), 1e-300), 10 ** (-dynamic_range_db / 10 - 1)))
+    p = np.asarray(power, dtype=np.float32)         # a picture: float32 dB, computed in place
+    db = p / np.float32(max(float(p.max()), 1e-30))
+    np.maximum(db, np.float32(10 ** (-dynamic_range_db / 10 - 1)), out=db)
+    np.log10(db, out=db)
+    db *= np.float32(10.0)
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=110)
-    mesh = ax.pcolormesh(x_axis, y_axis, db, shading="nearest", vmin=-dynamic_range_db, vmax=0,
-                         cmap="viridis")
+    extent = _uniform_extent(x_axis, y_axis)
+    if extent is not None:      # a raster: what pcolormesh draws cell by cell, at a fraction of the
+        # memory (a quad mesh of ~1 M cells held about 90 MB while drawn) and of the time
+        mesh = ax.imshow(db, extent=extent, origin="lower", interpolation="nearest", vmin=-dynamic_range_db,
+                         vmax=0, cmap="viridis")
+    else:
+        mesh = ax.pcolormesh(x_axis, y_axis, db, shading="nearest", vmin=-dynamic_range_db, vmax=0,
+                             cmap="viridis")
     if markers is not None:
         ax.plot(markers[0], markers[1], "o", mfc="none", mec="w", ms=7, mew=0.8, label="truth")
         ax.legend(loc="upper right", fontsize=8)
@@ -42,6 +51,19 @@ def save_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
             fig.savefig(tmp)
     finally:
         plt.close(fig)
+
+
+def _uniform_extent(x_axis, y_axis):
+    """imshow's extent for cell centres on uniform increasing axes (each cell one step wide), else None."""
+    bounds = []
+    for a in (np.asarray(x_axis, float), np.asarray(y_axis, float)):
+        if a.ndim != 1 or len(a) < 2:
+            return None
+        step = np.diff(a)
+        if not (step[0] > 0 and np.allclose(step, step[0], rtol=1e-6, atol=0)):
+            return None
+        bounds += [a[0] - step[0] / 2, a[-1] + step[0] / 2]
+    return bounds
 
 
 def _save(fig, path):

@@ -27,24 +27,32 @@ def _step(i: int, n: int, what: str) -> None:
     log.info(f"bench [{i}/{n}] {what} ({time.perf_counter() - _T0[0]:.1f} s elapsed)")
 
 
-def _median_time(fn, repeats=5):
+from .benchtools import median_time as _median_time, time_chain
+
+FFT2_REPEATS = 21          # the reference: median of at least 20 plain 2-D FFTs, before and after
+
+
+def _times(fn, repeats):
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    return times
 
 
-def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SCENARIOS / "tiny.yaml"):
-    """All timings in one process, so that the ratios to ``fft2_s`` are meaningful."""
-    import tempfile
+def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SCENARIOS / "tiny.yaml",
+              chain_repeats: int = 3):
+    """All timings in one process, so that the ratios to ``fft2_s`` are meaningful.
 
+    ``chain_s`` / ``chain_tracking_s`` and every ``stage_<method>_<stage>_s`` are medians over
+    ``chain_repeats`` runs of the chain exactly as ``fwdlook process`` runs it (plans built inside the
+    stage, stage files written); ``chain_<method>_peak_rss_x_cube`` is its peak RSS above the RSS before
+    it, as a multiple of the cube (both channels)."""
     from ..forward.chain import build_forward_stages
     from ..scenario.loader import load_scenario
     from ..dsp.keystone_czt import KeystonePlan
     from ..dsp.keystone import keystone_dft, keystone_sinc
-    from ..forward.process import process_cube
     from ..forward.simulate import simulate_scenario
 
     n = 9
@@ -56,7 +64,9 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
            "pairs_kept": stats.n_pairs_kept, "pairs_total": stats.n_pairs}
     x = cube.sum
     _step(2, n, "plain 2-D FFT and simulation timings")
-    out["fft2_s"] = _median_time(lambda: scipy.fft.fft2(x, workers=-1), repeats=21)
+    scipy.fft.fft2(x, workers=-1)                          # warm-up: scipy's plan cache, pages
+    fft2_times = _times(lambda: scipy.fft.fft2(x, workers=-1), FFT2_REPEATS)
+    out["fft2_s"] = statistics.median(fft2_times)
     out["simulate_s"] = _median_time(lambda: simulate_scenario(paper), repeats=3)
     out["simulate_tiny_s"] = _median_time(lambda: simulate_scenario(tiny), repeats=5)
 
@@ -73,9 +83,10 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     alpha = np.tile(cube.radar["fc_hz"] / (cube.radar["fc_hz"] + fr), q)
     t0 = np.repeat((geo["t_ref_s"] * cube.radar["prf_hz"] - np.arange(q)) / q, n_f)
     ks = stages[2].params
-    t_build = time.perf_counter()
+    out["keystone_czt_with_plan_s"] = _median_time(
+        lambda: KeystonePlan(p_len, alpha, t0_index=t0)(sub, ambiguity=ks["ambiguity"]), repeats=5)
+    out["keystone_czt_plan_s"] = _median_time(lambda: KeystonePlan(p_len, alpha, t0_index=t0), repeats=5)
     plan = KeystonePlan(p_len, alpha, t0_index=t0)
-    out["keystone_czt_plan_s"] = time.perf_counter() - t_build
     plan(sub, ambiguity=ks["ambiguity"])                   # output chirp of this F, cached
     out["keystone_czt_s"] = _median_time(lambda: plan(sub, ambiguity=ks["ambiguity"]), repeats=15)
     # complex64 is enough: the same keystone in complex128 differs by this much (energy ratio)
@@ -91,27 +102,51 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     out["keystone_sinc_s"] = _median_time(lambda: keystone_sinc(sub, alpha, t0_index=t0, doppler_ref=ref),
                                           repeats=1)
 
-    # whole chains, both channels, every intermediate written
-    # (dwell: the tracking chain with processing.imaging = dwell, forward/dwell.py)
+    # whole chains, both channels, as `fwdlook process` runs them (medians of chain_repeats runs);
+    # dwell: the tracking chain with processing.imaging = dwell (forward/dwell.py)
     for step, (method, imaging) in enumerate((("decimation", "cpi"), ("tracking", "cpi"), ("dwell", "dwell")), 6):
-        _step(step, n, f"whole chain, {method}, intermediates written")
+        _step(step, n, f"whole chain, {method}, as fwdlook process runs it")
         proc = dict(paper["processing"], method="tracking" if method == "dwell" else method, imaging=imaging)
         scn = dict(paper, processing=proc)
-        with tempfile.TemporaryDirectory() as tmp:
-            metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False)
+        t = time_chain(cube, scn, repeats=chain_repeats)
         key = "chain_s" if method == "decimation" else f"chain_{method}_s"
-        out[key] = metrics["timing_s"]["total"]
-        for stage, seconds in metrics["timing_s"].items():
-            if stage != "total":
-                out[f"stage_{method}_{stage}_s"] = seconds
+        out[key] = t["total_s"]
+        for stage, seconds in t["stages_s"].items():
+            out[f"stage_{method}_{stage}_s"] = seconds
+        out[f"chain_{method}_peak_rss_x_cube"] = t["peak_rss_x_cube"]
+        out[f"chain_{method}_peak_rss_mib"] = (None if t["peak_rss_above_base_bytes"] is None
+                                               else t["peak_rss_above_base_bytes"] / 2**20)
+        out["interpreter_base_mib"] = (t.get("interpreter_base_bytes") or 0) / 2**20
+    # the reference again after the chains (load drifts on a shared machine): median of both sets
+    fft2_after = _times(lambda: scipy.fft.fft2(x, workers=-1), FFT2_REPEATS)
+    out["fft2_median_before_after"] = [out["fft2_s"], statistics.median(fft2_after)]
+    out["fft2_s"] = statistics.median(fft2_times + fft2_after)
+    out["fft2_repeats"] = len(fft2_times) + len(fft2_after)
+    out["cube_mib"] = (cube.sum.nbytes + cube.diff.nbytes) / 2**20
+    out["chain_repeats"] = chain_repeats
     _step(9, n, "done")
     out["ratios_to_fft2"] = {k[:-2]: out[k] / out["fft2_s"] for k in list(out) if k.endswith("_s")
-                             and k != "fft2_s" and not k.startswith("stage_")}
+                             and k != "fft2_s"}
     return out
 
 
-def print_bench(as_json: bool = False, scene: bool = False) -> None:
-    result = run_bench()
+def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, repeats: int = 3,
+                scene: bool = False) -> None:
+    if scaling:
+        from ..scenario.loader import load_scenario
+        from .benchtools import scaling_series
+
+        result = scaling_series(load_scenario(SCENARIOS / "paper_fig6_a50.yaml"), repeats=repeats,
+                                plot_path=plot_path, progress=lambda m: print(m, file=sys.stderr))
+        if as_json:
+            print(json.dumps(result, indent=2))
+        else:
+            print(f"N log N shows as exponent {result['nlogn_exponent']['pulses']:.3f} over pulses, "
+                  f"{result['nlogn_exponent']['range_bins']:.3f} over range bins")
+            for key, exps in result["exponents"].items():
+                print(f"{key:<22s} " + ", ".join(f"{k} {v:.2f}" for k, v in exps.items()))
+        return
+    result = run_bench(chain_repeats=repeats)
     if scene:                                  # scene_bench.py: one child process per scene size
         from .scene_bench import run_scene_bench
 
@@ -128,6 +163,8 @@ def print_bench(as_json: bool = False, scene: bool = False) -> None:
                     print(f"{key}[{k}]".ljust(24) + f" {v:10.1f}")
             elif key.endswith("_db"):
                 print(f"{key:<24s} {value:10.1f} dB")
+            elif value is None or not isinstance(value, float) or not key.endswith("_s"):
+                print(f"{key:<24s} {value if not isinstance(value, float) else round(value, 3)}")
             elif isinstance(value, float):
                 print(f"{key:<24s} {value * 1e3:10.2f} ms")
             else:
@@ -135,4 +172,4 @@ def print_bench(as_json: bool = False, scene: bool = False) -> None:
 
 
 if __name__ == "__main__":
-    print_bench("--json" in sys.argv[1:])
+    print_bench("--json" in sys.argv[1:], scaling="--scaling" in sys.argv[1:])

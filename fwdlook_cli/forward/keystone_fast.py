@@ -1,0 +1,120 @@
+"""The keystone family applied to both monopulse channels with every chirp computed once per geometry.
+
+Sum and difference share the geometry (alpha = f_c/(f_c+f_r) per column, the time origin, the predicted
+Doppler history), so the CZT plan, the tracking demodulation and the remodulation are built once and
+applied to each channel in turn; nothing is concatenated, nothing computed twice.  All phases are formed
+and reduced modulo one cycle in float64 (:func:`dsp.keystone_common._cis`), the cosines and sines then
+taken in float32 for the complex64 data.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..dsp.keystone import keystone_dft, keystone_sinc
+from ..dsp.keystone_common import _cis
+from ..dsp.keystone_czt import KeystonePlan
+
+
+def history_taylor(hist, t_s):
+    """Psi and its first four time derivatives on the pulse grid ``t_s`` (rad, rad/s, ...).
+
+    Psi is the antiderivative of a cubic spline (a piecewise quartic, C^3), so its Taylor series about a
+    pulse to fourth order is the piece itself; across a knot only the jump of the fourth derivative
+    enters (below 1e-9 cycles for shifts of a few pulses).
+    """
+    anti = hist._anti
+    two_pi = 2.0 * np.pi
+    return [two_pi * (anti(t_s) - hist._offset)] + [two_pi * anti(t_s, nu) for nu in (1, 2, 3, 4)]
+
+
+def history_phase_shifted(derivs, dt_s):
+    """Psi(t_m + dt[m, k]) from the per-pulse derivatives (Horner, float64): the tracking keystone's
+    remodulation at the resampled times tau (eq. 8), without evaluating the spline at every (m, k)."""
+    p0, p1, p2, p3, p4 = (d[:, None] for d in derivs)
+    acc = p4 * (dt_s / 24.0)
+    acc += p3 / 6.0
+    acc *= dt_s
+    acc += p2 / 2.0
+    acc *= dt_s
+    acc += p1
+    acc *= dt_s
+    acc += p0
+    return acc
+
+
+BLOCK_BYTES = 2 << 20       # CZT work buffer per column block (L x columns x 8 bytes): ~50 columns at L = 5000
+
+
+def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, doppler_ref=0.0,
+                  n_taps=16, tracking=None, block_bytes: int = BLOCK_BYTES):
+    """Keystone of both channels ([n_slow, n_cols] each) sharing one geometry; returns (y_sum, y_diff).
+
+    ``tracking``: None, or (hist, slow_time_s, prf_hz, scale) for the tracking keystone: demodulate by
+    exp(-j Psi(t) scale), resample with F = 0, remodulate by exp(j Psi(t0 + tau/PRF) scale) with
+    scale = (f_c + f_r)/f_c per column.  Columns are independent, so the work runs over blocks of
+    range-frequency columns (plan, chirps and buffers of one block at a time: bounded memory, the
+    same numbers).
+    """
+    p, n_cols = x_sum.shape
+    alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n_cols,))
+    t0_index = np.broadcast_to(np.asarray(t0_index, dtype=np.float64), (n_cols,))
+    nfft = 2 * p if implementation == "czt" else p
+    step = max(1, int(block_bytes) // (8 * nfft))
+    y_sum = np.empty((p, n_cols), np.complex64)
+    y_diff = np.empty((p, n_cols), np.complex64)
+    for lo in range(0, n_cols, step):
+        blk = slice(lo, min(n_cols, lo + step))
+        trk = None
+        if tracking is not None:
+            hist, t, prf_hz, scale = tracking
+            trk = (hist, t, prf_hz, np.broadcast_to(scale, (n_cols,))[blk])
+        y_sum[:, blk], y_diff[:, blk] = _keystone_block(
+            x_sum[:, blk], x_diff[:, blk], alpha=alpha[blk], t0_index=t0_index[blk],
+            implementation=implementation, doppler_ref=doppler_ref, n_taps=n_taps, tracking=trk,
+            ambiguity=ambiguity if np.ndim(ambiguity) == 0 else np.asarray(ambiguity)[blk])
+    return y_sum, y_diff
+
+
+def _keystone_block(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, doppler_ref, n_taps,
+                    tracking):
+    p = x_sum.shape[0]
+    demod = remod = None
+    plan = KeystonePlan(p, alpha, t0_index=t0_index) if implementation == "czt" else None
+    if tracking is not None:
+        hist, t, prf_hz, scale = tracking
+        derivs = history_taylor(hist, t)
+        demod = _cis(-np.outer(derivs[0], scale) / (2.0 * np.pi), np.complex64)
+        # tau = alpha (m - t0) + t0 (eq. 8): the shift from pulse m is (alpha - 1)(m - t0) pulses
+        dt_s = np.subtract.outer(np.arange(p, dtype=np.float64), t0_index) * ((alpha - 1.0) / prf_hz)
+        cycles = history_phase_shifted(derivs, dt_s)
+        cycles *= scale / (2.0 * np.pi)
+        del dt_s
+        if plan is not None:         # remodulation folded into the CZT's output chirp: one pass
+            cycles += plan.post_cycles_f0()
+            post = _cis(cycles, np.complex64)
+            post *= np.float32(1.0 / p)
+        else:
+            remod = _cis(cycles, np.complex64)
+        del cycles
+    if implementation == "czt":
+        if tracking is not None:
+            run = lambda x: plan(x, post=post)                                  # noqa: E731
+        else:
+            run = lambda x: plan(x, ambiguity=ambiguity)                        # noqa: E731
+    elif implementation == "dft":
+        run = lambda x: keystone_dft(x, alpha, t0_index=t0_index,                # noqa: E731
+                                     ambiguity=ambiguity).astype(np.complex64)
+    elif implementation == "sinc":
+        run = lambda x: keystone_sinc(x, alpha, t0_index=t0_index, doppler_ref=doppler_ref,  # noqa: E731
+                                      n_taps=n_taps).astype(np.complex64)
+    else:
+        raise ValueError(f"keystone implementation {implementation!r}; allowed: czt, dft, sinc")
+    out = []
+    for x in (x_sum, x_diff):
+        if demod is not None:
+            x = x * demod
+        y = run(x)
+        if remod is not None:
+            y *= remod
+        out.append(y)
+    return out[0], out[1]

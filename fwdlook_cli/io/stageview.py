@@ -1,0 +1,77 @@
+"""Stage files that are views: re-layout stages (``decimate``, ``regroup``) only reshape arrays the
+previous stage file already holds, so their file stores those arrays as HDF5 *virtual datasets* mapped
+onto the previous file (row-major order is the same; one mapping per array) instead of a second copy.
+The file keeps its coordinates, settings and hashes like any stage file, and records which file it views
+and that file's key (``view_source``, ``view_source_sha256``): a view whose source is missing or was
+rewritten with another key is not reused (:func:`view_file_key`), since HDF5 would read fill values.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .stagefile import stage_file_key
+
+
+def reshaped_views(out, previous) -> dict:
+    """{name: source name} of ``out``'s non-coordinate arrays that are reshapes (same bytes, same dtype,
+    C order) of an array of the same name in ``previous``."""
+    found = {}
+    for name, var in out.vars.items():
+        if var.dims == (name,) or name not in previous.vars:
+            continue
+        src = previous.vars[name].data
+        a = var.data
+        if (a.dtype == src.dtype and a.size == src.size and a.flags.c_contiguous and src.flags.c_contiguous
+                and np.shares_memory(a, src) and a.__array_interface__["data"][0] == src.__array_interface__["data"][0]):
+            found[name] = name
+    return found
+
+
+def virtual_layout(source_file: Path, source_name: str, shape, dtype, source_shape):
+    """A virtual layout of ``shape`` whose row-major elements are those of ``source_file:/source_name``."""
+    layout = h5py.VirtualLayout(shape=tuple(shape), dtype=dtype)
+    layout[...] = h5py.VirtualSource(Path(source_file).name, source_name, shape=tuple(source_shape))[...]
+    return layout
+
+
+def view_file_key(path: Path) -> str | None:
+    """The stage file's key when it can be trusted: as ``stage_file_key``, and for a view, only while
+    its source file exists with the key recorded when the view was written."""
+    key = stage_file_key(path)
+    if key is None:
+        return None
+    try:
+        with h5py.File(path, "r") as f:
+            source = f.attrs.get("view_source")
+            source_key = f.attrs.get("view_source_sha256")
+    except OSError:
+        return None
+    if source is None:
+        return key
+    return key if stage_file_key(Path(path).parent / str(source)) == source_key else None
+
+
+def read_stage_lazy(path: Path, min_bytes: int = 1 << 20):
+    """A stage file as :class:`StageData` whose large arrays (``min_bytes`` or more, not coordinates)
+    stay on disk as open ``h5py.Dataset`` objects, read block by block by a stage that slices them
+    (``monopulse_image`` reads whole CPIs); returns (data, open file) — close the file when done."""
+    import json
+
+    from .stagefile import PROVENANCE_KEYS, StageData, Var
+
+    f = h5py.File(path, "r")
+    out = StageData()
+    for k, v in f.attrs.items():
+        if k not in PROVENANCE_KEYS:
+            out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+    for name, ds in f.items():
+        if not isinstance(ds, h5py.Dataset):
+            continue
+        dims = tuple(json.loads(ds.attrs["dims"])) if "dims" in ds.attrs else (name,)
+        lazy = dims != (name,) and ds.size * ds.dtype.itemsize >= min_bytes
+        out.vars[name] = Var(ds if lazy else ds[()], dims, str(ds.attrs.get("units", "")),
+                             str(ds.attrs.get("long_name", "")))
+    return out, f

@@ -1,0 +1,242 @@
+"""Measuring tools for ``fwdlook bench``: medians of repeats, the chain timed as it runs (stage files,
+plans and all), its peak resident memory, and the scaling series behind ``--scaling``.
+
+Peak RSS of a block of code is read in-process: writing ``5`` to ``/proc/self/clear_refs`` resets the
+kernel's high-water mark ``VmHWM`` to the current RSS (Linux >= 4.0), so ``VmHWM`` after the block minus
+``VmRSS`` before it is the block's own peak above what was already resident (interpreter, libraries,
+the cube).  Where that is not available (not Linux) the figure is None, never a guess.
+"""
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def median_time(fn, repeats=5):
+    """Median wall time of ``repeats`` calls of ``fn`` (s)."""
+    times = []
+    for _ in range(max(1, int(repeats))):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def _status_kib(field: str):
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def reset_peak_rss() -> int | None:
+    """Reset VmHWM to the current RSS; returns the current RSS in bytes (None where unsupported)."""
+    try:
+        with open("/proc/self/clear_refs", "w", encoding="ascii") as f:
+            f.write("5")
+    except OSError:
+        return None
+    rss = _status_kib("VmRSS")
+    return None if rss is None else rss * 1024
+
+
+def peak_rss_bytes() -> int | None:
+    hwm = _status_kib("VmHWM")
+    return None if hwm is None else hwm * 1024
+
+
+def time_chain(cube, scn: dict, repeats: int = 3, rss: bool = True) -> dict:
+    """Run the whole chain ``repeats`` times as ``fwdlook process`` runs it (every stage recomputed,
+    every stage file, image.h5 and metrics.json written; no PNG): medians per stage and in total.
+    With ``rss``, the chain's peak RSS is measured once more in a fresh interpreter
+    (:func:`chain_peak_rss`), since a warm process reuses memory it already holds."""
+    from ..forward.process import process_cube
+
+    per_stage: dict[str, list[float]] = {}
+    for _ in range(max(1, int(repeats))):
+        with tempfile.TemporaryDirectory() as tmp:
+            metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False)
+        for stage, seconds in metrics["timing_s"].items():
+            per_stage.setdefault(stage, []).append(float(seconds))
+    out = {k: statistics.median(v) for k, v in per_stage.items()}
+    result = {"stages_s": {k: v for k, v in out.items() if k != "total"}, "total_s": out["total"]}
+    if rss:
+        result.update(chain_peak_rss(cube, scn))
+    return result
+
+
+def chain_peak_rss(cube, scn: dict) -> dict:
+    """Peak RSS of ``process_cube`` in a fresh interpreter: after the imports and one warm-up run on the
+    tiny cube (the interpreter base), the cube is read from HDF5 and the chain run once; the
+    high-water mark minus the base, in bytes and as a multiple of the cube (both channels; the cube
+    itself counts)."""
+    import json
+    import subprocess
+    import sys
+
+    from ..io.raw import write_raw
+
+    cube_bytes = cube.sum.nbytes + (cube.diff.nbytes if cube.diff is not None else 0)
+    with tempfile.TemporaryDirectory() as tmp:
+        raw = Path(tmp) / "raw.h5"
+        write_raw(raw, cube)
+        (Path(tmp) / "scn.json").write_text(json.dumps(scn, default=float))
+        code = "from fwdlook_cli.report.benchtools import _rss_probe; _rss_probe()"
+        res = subprocess.run([sys.executable, "-c", code, str(raw), str(Path(tmp) / "scn.json"), tmp],
+                             capture_output=True, text=True, check=False)
+    try:
+        probe = json.loads(res.stdout.strip().splitlines()[-1])
+    except (IndexError, ValueError):
+        return {"peak_rss_above_base_bytes": None, "cube_bytes": cube_bytes, "peak_rss_x_cube": None}
+    above = probe["hwm"] - probe["base"] if probe["hwm"] and probe["base"] else None
+    return {"peak_rss_above_base_bytes": above, "cube_bytes": cube_bytes, "interpreter_base_bytes": probe["base"],
+            "peak_rss_x_cube": None if above is None else above / cube_bytes}
+
+
+def _rss_probe() -> None:
+    """Child of :func:`chain_peak_rss`: argv = RAW.h5 SCENARIO.json TMPDIR; prints {base, hwm}."""
+    import json
+    import sys
+
+    from ..forward.process import process_cube
+    from ..io.raw import read_raw
+    import importlib
+
+    for name in ("fwdlook_cli.forward.chain", "fwdlook_cli.forward.evaluate"):   # before the base
+        importlib.import_module(name)
+
+    raw, scn_path, tmp = sys.argv[1:4]
+    scn = json.loads(Path(scn_path).read_text())
+    # warm-up on the tiny cube (HDF5, FFT plans, BLAS pools, lazily imported modules in use), as the
+    # tiny-cube base of the README's /usr/bin/time figures
+    from ..forward.simulate import simulate_scenario
+    from ..scenario.loader import load_scenario
+
+    tiny = load_scenario(Path(__file__).resolve().parents[2] / "scenarios" / "tiny.yaml")
+    tiny["processing"] = dict(tiny["processing"], method=scn["processing"]["method"])
+    tiny_cube, _ = simulate_scenario(tiny)
+    process_cube(tiny_cube, tiny, Path(tmp) / "warm", force=True, quiet=True, png=False, release_cube=True)
+    del tiny_cube
+    base = reset_peak_rss()
+    cube = read_raw(raw)
+    process_cube(cube, scn, Path(tmp) / "run", force=True, quiet=True, png=False, release_cube=True)
+    print(json.dumps({"base": base, "hwm": peak_rss_bytes()}))
+
+
+# ----------------------------------------------------------------------------------------------
+# scaling series (fwdlook bench --scaling)
+# ----------------------------------------------------------------------------------------------
+PULSES = (1250, 2500, 5000, 10000, 20000)
+RANGE_BINS = (256, 512, 1024, 2048, 4096)
+SCALING_POINTS_M = [[-100.0, 1700.0], [0.0, 1730.0], [100.0, 1680.0]]
+
+
+def scaling_scenario(paper: dict, n_pulses: int, n_range: int) -> dict:
+    """The paper scenario with three points, ``n_pulses`` over the same 1 s scan (the PRF scales with
+    the pulse count, so the geometry stays that of the paper) and ``n_range`` range samples."""
+    import copy
+
+    from ..dsp.geometry import C_MPS
+
+    scn = copy.deepcopy(paper)
+    prf = paper["radar"]["prf_hz"] * n_pulses / 2500.0
+    dr = C_MPS / (2.0 * scn["radar"]["fs_hz"])
+    near = 1705.0 - 0.5 * n_range * dr
+    scn["radar"].update(prf_hz=prf, n_pulses=n_pulses, range_window_m=[near, near + (n_range - 0.5) * dr])
+    scn["scene"].update(kind="points", points_m=SCALING_POINTS_M, amplitude=1.0)
+    return scn
+
+
+def fit_exponent(sizes, seconds) -> float:
+    """Least-squares slope of log(seconds) against log(size)."""
+    return float(np.polyfit(np.log(np.asarray(sizes, float)), np.log(np.asarray(seconds, float)), 1)[0])
+
+
+def nlogn_exponent(sizes) -> float:
+    """The exponent a pure N log N cost shows over the same sizes (the bar no stage may exceed)."""
+    n = np.asarray(sizes, float)
+    return fit_exponent(n, n * np.log(n))
+
+
+def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int = 3, plot_path=None,
+                   pulses=PULSES, range_bins=RANGE_BINS, progress=None) -> dict:
+    """Stage times over pulses (range bins fixed at 280) and range bins (pulses fixed at 2500); fitted
+    exponents per stage and in total; a log-log plot when ``plot_path`` is given."""
+    from ..forward.simulate import simulate_scenario
+
+    result = {"pulses": list(pulses), "range_bins": list(range_bins), "series": {}, "exponents": {},
+              "nlogn_exponent": {"pulses": nlogn_exponent(pulses), "range_bins": nlogn_exponent(range_bins)}}
+    for axis, sizes in (("pulses", pulses), ("range_bins", range_bins)):
+        for method in methods:
+            rows = []
+            for n in sizes:
+                shape = (n, 280) if axis == "pulses" else (2500, n)
+                scn = scaling_scenario(paper, *shape)
+                scn["processing"] = dict(scn["processing"], method=method)
+                cube, _ = simulate_scenario(scn)
+                t = time_chain(cube, scn, repeats=repeats, rss=False)
+                rows.append({"shape": list(cube.sum.shape), **t["stages_s"], "total": t["total_s"]})
+                if progress:
+                    progress(f"scaling {axis} {method} {cube.sum.shape}: {t['total_s']:.2f} s")
+            key = f"{axis}_{method}"
+            result["series"][key] = rows
+            stages = [k for k in rows[0] if k not in ("shape",)]
+            result["exponents"][key] = {
+                k: fit_exponent(sizes, [max(r[k], 1e-6) for r in rows]) for k in stages
+                if min(r[k] for r in rows) > 1e-4}
+    if plot_path is not None:
+        _plot_scaling(result, Path(plot_path))
+        result["plot"] = str(plot_path)
+    return result
+
+
+def _plot_scaling(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = list(result["series"])
+    fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 4.0), squeeze=False)
+    for ax, key in zip(axes[0], keys):
+        rows = result["series"][key]
+        axis = "pulses" if key.startswith("pulses") else "range_bins"
+        n = np.asarray(result[axis], float)
+        for stage in [k for k in rows[0] if k != "shape"]:
+            t = np.asarray([r[stage] for r in rows])
+            if t.min() <= 1e-4:
+                continue
+            ax.loglog(n, t, "o-", ms=3, lw=1, label=f"{stage} ({result['exponents'][key].get(stage, 0):.2f})")
+        ref = n * np.log(n)
+        ax.loglog(n, ref / ref[-1] * max(r["total"] for r in rows), "k--", lw=0.8, label="N log N")
+        ax.set_xlabel(axis.replace("_", " "))
+        ax.set_ylabel("s")
+        ax.set_title(key.replace("_", " "), fontsize=9)
+        ax.legend(fontsize=6)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_scaling_cube(path, n_pulses: int, n_range: int, paper: dict | None = None) -> dict:
+    """A cheap big cube for memory measurements: :func:`scaling_scenario` (three points, the paper's
+    radar and motion, the PRF scaled with the pulse count) simulated and written as a raw cube.
+    Returns the scenario (its ``processing`` section is the paper's)."""
+    from ..forward.simulate import simulate_scenario
+    from ..io.raw import write_raw
+    from ..scenario.loader import load_scenario
+
+    paper = paper or load_scenario(Path(__file__).resolve().parents[2] / "scenarios" / "paper_fig6_a50.yaml")
+    scn = scaling_scenario(paper, n_pulses, n_range)
+    cube, _ = simulate_scenario(scn)
+    write_raw(path, cube)
+    return scn

@@ -1,0 +1,294 @@
+"""Issue 11: the fast paths give the results of the straightforward ones; stage views, --keep-stages,
+and the bench's measuring tools.
+
+Each fast path is checked against an independent straightforward implementation written here (the
+formulas of the chain before issue 11): the shared-chirp tracking keystone against demodulate /
+concatenate / keystone / remodulate with the spline evaluated at every resampled time; the cell
+selection against full 4x oversampling of every row with the same floor; the single-thread Doppler
+products against ``np.matmul``.
+"""
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+import scipy.fft
+
+from fwdlook_cli.cli import main
+from fwdlook_cli.dsp.blas import batched_matmul
+from fwdlook_cli.dsp.imaging import azimuth_at_t_ref_cells, kept_cells, median_floor, power_f32
+from fwdlook_cli.dsp.keystone import keystone_dft
+from fwdlook_cli.dsp.keystone_common import _cis
+from fwdlook_cli.dsp.keystone_czt import KeystonePlan
+from fwdlook_cli.dsp.geometry import azimuth_at_t_ref
+from fwdlook_cli.dsp.peaks import oversample_range
+from fwdlook_cli.forward.keystone_fast import keystone_both
+from fwdlook_cli.forward.motion import DopplerPhaseHistory
+from fwdlook_cli.report.benchtools import fit_exponent, nlogn_exponent, peak_rss_bytes, reset_peak_rss
+
+
+def rel_db(a, b):
+    return 10 * np.log10(np.sum(np.abs(a - b) ** 2) / np.sum(np.abs(b) ** 2))
+
+
+# ----------------------------------------------------------------------------------------------
+# tracking keystone: chirps once, both channels
+# ----------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def tracking_case():
+    rng = np.random.default_rng(3)
+    p, n_f, prf, fc = 512, 24, 2500.0, 18e9
+    t = np.arange(p) / prf
+    vel = np.column_stack([np.zeros(p), 240.0 + 50.0 * t, np.zeros(p)])
+    beam = -15.0 + 30.0 * t / t[-1]
+    fr = scipy.fft.fftfreq(n_f, 1 / 60e6)
+    hist = DopplerPhaseHistory(t, vel, beam, 1.7, fc, t[p // 2])
+    xs = (rng.standard_normal((p, n_f)) + 1j * rng.standard_normal((p, n_f))).astype(np.complex64)
+    xd = (rng.standard_normal((p, n_f)) + 1j * rng.standard_normal((p, n_f))).astype(np.complex64)
+    return dict(p=p, fr=fr, fc=fc, prf=prf, t=t, hist=hist, xs=xs, xd=xd, alpha=fc / (fc + fr),
+                t0=np.full(n_f, p / 2.0), scale=1.0 + fr / fc)
+
+
+def reference_tracking(c, implementation):
+    """The pre-issue-11 formula: both channels side by side, every phase from the spline itself."""
+    x = np.concatenate([c["xs"], c["xd"]], axis=1)
+    alpha2, t02, scale2 = (np.tile(v, 2) for v in (c["alpha"], c["t0"], c["scale"]))
+    x = x * _cis(-c["hist"].phase_rad(c["t"])[:, None] * scale2[None, :] / (2 * np.pi), np.complex128)
+    if implementation == "czt":
+        y = KeystonePlan(c["p"], alpha2, t0_index=t02, dtype=np.complex128)(x, ambiguity=0)
+    else:
+        y = keystone_dft(x, alpha2, t0_index=t02, ambiguity=0)
+    tau = alpha2[None, :] * (np.arange(c["p"])[:, None] - t02[None, :]) + t02[None, :]
+    y = y * _cis(c["hist"].phase_rad(c["t"][0] + tau / c["prf"]) * scale2 / (2 * np.pi), np.complex128)
+    n = c["xs"].shape[1]
+    return y[:, :n], y[:, n:]
+
+
+@pytest.mark.parametrize("implementation", ["czt", "dft"])
+def test_shared_chirp_tracking_keystone_matches_the_direct_formula(tracking_case, implementation):
+    c = tracking_case
+    ys, yd = keystone_both(c["xs"], c["xd"], alpha=c["alpha"], t0_index=c["t0"], implementation=implementation,
+                           ambiguity=0, tracking=(c["hist"], c["t"], c["prf"], c["scale"]))
+    rs, rd = reference_tracking(c, implementation)
+    # complex64 output against a complex128 reference: float32 rounding only (-100 dB: CZT vs DFT bar)
+    assert rel_db(ys, rs) < -100 and rel_db(yd, rd) < -100
+    assert ys.dtype == np.complex64
+
+
+@pytest.mark.parametrize("tracking", [False, True])
+def test_keystone_column_blocks_change_nothing(tracking_case, tracking):
+    c = tracking_case
+    trk = (c["hist"], c["t"], c["prf"], c["scale"]) if tracking else None
+    kw = dict(alpha=c["alpha"], t0_index=c["t0"], implementation="czt", ambiguity=0 if tracking else 3,
+              tracking=trk)
+    whole = keystone_both(c["xs"], c["xd"], block_bytes=1 << 30, **kw)
+    tiny = keystone_both(c["xs"], c["xd"], block_bytes=1, **kw)          # one column per block
+    for a, b in zip(whole, tiny):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_taylor_history_equals_the_spline_at_the_resampled_times(tracking_case):
+    from fwdlook_cli.forward.keystone_fast import history_phase_shifted, history_taylor
+
+    c = tracking_case
+    derivs = history_taylor(c["hist"], c["t"])
+    dt = np.subtract.outer(np.arange(c["p"], dtype=float), c["t0"]) * ((c["alpha"] - 1) / c["prf"])
+    exact = c["hist"].phase_rad(c["t"][:, None] + dt)
+    # a piecewise quartic's own Taylor series: only rounding of phases up to ~1e3 rad remains
+    assert np.max(np.abs(history_phase_shifted(derivs, dt) - exact)) < 1e-8
+
+
+# ----------------------------------------------------------------------------------------------
+# monopulse cells: rows oversampled only where a cell can pass, floor on the native samples
+# ----------------------------------------------------------------------------------------------
+def reference_cells(sum_z, diff_z, floor, factor, threshold_db, dynamic_range_db, max_ratio):
+    s, d = oversample_range(sum_z, factor), oversample_range(diff_z, factor)
+    power = (s.real**2 + s.imag**2).astype(np.float32)
+    ratio = (d.real * s.real + d.imag * s.imag) / np.maximum(power, 1e-30)
+    peak = power.reshape(power.shape[0], -1).max(axis=1)
+    level = np.maximum(floor * 10 ** (threshold_db / 10), peak * 10 ** (-dynamic_range_db / 10))
+    keep = (power > level[:, None, None]) & (np.abs(ratio) < max_ratio)
+    i_cpi, _, i_r = np.nonzero(keep)
+    return i_cpi, i_r, ratio[keep], power[keep], power
+
+
+@pytest.fixture(scope="module")
+def spectra():
+    """Noise plus point targets (band-limited in range: a sinc of the native sampling)."""
+    rng = np.random.default_rng(5)
+    n_cpi, n_dop, n_r = 6, 16, 64
+    z = (rng.standard_normal((2, n_cpi, n_dop, n_r)) + 1j * rng.standard_normal((2, n_cpi, n_dop, n_r))) * 0.1
+    r = np.arange(n_r)
+    for cpi in range(n_cpi):
+        for _ in range(3):
+            dop, r0, a = rng.integers(n_dop), rng.uniform(10, 54), rng.uniform(3, 30)
+            echo = a * np.sinc(r - r0)
+            z[0, cpi, dop] += echo
+            z[1, cpi, dop] += echo * rng.uniform(-0.5, 0.5)
+    return z[0].astype(np.complex64), z[1].astype(np.complex64)
+
+
+@pytest.mark.parametrize("block_cells", [1 << 20, 1])
+def test_kept_cells_equal_full_oversampling(spectra, block_cells):
+    s, d = spectra
+    args = dict(range_oversample=4, threshold_db=12.0, dynamic_range_db=60.0, max_ratio=0.4)
+    i_cpi, i_r, ratio, power, p0 = kept_cells(s, d, block_cells=block_cells, **args)
+    floor = median_floor(power_f32(s), s.shape[1] * s.shape[2])
+    r_cpi, r_r, r_ratio, r_power, _ = reference_cells(s, d, floor, 4, 12.0, 60.0, 0.4)
+    assert len(i_cpi) > 50
+    np.testing.assert_array_equal(i_cpi, r_cpi)
+    np.testing.assert_array_equal(i_r, r_r)
+    np.testing.assert_allclose(power, r_power, rtol=1e-5)
+    np.testing.assert_allclose(ratio, r_ratio, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(p0, np.abs(s) ** 2, rtol=1e-5)
+
+
+def test_native_floor_is_the_oversampled_median_within_its_statistical_error():
+    # pure noise: the median of |n|^2 is sigma^2 ln 2 for both; 1/(ln 2 sqrt(N)) relative std. error
+    rng = np.random.default_rng(11)
+    n_cpi, n_dop, n_r = 40, 32, 128
+    z = ((rng.standard_normal((n_cpi, n_dop, n_r)) + 1j * rng.standard_normal((n_cpi, n_dop, n_r)))
+         / np.sqrt(2)).astype(np.complex64)
+    native = median_floor(power_f32(z), n_dop * n_r)
+    over = oversample_range(z, 4)
+    full = np.median((np.abs(over) ** 2).reshape(n_cpi, -1), axis=1)
+    assert np.allclose(native, np.median(np.abs(z.reshape(n_cpi, -1)) ** 2, axis=1), rtol=1e-6)
+    err = 1.0 / (np.log(2) * np.sqrt(n_dop * n_r))
+    rel = native / full - 1
+    assert np.sqrt(np.mean(rel**2)) < 2 * err                  # same quantity, sampling error only
+    assert abs(np.mean(rel)) < 3 * err / np.sqrt(n_cpi) + 2e-3
+
+
+def test_cell_geometry_matches_the_general_form():
+    rng = np.random.default_rng(2)
+    n = 1000
+    pos = np.column_stack([rng.uniform(-5, 5, n), rng.uniform(0, 200, n), np.full(n, 50.0)])
+    p_ref = np.array([0.0, 100.0, 50.0])
+    rng_m, az = rng.uniform(1500, 1900, n), rng.uniform(-20, 20, n)
+    fast = azimuth_at_t_ref_cells(rng_m, az, pos, p_ref)
+    slow = azimuth_at_t_ref(rng_m, az, pos, p_ref)
+    for a, b in zip(fast, slow):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+
+
+def test_single_thread_batched_products_equal_matmul():
+    rng = np.random.default_rng(4)
+    e = (rng.standard_normal((7, 16, 8)) + 1j * rng.standard_normal((7, 16, 8))).astype(np.complex64)
+    x = (rng.standard_normal((7, 8, 33)) + 1j * rng.standard_normal((7, 8, 33))).astype(np.complex64)
+    np.testing.assert_array_equal(batched_matmul(e, x), np.matmul(e, x))
+
+
+# ----------------------------------------------------------------------------------------------
+# stage views and --keep-stages
+# ----------------------------------------------------------------------------------------------
+def _run(argv):
+    with pytest.raises(SystemExit) as info:
+        main([str(a) for a in argv])
+    assert info.value.code == 0
+
+
+def test_relayout_stages_are_views_of_the_previous_file(tiny_raw, tmp_path):
+    run_dir = tmp_path / "run"
+    _run(["process", tiny_raw, "-o", run_dir, "-q"])
+    st = run_dir / "stages"
+    for view, source in (("02_decimate.h5", "01_range_fft.h5"), ("04_regroup.h5", "03_keystone.h5")):
+        with h5py.File(st / view) as f, h5py.File(st / source) as g:
+            assert f.attrs["view_source"] == source
+            assert f.attrs["view_source_sha256"] == g.attrs["config_sha256"]
+            for ch in ("sum_f", "diff_f"):
+                assert f[ch].is_virtual
+                np.testing.assert_array_equal(f[ch][()].reshape(-1), g[ch][()].reshape(-1))
+        # a view is a few kB of mappings, not a second copy of the cube
+        assert (st / view).stat().st_size < 0.2 * (st / source).stat().st_size
+
+
+def test_a_view_whose_source_changed_is_not_trusted(tiny_raw, tmp_path, capsys):
+    from fwdlook_cli.io.stageview import view_file_key
+
+    run_dir = tmp_path / "run"
+    _run(["process", tiny_raw, "-o", run_dir, "-q"])
+    st = run_dir / "stages"
+    assert view_file_key(st / "02_decimate.h5") is not None
+    with h5py.File(st / "01_range_fft.h5", "r+") as f:           # the source now claims another key
+        f.attrs["config_sha256"] = "0" * 64
+    assert view_file_key(st / "02_decimate.h5") is None
+    capsys.readouterr()
+    _run(["process", tiny_raw, "-o", run_dir])
+    err = capsys.readouterr().err
+    assert "[1/7] range_fft" in err and "[2/7] decimate" in err     # recomputed from the start
+    assert view_file_key(st / "02_decimate.h5") is not None
+
+
+@pytest.mark.parametrize("keep, files", [
+    ("last", ["06_doppler_spectra.h5", "07_monopulse_image.h5"]),
+    ("none", []),
+])
+def test_keep_stages_writes_less_and_gives_the_same_metrics(tiny_raw, tmp_path, capsys, keep, files):
+    full, lean = tmp_path / "all", tmp_path / keep
+    _run(["process", tiny_raw, "-o", full, "-q"])
+    _run(["process", tiny_raw, "-o", lean, "-q", "--keep-stages", keep])
+    assert sorted(p.name for p in (lean / "stages").glob("*.h5")) == files
+    a, b = (json.loads((d / "metrics.json").read_text()) for d in (full, lean))
+    # with `all` the image stage reads the spectra block by block from 06_doppler_spectra.h5, with
+    # `none` from memory: the same targets to the last digit
+    assert a["targets"] == b["targets"] and a["stage_sha256"] == b["stage_sha256"]
+    # resume: with `last`, the same settings reuse everything; a new threshold reruns the image only
+    capsys.readouterr()
+    _run(["process", tiny_raw, "-o", lean, "--keep-stages", keep])
+    err = capsys.readouterr().err
+    if keep == "last":
+        assert "up to date" in err
+        _run(["process", tiny_raw, "-o", lean, "--keep-stages", keep, "--set", "processing.threshold_db=14"])
+        err = capsys.readouterr().err
+        assert "[7/7] monopulse_image" in err and "[6/7]" not in err
+    else:
+        assert "[1/7] range_fft" in err
+
+
+# ----------------------------------------------------------------------------------------------
+# bench tools
+# ----------------------------------------------------------------------------------------------
+def test_exponent_fit_and_the_nlogn_bar():
+    n = np.array([1250, 2500, 5000, 10000, 20000], float)
+    assert fit_exponent(n, 3e-7 * n**1.5) == pytest.approx(1.5, abs=1e-9)
+    bar = nlogn_exponent(n)
+    assert 1.0 < bar < 1.15                         # N log N looks like N^1.1 over a decade
+    assert fit_exponent(n, n * np.log(n)) == pytest.approx(bar)
+
+
+def test_peak_rss_sees_a_temporary_allocation():
+    base = reset_peak_rss()
+    if base is None:
+        pytest.skip("no /proc/self/clear_refs here")
+    a = np.ones(64 * 2**20 // 8)                    # 64 MiB touched, then freed
+    del a
+    assert peak_rss_bytes() - base >= 60 * 2**20
+
+
+def test_scaling_scenario_has_the_requested_shape():
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.report.benchtools import scaling_scenario
+    from fwdlook_cli.scenario.loader import load_scenario
+    from pathlib import Path
+
+    paper = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "paper_fig6_a50.yaml")
+    cube, _ = simulate_scenario(scaling_scenario(paper, 250, 256))
+    assert cube.sum.shape == (250, 256)
+    assert cube.radar["prf_hz"] == pytest.approx(250.0)        # the same 1 s scan at a tenth of the PRF
+
+
+def test_chain_timing_reports_every_stage_and_the_peak_rss(tiny_raw):
+    from fwdlook_cli.io.raw import read_raw
+    from fwdlook_cli.report.benchtools import time_chain
+    from fwdlook_cli.testing import tiny_scenario
+
+    cube = read_raw(tiny_raw)
+    t = time_chain(cube, tiny_scenario(), repeats=1)
+    assert list(t["stages_s"]) == ["range_fft", "decimate", "keystone", "regroup", "range_curvature",
+                                   "doppler_spectra", "monopulse_image", "outputs"]
+    assert t["total_s"] >= sum(t["stages_s"].values()) * 0.99
+    if t["peak_rss_x_cube"] is not None:                       # Linux: measured in a fresh interpreter
+        # the tiny cube (0.25 MB) is within the RSS noise of two interpreters: only the sign is a fact
+        assert t["peak_rss_above_base_bytes"] >= 0
