@@ -152,3 +152,15 @@ def test_no_module_much_over_500_lines():
     long = {module_name(p): n for p in PKG.rglob("*.py")
             if (n := len(p.read_text(encoding="utf-8").splitlines())) > 550}
     assert not long, long
+
+
+def test_repository_paths_of_moved_modules_exist():
+    """Modules that find the repository's scenarios from their own file resolve to the real folders
+    (a module moved one package deeper must climb one level more)."""
+    from fwdlook_cli.report import bench, experiments, fig8, isar_tables, scene_bench
+
+    root = PKG.parent
+    assert experiments.REPO == root and fig8.REPO == root
+    for path in (experiments.SCENARIOS, experiments.CONFIGS, bench.SCENARIOS, isar_tables._scenario_dir()):
+        assert path.is_dir(), path
+    assert scene_bench.SCENARIO.is_file()

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 SCENARIO = REPO / "scenarios" / "paper_fig8_a50.yaml"
 CONFIGS = REPO / "configs"
 

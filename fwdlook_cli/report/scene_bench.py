@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 SIZES = (1_000, 10_000, 100_000, 1_000_000)
-SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "paper_fig6_a50.yaml"
+SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "paper_fig6_a50.yaml"
 AREA_X_M = (-300.0, 300.0)
 AREA_Y_M = (1400.0, 2000.0)
 
