@@ -32,6 +32,8 @@ def save_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
     extent = _uniform_extent(x_axis, y_axis)
     if extent is not None:      # a raster: what pcolormesh draws cell by cell, at a fraction of the
         # memory (a quad mesh of ~1 M cells held about 90 MB while drawn) and of the time
+        db, extent = _display_raster(db, np.asarray(x_axis, float), np.asarray(y_axis, float),
+                                     -dynamic_range_db)
         mesh = ax.imshow(db, extent=extent, origin="lower", interpolation="nearest", vmin=-dynamic_range_db,
                          vmax=0, cmap="viridis")
     else:
@@ -51,6 +53,34 @@ def save_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
             fig.savefig(tmp)
     finally:
         plt.close(fig)
+
+
+DISPLAY_PIXELS = (420, 640)     # (rows, columns) of a quick look's axes, about what the figure shows
+
+
+def _display_raster(db, x_axis, y_axis, floor_db, *, margin=0.08, pixels=DISPLAY_PIXELS):
+    """The part of a dB raster that holds anything above ``floor_db`` (plus a margin), reduced to about
+    the display's pixels by a block maximum, so that a target one cell wide (the dwell image's 0.05 deg
+    bins) stays visible instead of being dropped by the renderer's resampling.  Returns (raster, extent)."""
+    def span(mask, n):
+        idx = np.flatnonzero(mask)
+        if len(idx) == 0:
+            return 0, n
+        pad = int(np.ceil(margin * (idx[-1] - idx[0] + 1))) + 1
+        return max(0, idx[0] - pad), min(n, idx[-1] + pad + 1)
+
+    above = db > floor_db
+    r0, r1 = span(above.any(axis=1), db.shape[0])
+    c0, c1 = span(above.any(axis=0), db.shape[1])
+    sub = db[r0:r1, c0:c1]
+    fy, fx = max(1, -(-sub.shape[0] // pixels[0])), max(1, -(-sub.shape[1] // pixels[1]))
+    ny, nx = -(-sub.shape[0] // fy) * fy, -(-sub.shape[1] // fx) * fx
+    padded = np.full((ny, nx), np.float32(floor_db - 10.0), dtype=np.float32)
+    padded[:sub.shape[0], :sub.shape[1]] = sub
+    pooled = padded.reshape(ny // fy, fy, nx // fx, fx).max(axis=(1, 3))
+    dx, dy = x_axis[1] - x_axis[0], y_axis[1] - y_axis[0]
+    extent = [x_axis[c0] - dx / 2, x_axis[c0] - dx / 2 + nx * dx, y_axis[r0] - dy / 2, y_axis[r0] - dy / 2 + ny * dy]
+    return pooled, extent
 
 
 def _uniform_extent(x_axis, y_axis):
