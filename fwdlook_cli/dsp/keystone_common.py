@@ -60,6 +60,11 @@ def _cis(cycles, dtype=np.complex128):
     return out
 
 
+def cis_rad(phase_rad):
+    """exp(j phase) in complex64, the phase (radians) reduced modulo one cycle in float64 first."""
+    return _cis(np.asarray(phase_rad) / (2.0 * np.pi), np.complex64)
+
+
 def _check_dtype(dtype):
     dtype = np.dtype(dtype)
     if dtype not in (np.dtype(np.complex64), np.dtype(np.complex128)):

@@ -27,7 +27,7 @@ from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both
 from ..dsp.blas import batched_matmul
 from ..dsp.imaging import azimuth_at_t_ref_cells, iter_kept_cells
-from ..dsp.keystone_common import _cis as _cis_cycles
+from ..dsp.keystone_common import cis_rad as _cis
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, fit_motion,
                      keystone_residual_envelope_m, reference_depression_deg, unit_vector)
 from ..runner import Stage
@@ -42,10 +42,6 @@ def _ctx(data: StageData) -> StageData:
     """A new StageData carrying the context vars (axes, INS) and attrs forward."""
     return data.copy_vars(*CONTEXT)
 
-
-def _cis(phase_rad):
-    """exp(j phase) in complex64, the phase reduced mod 2 pi in float64 first (keystone._cis)."""
-    return _cis_cycles(np.asarray(phase_rad) / (2.0 * np.pi), np.complex64)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -57,17 +57,13 @@ import scipy.sparse
 from ..dsp.antenna import two_way_width_for
 from ..dsp.geometry import C_MPS, azimuth_at_t_ref
 from ..dsp.peaks import oversample_range
-from ..dsp.keystone_common import _cis as _cis_cycles
+from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
 
 
 SUB_APERTURE_DEG = 0.48          # scan per sub-aperture: its rotation and weight are taken at its centre
 DWELL_HALF_WIDTH_BEAMS = 0.75    # dwell of a direction: offsets within 0.75 two-way widths (3.2 deg, paper)
 
-
-def _cis(phase_rad):
-    """exp(j phase) in complex64, the phase reduced mod 2 pi in float64 first."""
-    return _cis_cycles(np.asarray(phase_rad) / (2.0 * np.pi), np.complex64)
 
 
 def image_angle_grid(beam_deg, beamwidth_deg, angle_step_deg):
