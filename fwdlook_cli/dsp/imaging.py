@@ -27,14 +27,36 @@ def power_f32(z):
     return p
 
 
+MEDIAN_SAMPLE_STRIDE = 16      # the bracket of :func:`median_floor` comes from every 16th cell
+
+
 def median_floor(power, axis_cells):
-    """Median over the trailing cells of ``power`` reshaped [n_groups, -1], by ``np.partition`` on the
-    two middle order statistics only (the exact median, without sorting the rest)."""
-    flat = np.array(power.reshape(power.shape[0], axis_cells), dtype=np.float32)   # partition works in place
+    """Exact median over the trailing cells of ``power`` reshaped [n_groups, -1].
+
+    A bracket [lo, hi] around the median is read from a strided sample (its order statistics
+    +-4 standard deviations of the sample median's rank), the cells below ``lo`` are counted, and only
+    the cells inside the bracket (a few per cent) are partitioned for the two middle order statistics:
+    the same number as ``np.median``, about half the work of partitioning every cell.  A group whose
+    bracket misses the median (probability ~1e-4) is partitioned whole."""
+    flat = power.reshape(power.shape[0], axis_cells)
     n = flat.shape[1]
-    k = [(n - 1) // 2, n // 2]
-    flat.partition(k, axis=1)
-    return 0.5 * (flat[:, k[0]].astype(np.float64) + flat[:, k[1]].astype(np.float64))
+    k0, k1 = (n - 1) // 2, n // 2
+    out = np.empty(flat.shape[0])
+    sample = np.sort(flat[:, ::MEDIAN_SAMPLE_STRIDE], axis=1)
+    m = sample.shape[1]
+    half = int(np.ceil(2.0 * np.sqrt(m))) + 2          # 4 sigma of the median's rank, sqrt(m)/2 each
+    lo = sample[:, max(0, m // 2 - half)][:, None]
+    hi = sample[:, min(m - 1, m // 2 + half)][:, None]
+    inside = (flat >= lo) & (flat <= hi)
+    below = np.count_nonzero(flat < lo, axis=1)
+    for g in range(flat.shape[0]):
+        r0, r1 = k0 - below[g], k1 - below[g]
+        cand = flat[g][inside[g]]
+        if r0 < 0 or r1 >= len(cand):                  # the bracket missed: the whole group
+            cand, r0, r1 = np.array(flat[g], dtype=np.float32), k0, k1
+        cand.partition([r0, r1])
+        out[g] = 0.5 * (float(cand[r0]) + float(cand[r1]))
+    return out
 
 
 def oversample_rows(x, factor: int):
@@ -113,9 +135,14 @@ def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: floa
     i_row, i_r = np.divmod(flat, n_os)
     sk, pk = s.reshape(-1)[flat], power.reshape(-1)[flat]
     del s, power
-    hit = np.unique(i_row)
+    # i_row is sorted (flatnonzero order): its distinct rows and each cell's place among them by one
+    # comparison and a cumulative sum, not np.unique + searchsorted
+    new_row = np.empty(len(i_row), dtype=bool)
+    new_row[:1] = True
+    np.not_equal(i_row[1:], i_row[:-1], out=new_row[1:])
+    hit = i_row[new_row]
     d = oversample_rows(diff_z.reshape(-1, n_r)[rows[hit]], range_oversample)
-    dk = d[np.searchsorted(hit, i_row), i_r]
+    dk = d[np.cumsum(new_row) - 1, i_r]
     del d
     ratio = np.multiply(dk.real, sk.real)                   # Re(d conj s) / |s|^2, float32
     ratio += dk.imag * sk.imag

@@ -95,12 +95,16 @@ class KeystonePlan:
         self._pre = _cis(c * ((1.0 - alpha) * t0 / n) + (alpha / (2.0 * n)) * i**2, self.dtype)
 
         # filter h_d = W^(-d^2/2), d = -(n-1)..(n-1), wrapped into length L
-        d = np.arange(L, dtype=np.float64)
-        d[d > L // 2] -= L  # circular lag; |d| <= n-1 is all that matters for L >= 2n-1
+        # circular lag d of FFT row j: j up to L/2, j - L above; |d| <= n-1 is all that matters for
+        # L >= 2n-1.  h is even in d, so its phases are taken once per |d| (half the cosines and
+        # sines) and the rows gathered: the same numbers.
+        j = np.arange(L)
+        abs_d = np.minimum(j, L - j)
         # the filter depends on alpha only: compute it once per distinct alpha (decimated layouts
         # repeat the same range-frequency alphas for every sub-sequence and channel)
         alpha_u, inverse = np.unique(alpha, return_inverse=True)
-        h = _cis(-(alpha_u / (2.0 * n)) * (d**2)[:, None], self.dtype)   # phase reduced in float64
+        d_half = np.arange(L // 2 + 1, dtype=np.float64)
+        h = _cis(-(alpha_u / (2.0 * n)) * (d_half**2)[:, None], self.dtype)[abs_d]   # phase reduced in float64
         self._filt = sfft.fft(h, axis=0, workers=-1, overwrite_x=True)[:, inverse]
         del h
 
