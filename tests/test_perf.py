@@ -292,3 +292,20 @@ def test_chain_timing_reports_every_stage_and_the_peak_rss(tiny_raw):
     if t["peak_rss_x_cube"] is not None:                       # Linux: measured in a fresh interpreter
         # the tiny cube (0.25 MB) is within the RSS noise of two interpreters: only the sign is a fact
         assert t["peak_rss_above_base_bytes"] >= 0
+
+
+@pytest.mark.parametrize("case", ["noise", "constant", "third_strong", "tiny_groups", "sorted"])
+def test_median_floor_is_exactly_the_median(case):
+    """The bracketed median (sampled bracket, partition of the bracket only) is np.median to the bit,
+    also where the bracket cannot hold the median (constant data, ties) or the group is tiny."""
+    rng = np.random.default_rng(3)
+    shape = (4, 3) if case == "tiny_groups" else (6, 17920)
+    p = rng.exponential(size=shape).astype(np.float32)
+    if case == "constant":
+        p[:] = 2.5
+    elif case == "third_strong":
+        p[:, : shape[1] // 3] *= 1e3
+    elif case == "sorted":
+        p.sort(axis=1)
+    got = median_floor(p, shape[1])
+    np.testing.assert_array_equal(got, np.median(p.astype(np.float64), axis=1))
