@@ -309,3 +309,16 @@ def test_median_floor_is_exactly_the_median(case):
         p.sort(axis=1)
     got = median_floor(p, shape[1])
     np.testing.assert_array_equal(got, np.median(p.astype(np.float64), axis=1))
+
+
+def test_chain_floor_items_and_total():
+    """bench_floor times every stage's unavoidable work; the total is their sum (small shapes)."""
+    from fwdlook_cli.report.bench_floor import chain_floor
+
+    for method, q in (("decimation", 4), ("tracking", 1)):
+        floor = chain_floor(64, 32, method=method, q=q, cpi=8, n_doppler=16, range_oversample=4, repeats=1)
+        items = {k: v for k, v in floor.items() if k != "total_s"}
+        assert set(items) == {"range_fft_s", "keystone_s", "range_curvature_s", "doppler_spectra_s",
+                              "monopulse_image_s", "stage_files_s"}
+        assert all(v > 0 for v in items.values())
+        assert floor["total_s"] == pytest.approx(sum(items.values()))

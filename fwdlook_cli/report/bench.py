@@ -117,6 +117,15 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         out[f"chain_{method}_peak_rss_mib"] = (None if t["peak_rss_above_base_bytes"] is None
                                                else t["peak_rss_above_base_bytes"] / 2**20)
         out["interpreter_base_mib"] = (t.get("interpreter_base_bytes") or 0) / 2**20
+    # the floor: the transforms and stage-file bytes the chain cannot avoid, timed alone (bench_floor.py)
+    from .bench_floor import chain_floor
+
+    for method in ("decimation", "tracking"):
+        floor = chain_floor(*cube.sum.shape, method=method, q=paper["processing"]["q"],
+                            cpi=paper["processing"]["cpi"], n_doppler=paper["processing"]["n_doppler"],
+                            range_oversample=paper["processing"]["range_oversample"])
+        for item, seconds in floor.items():
+            out[f"floor_{method}_{item}"] = seconds
     # the reference again after the chains (load drifts on a shared machine): median of both sets
     fft2_after = _times(lambda: scipy.fft.fft2(x, workers=-1), FFT2_REPEATS)
     out["fft2_median_before_after"] = [out["fft2_s"], statistics.median(fft2_after)]
