@@ -226,6 +226,22 @@ def test_bench_backend_gpu_without_a_gpu_exits_2(monkeypatch, capsys):
     assert "\n" not in err and "processing.backend" in err and "pip install -e .[gpu]" in err
 
 
+def test_without_cupy_fwdlook_imports_and_gpu_is_bad_input(monkeypatch):
+    """Whatever is installed: with ``import cupy`` failing, the chain's modules import, cpu works, and
+    gpu is the one-line BadInput (never an ImportError)."""
+    import importlib
+    import sys
+
+    monkeypatch.delenv(ENV_XP, raising=False)
+    monkeypatch.setitem(sys.modules, "cupy", None)           # `import cupy` raises ImportError
+    for name in ("fwdlook_cli.dsp.xp", "fwdlook_cli.forward.gpu_stages", "fwdlook_cli.forward.gpu_imaging",
+                 "fwdlook_cli.report.gpu_bench", "fwdlook_cli.forward.chain"):
+        importlib.import_module(name)
+    assert get_xp("cpu") is np
+    with pytest.raises(BadInput, match=r"processing\.backend = gpu: CuPy cannot be imported.*allowed: cpu, gpu"):
+        get_xp("gpu")
+
+
 def test_unknown_forced_array_module_is_bad_input(monkeypatch):
     monkeypatch.setenv(ENV_XP, "torch")
     with pytest.raises(BadInput, match="FWDLOOK_XP"):
@@ -282,3 +298,12 @@ def test_gpu_bench_reports_device_ratios(monkeypatch):
             key = f"gpu_stage_{method}_{name}"
             assert out[key + "_s"] > 0
             assert out["ratios_to_fft2"][key] == pytest.approx(out[key + "_s"] / out["fft2_s"])
+
+
+def test_gpu_bench_on_the_device():
+    from fwdlook_cli.report.gpu_bench import GPU_STAGES, run_gpu_bench
+
+    _cupy_device()
+    out = run_gpu_bench(tiny_scenario(), repeats=3)
+    assert out["fft2_repeats"] >= 20 and "not a GPU figure" not in out["device"]
+    assert all(out["ratios_to_fft2"][f"gpu_stage_{m}_{n}"] > 0 for m in ("decimation", "tracking") for n in GPU_STAGES)

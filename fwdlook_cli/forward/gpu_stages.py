@@ -108,7 +108,7 @@ def czt_keystone(xp, x, *, alpha, t0_index, filt, ambiguity=0, extra_cycles=None
     # input chirp: origin shift exp(j 2 pi c (1 - alpha) t0 / n) and W^(i^2/2)
     pre = cis(xp, (c_min + i) * ((1.0 - a) * t0 / n) + (a / (2.0 * n)) * (i * i))
     buf = xp.zeros((nfft, cols), dtype=xp.complex64)
-    buf[:n] = fx.fftshift(fx.fft(x, axis=0, **kw), axes=0)        # centred: row i holds c = c_min + i
+    buf[:n] = xp.fft.fftshift(fx.fft(x, axis=0, **kw), axes=0)        # centred: row i holds c = c_min + i
     buf[:n] *= pre
     del pre
     buf = fx.ifft(fx.fft(buf, axis=0, overwrite_x=True, **kw) * filt, axis=0, overwrite_x=True, **kw)
