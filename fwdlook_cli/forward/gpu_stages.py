@@ -79,50 +79,65 @@ def on_backend(stages: list, backend: str) -> list:
 # ----------------------------------------------------------------------------------------------
 def _czt_filters(xp, n: int, nfft: int, alpha):
     """FFT of the Bluestein filter h_d = W^(-d^2/2), W = exp(j 2 pi alpha / n), d = -(n-1)..(n-1)
-    wrapped into length ``nfft``, one column per distinct alpha (the decimated layout repeats them)."""
+    wrapped into length ``nfft``: [cols, nfft], computed once per distinct alpha (host array ``alpha``;
+    the decimated layout repeats the range-frequency alphas in every sub-sequence)."""
     alpha_u, inverse = np.unique(alpha, return_inverse=True)
     d = np.arange(nfft, dtype=np.float64)
     d[d > nfft // 2] -= nfft
-    cycles = -(to_device(alpha_u, xp)[None, :] / (2.0 * n)) * to_device(d * d, xp)[:, None]
-    spec = fft_module(xp).fft(cis(xp, cycles), axis=0, **fft_kwargs(xp))
-    return spec[:, to_device(inverse, xp)]
+    cycles = -(to_device(alpha_u, xp)[:, None] / (2.0 * n)) * to_device(d * d, xp)[None, :]
+    spec = fft_module(xp).fft(cis(xp, cycles), axis=-1, **fft_kwargs(xp))
+    return spec[to_device(inverse.reshape(-1), xp)]
 
 
-def czt_keystone(xp, x, *, alpha, t0_index, filt, ambiguity=0, extra_cycles=None):
-    """Keystone of the columns of ``x`` ([n, cols] complex64 on ``xp``) by the CZT:
+def czt_chirps(xp, n: int, alpha, t0_index, *, ambiguity=0, extra_cycles=None):
+    """The CZT keystone's chirps for columns with ``alpha``, ``t0_index`` (host float64 [cols]): input
+    chirp, filter spectrum and output chirp (with 1/n), each [cols, *] on ``xp``; see :func:`czt_apply`.
+    ``ambiguity``: the integer F (scalar); ``extra_cycles`` ([cols, n] float64 on ``xp``, optional) is
+    added to the output chirp's phase (the tracking keystone's remodulation)."""
+    nfft = fft_module(xp).next_fast_len(2 * n - 1)
+    c_min = -(n // 2)
+    i = xp.arange(n, dtype=xp.float64)[None, :]
+    a, t0 = to_device(alpha, xp, np.float64)[:, None], to_device(t0_index, xp, np.float64)[:, None]
+    # input chirp: origin shift exp(j 2 pi c (1 - alpha) t0 / n) and W^(i^2/2), c = c_min + i
+    pre = cis(xp, (c_min + i) * ((1.0 - a) * t0 / n) + (a / (2.0 * n)) * (i * i))
+    # output chirp W^(c_min m + m^2/2) and the ambiguity correction exp(j 2 pi F tau), eq. (22) corrected
+    cycles = (a / n) * (c_min * i + 0.5 * (i * i))
+    if float(ambiguity) != 0.0:
+        cycles += float(ambiguity) * (a * i + (1.0 - a) * t0)
+    if extra_cycles is not None:
+        cycles += extra_cycles
+    post = cis(xp, cycles)
+    post *= np.float32(1.0 / n)
+    return pre, _czt_filters(xp, n, nfft, alpha), post
 
-        y[m, k] = exp(j 2 pi F tau) (1/n) sum_c X_k(c) exp(j 2 pi c tau / n),  tau = alpha (m - t0) + t0
+
+def czt_apply(xp, x, pre, filt, post):
+    """Keystone of the rows of ``x`` ([cols, n] complex64 on ``xp``: one range-frequency column per row,
+    slow time along the last axis, contiguous for the device FFTs) by the CZT:
+
+        y[k, m] = exp(j 2 pi F tau) (1/n) sum_c X_k(c) exp(j 2 pi c tau / n),  tau = alpha (m - t0) + t0
 
     (eq. 8, 21, 22 corrected), c the centred Doppler index.  With c = c_min + i and
     tau = alpha m + (1 - alpha) t0 the sum is W^(c_min m + m^2/2) sum_i [Y_i W^(i^2/2)] W^(-(m-i)^2/2),
-    Y_i = X(c) exp(j 2 pi c (1 - alpha) t0 / n): a linear convolution by FFTs of length L >= 2n - 1.
-    ``extra_cycles`` ([n, cols] float64, optional) is added to the output chirp's phase (the tracking
-    keystone's remodulation); ``alpha``, ``t0_index`` are float64 ``xp`` rows [cols].
+    Y_i = X(c) exp(j 2 pi c (1 - alpha) t0 / n): a linear convolution by FFTs of length L >= 2n - 1
+    with the chirps of :func:`czt_chirps`.
     """
     fx, kw = fft_module(xp), fft_kwargs(xp)
-    n, cols = x.shape
-    nfft = filt.shape[0]
-    c_min = -(n // 2)
-    i = xp.arange(n, dtype=xp.float64)[:, None]
-    a, t0 = alpha[None, :], t0_index[None, :]
-    # input chirp: origin shift exp(j 2 pi c (1 - alpha) t0 / n) and W^(i^2/2)
-    pre = cis(xp, (c_min + i) * ((1.0 - a) * t0 / n) + (a / (2.0 * n)) * (i * i))
-    buf = xp.zeros((nfft, cols), dtype=xp.complex64)
-    buf[:n] = xp.fft.fftshift(fx.fft(x, axis=0, **kw), axes=0)        # centred: row i holds c = c_min + i
-    buf[:n] *= pre
-    del pre
-    buf = fx.ifft(fx.fft(buf, axis=0, overwrite_x=True, **kw) * filt, axis=0, overwrite_x=True, **kw)
-    # output chirp W^(c_min m + m^2/2) and the ambiguity correction exp(j 2 pi F tau), eq. (22) corrected
-    post = (a / n) * (c_min * i + 0.5 * (i * i))
-    if np.any(np.asarray(ambiguity) != 0):
-        f = to_device(np.asarray(ambiguity, dtype=np.float64), xp)
-        post += f * (a * i + (1.0 - a) * t0)
-    if extra_cycles is not None:
-        post += extra_cycles
-    y = buf[:n]
-    y *= cis(xp, post)
-    y *= np.float32(1.0 / n)
+    cols, n = x.shape
+    buf = xp.zeros((cols, filt.shape[-1]), dtype=xp.complex64)
+    buf[:, :n] = xp.fft.fftshift(fx.fft(x, axis=-1, **kw), axes=-1)      # centred: i holds c = c_min + i
+    buf[:, :n] *= pre
+    buf = fx.fft(buf, axis=-1, overwrite_x=True, **kw)
+    buf *= filt
+    buf = fx.ifft(buf, axis=-1, overwrite_x=True, **kw)
+    y = buf[:, :n]
+    y *= post
     return y
+
+
+def czt_keystone(xp, x, *, alpha, t0_index, ambiguity=0):
+    """:func:`czt_apply` with the chirps of ``alpha``, ``t0_index`` (host [cols]) and ``ambiguity``."""
+    return czt_apply(xp, x, *czt_chirps(xp, x.shape[1], alpha, t0_index, ambiguity=ambiguity))
 
 
 def psi_taylor(hist: DopplerPhaseHistory, slow_time_s):
@@ -134,13 +149,13 @@ def psi_taylor(hist: DopplerPhaseHistory, slow_time_s):
 
 
 def tracking_cycles(xp, derivs, t0_index, alpha, scale, prf_hz: float):
-    """(demodulation, remodulation) phases in cycles, [n, cols] float64 on ``xp``: -Psi(t_m) s / 2 pi and
+    """(demodulation, remodulation) phases in cycles, [cols, n] float64 on ``xp``: -Psi(t_m) s / 2 pi and
     Psi(t_m + dt) s / 2 pi, dt = (alpha - 1)(m - t0) / PRF the keystone's resampling shift (eq. 8),
     Psi(t_m + dt) by Horner from the Taylor coefficients ``derivs`` (host arrays [n])."""
-    p0, p1, p2, p3, p4 = (to_device(d, xp)[:, None] for d in derivs)
-    n = p0.shape[0]
-    s = scale[None, :] / (2.0 * np.pi)
-    dt = (xp.arange(n, dtype=xp.float64)[:, None] - t0_index[None, :]) * ((alpha[None, :] - 1.0) / prf_hz)
+    p0, p1, p2, p3, p4 = (to_device(d, xp)[None, :] for d in derivs)
+    n = p0.shape[1]
+    s = scale[:, None] / (2.0 * np.pi)
+    dt = (xp.arange(n, dtype=xp.float64)[None, :] - t0_index[:, None]) * ((alpha[:, None] - 1.0) / prf_hz)
     acc = ((p4 * (dt / 24.0) + p3 / 6.0) * dt + p2 / 2.0) * dt + p1
     acc = acc * dt + p0
     return -p0 * s, acc * s
@@ -148,9 +163,10 @@ def tracking_cycles(xp, derivs, t0_index, alpha, scale, prf_hz: float):
 
 def keystone_pair(x_sum, x_diff, *, alpha, t0_index, ambiguity, tracking=None, backend: str = "gpu",
                   block_bytes: int = BLOCK_BYTES):
-    """CZT keystone of both channels ([n, cols] host or device arrays) on ``backend``'s array module;
-    host complex64 results.  ``tracking``: None or (hist, slow_time_s, prf_hz, scale per column), the
-    tracking keystone with F = 0.  Columns run in blocks of ``block_bytes`` of work buffer."""
+    """CZT keystone of both channels ([n, cols] host arrays, slow time first) on ``backend``'s array
+    module; host complex64 results [n, cols].  ``tracking``: None or (hist, slow_time_s, prf_hz, scale
+    per column), the tracking keystone with F = 0.  On the device the channels are transposed once to
+    [cols, n] (contiguous FFTs along slow time); columns run in blocks of ``block_bytes`` of buffer."""
     xp = get_xp(backend)
     n, cols = x_sum.shape
     nfft = fft_module(xp).next_fast_len(2 * n - 1)
@@ -162,21 +178,23 @@ def keystone_pair(x_sum, x_diff, *, alpha, t0_index, ambiguity, tracking=None, b
         derivs = psi_taylor(hist, t)
         scale_h = np.broadcast_to(np.asarray(scale_h, dtype=np.float64), (cols,))
     step = max(1, int(block_bytes) // (8 * nfft))
-    xs, xd = to_device(x_sum, xp, np.complex64), to_device(x_diff, xp, np.complex64)
-    ys, yd = xp.empty((n, cols), xp.complex64), xp.empty((n, cols), xp.complex64)
+    # both channels on the device, transposed once to [cols, n]; the chirps of a block serve both
+    xts = [xp.ascontiguousarray(to_device(x, xp, np.complex64).T) for x in (x_sum, x_diff)]
+    yts = [xp.empty((cols, n), xp.complex64) for _ in xts]
     for lo in range(0, cols, step):
         b = slice(lo, min(cols, lo + step))
-        filt = _czt_filters(xp, n, nfft, alpha_h[b])
-        a, t0 = to_device(alpha_h[b], xp), to_device(t0_h[b], xp)
         demod = remod = None
         if derivs is not None:
-            demod, remod = tracking_cycles(xp, derivs, t0, a, to_device(scale_h[b], xp), prf_hz)
+            demod, remod = tracking_cycles(xp, derivs, to_device(t0_h[b], xp), to_device(alpha_h[b], xp),
+                                           to_device(scale_h[b], xp), prf_hz)
             demod = cis(xp, demod)
-        for x, y in ((xs, ys), (xd, yd)):
-            xb = x[:, b] if demod is None else x[:, b] * demod
-            y[:, b] = czt_keystone(xp, xb, alpha=a, t0_index=t0, filt=filt,
-                                   ambiguity=0 if derivs is not None else ambiguity, extra_cycles=remod)
-    return to_host(ys), to_host(yd)
+        chirps = czt_chirps(xp, n, alpha_h[b], t0_h[b], ambiguity=0 if derivs is not None else ambiguity,
+                            extra_cycles=remod)
+        del remod
+        for xt, yt in zip(xts, yts):
+            yt[b] = czt_apply(xp, xt[b] if demod is None else xt[b] * demod, *chirps)
+    del xts
+    return tuple(to_host(xp.ascontiguousarray(yt.T)) for yt in yts)
 
 
 def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: float, prf_hz: float,
