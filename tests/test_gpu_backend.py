@@ -205,6 +205,48 @@ def test_stages_without_a_gpu_path_stay_on_the_cpu(monkeypatch, caplog):
 
 
 # ----------------------------------------------------------------------------------------------
+# the CuPy branches with a stand-in device module (tests/fake_cupy.py: numpy arrays of their own
+# type that refuse host arrays in device arithmetic, FFTs that refuse scipy's `workers`)
+# ----------------------------------------------------------------------------------------------
+@pytest.fixture
+def fake_cupy(monkeypatch):
+    import fake_cupy
+
+    monkeypatch.delenv(ENV_XP, raising=False)
+    return fake_cupy.install(monkeypatch)
+
+
+@pytest.mark.parametrize("case", ["paper-decimation", "paper-tracking", "tiny-traditional"])
+def test_cupy_branches_keep_host_and_device_apart(case, fake_cupy):
+    assert get_xp("gpu") is fake_cupy
+    check_pairs(stage_pairs(CASES[case]()))
+
+
+def test_fake_device_refuses_host_arrays(fake_cupy):
+    """The stand-in is strict where CuPy is (else the test above proves nothing)."""
+    dev = fake_cupy.asarray(np.ones(4))
+    with pytest.raises(TypeError, match="host array"):
+        dev + np.ones(4)
+    with pytest.raises(TypeError, match="host"):
+        __import__("cupyx.scipy.fft").scipy.fft.fft(np.ones(4))
+    with pytest.raises(TypeError, match="workers"):
+        __import__("cupyx.scipy.fft").scipy.fft.fft(dev, workers=-1)
+    assert type(dev.get()) is np.ndarray and type(dev * 2.0) is fake_cupy.ndarray
+
+
+def test_whole_run_and_bench_through_the_cupy_branches(tmp_path, fake_cupy):
+    from fwdlook_cli.report.gpu_bench import run_gpu_bench
+
+    scenario = SCENARIOS / "tiny.yaml"
+    assert _run(["run", scenario, "-o", tmp_path / "cpu", "-q"]) == 0
+    assert _run(["run", scenario, "-o", tmp_path / "gpu", "-q", "--set", "processing.backend=gpu"]) == 0
+    a, b = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("cpu", "gpu"))
+    same_targets(a["targets"], b["targets"])
+    out = run_gpu_bench(tiny_scenario(), repeats=1)
+    assert out["device"] == "fake cupy (numpy)" and len(out["ratios_to_fft2"]) == 8
+
+
+# ----------------------------------------------------------------------------------------------
 # without CuPy or a device: one line, exit 2
 # ----------------------------------------------------------------------------------------------
 def test_gpu_backend_without_cupy_is_bad_input_exit_2(tmp_path, monkeypatch, capsys):

@@ -82,9 +82,8 @@ def to_device(x, xp, dtype=None):
 
 def to_host(x):
     """An ``xp`` array as a numpy array (a copy from the device for CuPy)."""
-    if isinstance(x, np.ndarray) or np.isscalar(x):
-        return np.asarray(x)
-    return x.get()
+    get = getattr(x, "get", None)               # cupy.ndarray.get: the copy to the host
+    return np.asarray(x) if get is None else get()
 
 
 def synchronize(xp) -> None:
