@@ -58,7 +58,7 @@ def on_backend(stages: list, backend: str) -> list:
     from ..runner import Stage
     from .gpu_imaging import monopulse_image
 
-    get_xp(backend)                             # fails before any work is done
+    get_xp(backend)                             # BadInput before any stage runs
     if backend == "cpu":
         return stages
     fns = {"keystone": keystone_stage, "doppler_spectra": doppler_spectra, "monopulse_image": monopulse_image}
