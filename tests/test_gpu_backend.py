@@ -204,6 +204,17 @@ def test_stages_without_a_gpu_path_stay_on_the_cpu(monkeypatch, caplog):
     assert any("keystone runs on the CPU" in r.getMessage() and "dft" in r.getMessage() for r in caplog.records)
 
 
+def test_dwell_imaging_keeps_its_stages_and_moves_the_keystone(monkeypatch):
+    monkeypatch.setenv(ENV_XP, "numpy")
+    scn = tiny_scenario(processing={"method": "tracking", "imaging": "dwell"})
+    cube, _ = simulate_scenario(scn)
+    _, cpu, _ = build_forward_stages(cube, dict(scn["processing"]))
+    _, gpu, _ = build_forward_stages(cube, dict(scn["processing"], backend="gpu"))
+    assert [st.name for st in gpu] == [st.name for st in cpu]
+    moved = [st.name for st, sc in zip(gpu, cpu) if st.fn is not sc.fn]
+    assert moved == ["keystone"] and gpu[2].fn.__module__ == "fwdlook_cli.forward.gpu_stages"
+
+
 # ----------------------------------------------------------------------------------------------
 # the CuPy branches with a stand-in device module (tests/fake_cupy.py: numpy arrays of their own
 # type that refuse host arrays in device arithmetic, FFTs that refuse scipy's `workers`)
