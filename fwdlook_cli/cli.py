@@ -307,7 +307,9 @@ def validate(path, overrides):
               metavar="PULSES RANGE", help="Shape of --write-cube.")
 @click.option("--scene", "scene", is_flag=True,
               help="Also time the scene simulator at 1e3..1e6 scatterers (minutes; scene_sim_* keys).")
-def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene):
+@click.option("--backend", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True,
+              help="gpu: time the GPU stages (keystone, Doppler, image cells) against one fft2 on the device.")
+def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene, backend):
     """Timings measured in one process on the paper cube (ratios to one plain 2-D FFT)."""
     from .report.bench import print_bench
 
@@ -318,7 +320,7 @@ def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene):
         click.echo(write_cube)
         return
 
-    print_bench(as_json, scaling=scaling, plot_path=plot_path, repeats=repeats, scene=scene)
+    print_bench(as_json, scaling=scaling, plot_path=plot_path, repeats=repeats, scene=scene, backend=backend)
 
 
 def main(argv=None):

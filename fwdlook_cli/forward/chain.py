@@ -501,4 +501,8 @@ def build_forward_stages(cube, proc: dict):
         from .dwell import dwell_stages
 
         stages = stages[:5] + dwell_stages(cube, proc, geo)
+    if proc.get("backend", "cpu") == "gpu":        # processing.backend: stages 3, 6, 7 on xp (gpu_stages.py)
+        from .gpu_stages import on_backend
+
+        stages = on_backend(stages, "gpu")
     return src, stages, geo

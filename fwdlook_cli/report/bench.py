@@ -140,7 +140,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
 
 
 def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, repeats: int = 3,
-                scene: bool = False) -> None:
+                scene: bool = False, backend: str = "cpu") -> None:
     if scaling:
         from ..scenario.loader import load_scenario
         from .benchtools import scaling_series
@@ -155,7 +155,12 @@ def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, re
             for key, exps in result["exponents"].items():
                 print(f"{key:<22s} " + ", ".join(f"{k} {v:.2f}" for k, v in exps.items()))
         return
-    result = run_bench(chain_repeats=repeats)
+    if backend == "gpu":                       # gpu_bench.py: the GPU stages against a device fft2
+        from .gpu_bench import run_gpu_bench
+
+        result = run_gpu_bench(repeats=max(5, repeats))
+    else:
+        result = run_bench(chain_repeats=repeats)
     if scene:                                  # scene_bench.py: one child process per scene size
         from .scene_bench import run_scene_bench
 

@@ -135,6 +135,9 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "calibration_model": Field(choice("auto", "tanh", "table"), "auto",
                                    "ratio curve fitted by a calibration from the data: tanh (two Gaussian beams), "
                                    "table (a general monotone curve), auto (tanh unless it misfits grossly)"),
+        "backend": Field(choice("cpu", "gpu"), "cpu",
+                         "where the keystone (czt), the Doppler zoom (fft) and the image's cell selection run: "
+                         "cpu (numpy, scipy), or gpu (CuPy on a CUDA device: pip install -e .[gpu])"),
     },
 }
 

@@ -1,0 +1,165 @@
+"""Stage 7 on the GPU backend (``processing.backend: gpu``): the monopulse image's cell selection on an
+array module ``xp`` (CuPy, or numpy under ``FWDLOOK_XP=numpy``), the projection on the CPU.
+
+Per block of whole CPIs, on the device: the native sum power, the CPI noise floor (the median of the
+native power: the mean of its two middle order statistics), range oversampling of both channels by FFT
+zero-padding (every row: on a GPU the FFTs cost less than choosing rows), the level
+max(floor 10^(threshold/10), peak 10^(-dynamic_range/10)), the power test, the calibrated monopulse
+ratio Re(d conj(s) / gamma) / |s|^2 and its bounds.  Only the kept cells (a few thousand) and the
+native power summed over Doppler (the real-beam image) are copied back: the ground geometry of the
+kept cells and the ``bincount`` projections are scattered, data-dependent and small, so they stay on
+the CPU.  Cells come in the order of ``np.nonzero`` on the [cpi, doppler, range_os] mask, as in
+:func:`dsp.imaging.kept_cells_block`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..dsp.geometry import azimuth_at_t_ref
+from ..dsp.imaging import azimuth_at_t_ref_cells
+from ..dsp.xp import fft_kwargs, fft_module, get_xp, is_numpy, to_device, to_host
+from ..io.stagefile import StageData
+
+
+def _power(xp, z):
+    """|z|^2 in float32: re^2 + im^2 (the rounding of :func:`dsp.imaging.power_f32`)."""
+    p = z.real * z.real
+    p += z.imag * z.imag
+    return p
+
+
+def oversample_range(xp, x, factor: int):
+    """Band-limited oversampling of the last axis by FFT zero-padding, amplitudes kept: bins below
+    n - n//2 at the start, the top n//2 bins (the Nyquist bin of an even n among them) at the end."""
+    if factor == 1:
+        return x.copy()
+    fx, kw = fft_module(xp), fft_kwargs(xp)
+    n = x.shape[-1]
+    half = n // 2
+    spec = fx.fft(x, axis=-1, **kw)
+    pad = xp.zeros(spec.shape[:-1] + (n * factor,), dtype=spec.dtype)
+    pad[..., : n - half] = spec[..., : n - half] * factor
+    pad[..., n * factor - half:] = spec[..., n - half:] * factor
+    del spec
+    return fx.ifft(pad, axis=-1, overwrite_x=True, **kw)
+
+
+def kept_cells_xp(xp, sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,
+                  ratio_bounds, diff_gain_db: float = 0.0, diff_phase_deg: float = 0.0):
+    """Kept cells of one block of CPIs (``sum_z``, ``diff_z``: [cpi, doppler, range] complex64 on ``xp``):
+    host arrays (i_cpi, i_range_os, ratio, power) in ``np.nonzero`` order, and the native sum power
+    summed over Doppler [cpi, range] (float64)."""
+    n_cpi, n_dop, n_r = sum_z.shape
+    p0 = _power(xp, sum_z)
+    srt = xp.sort(p0.reshape(n_cpi, -1), axis=1)
+    k0, k1 = (n_dop * n_r - 1) // 2, (n_dop * n_r) // 2
+    floor = 0.5 * (srt[:, k0].astype(xp.float64) + srt[:, k1].astype(xp.float64))   # the median
+    del srt
+    s = oversample_range(xp, sum_z, range_oversample)
+    power = _power(xp, s)
+    peak = power.reshape(n_cpi, -1).max(axis=1).astype(xp.float64)
+    level = xp.maximum(floor * 10 ** (threshold_db / 10), peak * 10 ** (-dynamic_range_db / 10))
+    i_cpi, i_dop, i_r = xp.nonzero(power > level[:, None, None])
+    sk, pk = s[i_cpi, i_dop, i_r], power[i_cpi, i_dop, i_r]
+    del s, power
+    dk = oversample_range(xp, diff_z, range_oversample)[i_cpi, i_dop, i_r]
+    ratio = dk.real * sk.real                          # Re(d conj s), float32
+    ratio += dk.imag * sk.imag
+    if diff_gain_db or diff_phase_deg:
+        # Re(d conj(s) / gamma), gamma = 10^(g/20) exp(j phi): the calibrated ratio
+        c, sn = np.float32(np.cos(np.radians(diff_phase_deg))), np.float32(np.sin(np.radians(diff_phase_deg)))
+        im_q = dk.imag * sk.real - dk.real * sk.imag
+        ratio = np.float32(10.0 ** (-diff_gain_db / 20.0)) * (c * ratio + sn * im_q)
+    ratio /= xp.maximum(pk, np.float32(1e-30))
+    lo, hi = ratio_bounds
+    ok = (ratio > lo) & (ratio < hi)
+    return (to_host(i_cpi[ok]), to_host(i_r[ok]), to_host(ratio[ok]), to_host(pk[ok]),
+            to_host(p0.sum(axis=1, dtype=xp.float64)))
+
+
+def iter_kept_cells_xp(sum_z, diff_z, *, backend: str = "gpu", block_cells: int | None = None, **kw):
+    """:func:`kept_cells_xp` over blocks of whole CPIs of host arrays or open datasets, each block moved
+    to the device; yields (first CPI, i_cpi (global), i_range_os, ratio, power, native power per range)."""
+    xp = get_xp(backend)
+    n_cpi, n_dop, n_r = sum_z.shape
+    if block_cells is None:                            # oversampled cells per block: 256 MB on a GPU
+        block_cells = (1 << 22) if is_numpy(xp) else (1 << 25)
+    step = max(1, int(block_cells) // max(1, n_dop * n_r * kw["range_oversample"]))
+    for c0 in range(0, n_cpi, step):
+        blk = [to_device(z[c0:c0 + step], xp, np.complex64) for z in (sum_z, diff_z)]
+        i_cpi, i_r, ratio, power, rb = kept_cells_xp(xp, *blk, **kw)
+        yield c0, i_cpi + c0, i_r, ratio, power, rb
+
+
+def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: float, angle_step_deg: float,
+                    range_oversample: int, threshold_db: float, dynamic_range_db: float,
+                    position_ref_m: list, max_offset_beamwidths: float = 0.5, ratio_model: str = "tanh",
+                    ratio_offset_deg=None, ratio=None, boresight_offset_deg: float = 0.0,
+                    diff_gain_db: float = 0.0, diff_phase_deg: float = 0.0, backend: str = "gpu") -> StageData:
+    """Stage 7 with the cell selection on ``backend`` (:func:`kept_cells_xp`): the vars of
+    :func:`forward.chain.monopulse_image`, the same parameters (offset d = R^-1(ratio) + b, R the tanh
+    curve atanh(.)/k or the monotone table; angle = CPI beam angle + d in the t_ref frame)."""
+    range_m = np.asarray(data["range_m"])
+    dr = (range_m[1] - range_m[0]) / range_oversample
+    range_os = range_m[0] + dr * np.arange(range_m.shape[0] * range_oversample)
+    half = max_offset_beamwidths * beamwidth_deg
+    if ratio_model == "tanh":
+        max_ratio = np.tanh(slope_per_deg * half)
+        bounds = (-max_ratio, max_ratio)
+    elif ratio_model == "table":
+        tab_d, tab_r = np.asarray(ratio_offset_deg, np.float64), np.asarray(ratio, np.float64)
+        bounds = (float(np.interp(-half, tab_d, tab_r)), float(np.interp(half, tab_d, tab_r)))
+    else:
+        raise ValueError(f"ratio model {ratio_model!r}; allowed: tanh, table")
+    p_ref = np.asarray(position_ref_m, dtype=np.float64)
+    beam_all = np.asarray(data["cpi_beam_deg"])
+    pos_all = np.asarray(data["cpi_position_m"])
+    a0 = np.floor((beam_all.min() - beamwidth_deg) / angle_step_deg) * angle_step_deg
+    n_a = int(np.ceil((beam_all.max() + beamwidth_deg - a0) / angle_step_deg)) + 1
+    angle_deg = a0 + angle_step_deg * np.arange(n_a)
+    sum_z, diff_z = data["sum_z"], data["diff_z"]
+    rb_power = np.zeros((sum_z.shape[0], sum_z.shape[2]))                      # [n_cpi, n_r]
+    parts = []
+    for c0, i_cpi, i_r, ratio_k, power_k, rb in iter_kept_cells_xp(
+            sum_z, diff_z, backend=backend, range_oversample=range_oversample, threshold_db=threshold_db,
+            dynamic_range_db=dynamic_range_db, ratio_bounds=bounds, diff_gain_db=diff_gain_db,
+            diff_phase_deg=diff_phase_deg):
+        rb_power[c0:c0 + len(rb)] = rb
+        if ratio_model == "tanh":
+            offset = np.arctanh(ratio_k) / slope_per_deg           # exact inverse for Gaussian beams
+        else:
+            offset = np.interp(ratio_k, tab_r, tab_d)             # the monotone ratio table
+        offset = offset + boresight_offset_deg
+        az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam_all[i_cpi] + offset, pos_all[i_cpi], p_ref)
+        ok = np.isfinite(az_ref)
+        a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
+        inside = (a_idx >= 0) & (a_idx < n_a)
+        w = power_k.astype(np.float64)[ok]
+        parts.append((gx[ok], gy[ok], w, i_r[ok][inside] * n_a + a_idx[inside], w[inside]))
+    gx, gy, w, flat, w_in = (np.concatenate([p[k] for p in parts]) for k in range(5))
+    del parts
+    image = np.bincount(flat, weights=w_in, minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
+
+    # real-beam image: the CPI sum power at the beam angle (same t_ref angle mapping)
+    n_cpi, n_r = rb_power.shape
+    rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_cpi, n_r)),
+                                   np.broadcast_to(beam_all[:, None], (n_cpi, n_r)), pos_all[:, None, :], p_ref)
+    rb_idx = np.rint((rb_az - a0) / angle_step_deg)
+    good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
+    rb_flat = np.broadcast_to(np.arange(n_r), (n_cpi, n_r))[good] * n_a + rb_idx[good].astype(np.int64)
+    real_beam = np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)
+
+    out = StageData(attrs=dict(data.attrs))
+    out.add("range_m", range_os, ("range_m",), "m", "slant range from the antenna at t_ref")
+    out.add("angle_deg", angle_deg, ("angle_deg",), "deg", "azimuth from the antenna at t_ref")
+    out.add("range_native_m", range_m, ("range_native_m",), "m", "slant range, native sampling")
+    out.add("image", image.astype(np.float32), ("range_m", "angle_deg"), "1", "monopulse image, sum power")
+    out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
+            "real-beam image, sum power against beam angle")
+    out.add("cell", np.arange(len(w)), ("cell",), "1", "projected Doppler cell")
+    out.add("cell_x_m", gx, ("cell",), "m", "ground x of each projected cell")
+    out.add("cell_y_m", gy, ("cell",), "m", "ground y of each projected cell")
+    out.add("cell_power", w.astype(np.float32), ("cell",), "1", "sum power of each projected cell")
+    out.attrs.update(range_oversample=range_oversample, angle_step_deg=angle_step_deg,
+                     slope_per_deg=slope_per_deg, position_ref_m=list(map(float, p_ref)))
+    return out
