@@ -23,11 +23,10 @@ import logging
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from ..dsp.geometry import C_MPS
 from ..dsp.pulse import weighting
 from ..dsp.xp import cis, fft_kwargs, fft_module, get_xp, is_numpy, to_device, to_host
 from ..io.stagefile import StageData
-from .motion import DopplerPhaseHistory, unit_vector
+from .motion import DopplerPhaseHistory, cpi_doppler_band_hz
 
 log = logging.getLogger(__name__)
 
@@ -236,27 +235,6 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
 # ----------------------------------------------------------------------------------------------
 # 6. per-CPI Doppler spectra: the zoom DFT as one batched product on xp
 # ----------------------------------------------------------------------------------------------
-def doppler_band_hz(velocity_mps, beam_deg, depression_deg, fc_hz, beamwidth_deg, prf_hz, n_cpi_pulses,
-                    band_beamwidths=1.0):
-    """The main-beam Doppler band per CPI (eq. 25 centroid, eq. 26 width): the extremes of
-    f(theta') = 2 v . u(theta', phi_0) / lambda = A cos(theta' - psi) + C over
-    theta' in theta +- band_beamwidths theta_3 / 2, at the ends or at the heading psi (psi + 180 deg)
-    where it lies inside; at least 4 Doppler cells (PRF / n_cpi_pulses each), at most the PRF."""
-    v = np.asarray(velocity_mps, dtype=np.float64)
-    lam = C_MPS / fc_hz
-    half = band_beamwidths * beamwidth_deg / 2.0
-    th = np.asarray(beam_deg, dtype=np.float64)
-    ends = [2.0 * np.sum(v * unit_vector(th + sgn * half, depression_deg), axis=-1) / lam for sgn in (-1, 1)]
-    heading = np.degrees(np.arctan2(v[..., 0], v[..., 1]))
-    amp = 2.0 * np.hypot(v[..., 0], v[..., 1]) * np.cos(np.radians(depression_deg)) / lam
-    c0 = -2.0 * v[..., 2] * np.sin(np.radians(depression_deg)) / lam
-    inside = lambda a: np.abs((a - th + 180.0) % 360.0 - 180.0) < half      # noqa: E731
-    f_hi = np.where(inside(heading), amp + c0, np.maximum(*ends))
-    f_lo = np.where(inside(heading + 180.0), c0 - amp, np.minimum(*ends))
-    centre, width = 0.5 * (f_lo + f_hi), np.clip(f_hi - f_lo, 4.0 * prf_hz / n_cpi_pulses, prf_hz)
-    return centre - width / 2, centre + width / 2
-
-
 def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, fc_hz: float,
                     beamwidth_deg: float, depression_deg: float, prf_hz: float, follow_speed: bool,
                     band_beamwidths: float = 1.0, estimator: str = "fft", backend: str = "gpu") -> StageData:
@@ -274,7 +252,7 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     vel = data["velocity_mps"][:m].reshape(n_cpi, cpi, 3).mean(axis=1)
     if not follow_speed:                               # eq. (25) off: the initial velocity for every CPI
         vel = np.broadcast_to(data["velocity_mps"][0], vel.shape)
-    f_lo, f_hi = doppler_band_hz(vel, beam_c, depression_deg, fc_hz, beamwidth_deg, prf_hz, cpi, band_beamwidths)
+    f_lo, f_hi = cpi_doppler_band_hz(vel, beam_c, depression_deg, fc_hz, beamwidth_deg, prf_hz, cpi, band_beamwidths)
     f_z = f_lo[:, None] + (f_hi - f_lo)[:, None] * ((np.arange(n_doppler) + 0.5) / n_doppler)[None, :]
     w = weighting(window, cpi)
     # E[i, z, n] = w_n exp(-j 2 pi f_z (t_n - t_c)): phase in float64 on the device, complex64 matrix

@@ -126,3 +126,39 @@ class DopplerPhaseHistory:
     def phase_rad(self, t_s):
         """2 pi int_{t_ref}^{t} f_b dt (float64; large values: reduce before casting)."""
         return 2.0 * np.pi * (self._anti(t_s) - self._offset)
+
+
+def cpi_doppler_band_hz(velocity_mps, beam_deg, depression_deg, fc_hz, beamwidth_deg, prf_hz, n_cpi_pulses,
+                        band_beamwidths=1.0):
+    """Doppler band of the main beam per CPI: eq. (25) centroid and eq. (26) width, computed exactly as
+    the range of 2 v . u(theta', phi_0) / lambda over theta' = theta +- band_beamwidths * theta_3 / 2,
+    with the full velocity vector ``velocity_mps`` ([..., 3]: transverse, forward and vertical motion;
+    the paper's 2 v cos(theta') cos(phi_0) / lambda when v is along +y).
+
+    Over theta' the Doppler is A cos(theta' - psi) + C, psi the heading of the horizontal velocity,
+    A = 2 |v_h| cos(phi_0) / lambda, C = -2 v_z sin(phi_0) / lambda: its extremes are the band's ends,
+    or A + C (C - A) where the heading (its opposite) lies inside the band (eq. 26's second case near
+    boresight).  At least 4 Doppler resolution cells wide.
+    """
+    v = np.asarray(velocity_mps, dtype=np.float64)
+    lam = C_MPS / fc_hz
+    half = band_beamwidths * beamwidth_deg / 2.0
+    th = np.asarray(beam_deg, dtype=np.float64)
+
+    def doppler(az_deg):                                  # 2 v . u(theta', phi_0) / lambda, eq. (25)
+        return 2.0 * np.sum(v * unit_vector(az_deg, depression_deg), axis=-1) / lam
+
+    f_a, f_b = doppler(th - half), doppler(th + half)
+    psi = np.degrees(np.arctan2(v[..., 0], v[..., 1]))
+    amp = 2.0 * np.hypot(v[..., 0], v[..., 1]) * np.cos(np.radians(depression_deg)) / lam
+    c0 = -2.0 * v[..., 2] * np.sin(np.radians(depression_deg)) / lam
+
+    def within(angle_deg):
+        return np.abs((angle_deg - th + 180.0) % 360.0 - 180.0) < half
+
+    f_hi = np.where(within(psi), amp + c0, np.maximum(f_a, f_b))
+    f_lo = np.where(within(psi + 180.0), c0 - amp, np.minimum(f_a, f_b))
+    min_width = 4.0 * prf_hz / n_cpi_pulses
+    centre = 0.5 * (f_lo + f_hi)
+    width = np.clip(f_hi - f_lo, min_width, prf_hz)
+    return centre - width / 2, centre + width / 2
