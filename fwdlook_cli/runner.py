@@ -26,7 +26,7 @@ from typing import Callable
 from .errors import BadInput
 from .io.integrity import STAGE_FORMAT_VERSION
 from .io.stagefile import StageData, _canon, declared_digests, load_verified, read_stage, write_stage
-from .io.stageview import read_stage_lazy, reshaped_views, view_file_key, virtual_layout
+from .io.stageview import read_stage_lazy, read_stage_mapped, reshaped_views, view_file_key, virtual_layout
 
 log = logging.getLogger(__name__)
 
@@ -62,8 +62,8 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     ``last`` writes only the final stage and the stages named in ``captured``; ``none`` writes none.
     With ``all`` the first missing or stale file decides where the chain starts; otherwise the latest
     valid file does (the earlier ones were never kept).  ``captured``: {stage name: None}, filled with
-    a function returning each named stage's output (read from its file when kept, so that the output
-    is not held in memory meanwhile).  A ``lazy_input`` stage after a written stage gets that file's
+    a function returning each named stage's output (from its file when kept, its large arrays memory
+    maps of it, so that the output is not held in memory meanwhile nor copied whole).  A ``lazy_input`` stage after a written stage gets that file's
     large arrays as open datasets instead of the arrays in memory (bounded memory; the same numbers).
     """
     if keep not in KEEP_STAGES:
@@ -104,7 +104,7 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
         if i < first:
             timings[st.name] = 0.0
             if st.name in captured:
-                captured[st.name] = functools.partial(read_stage, paths[i])
+                captured[st.name] = functools.partial(read_stage_mapped, paths[i])
             continue
         t0 = time.perf_counter()
         out = st.fn(data, **st.params)
@@ -129,7 +129,7 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
             fh.close()
         open_files = []
         if st.name in captured:
-            captured[st.name] = functools.partial(read_stage, paths[i]) if i in kept else (lambda out=out: out)
+            captured[st.name] = functools.partial(read_stage_mapped, paths[i]) if i in kept else (lambda out=out: out)
         if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input:
             del out
             data, fh = read_stage_lazy(paths[i])

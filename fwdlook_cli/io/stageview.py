@@ -74,3 +74,29 @@ def read_stage_lazy(path: Path, min_bytes: int = 1 << 20):
         out.vars[name] = Var(ds if lazy else ds[()], dims, str(_text(ds.attrs.get("units", ""))),
                              str(_text(ds.attrs.get("long_name", ""))))
     return out, f
+
+
+def read_stage_mapped(path: Path, min_bytes: int = 1 << 20):
+    """A stage file as :class:`StageData` whose large contiguous arrays are read-only memory maps of the
+    file (``np.memmap`` at the dataset's offset: HDF5 stores an uncompressed contiguous dataset as its
+    raw bytes), so a reader that looks at a few slices (the dwell metrics) pages in only those, with no
+    copy of the rest; other arrays are read.  The maps stay valid after the file is closed or removed."""
+    from .stagefile import PROVENANCE_KEYS, StageData, Var, _text, declared_dims, dims_of
+
+    out = StageData()
+    with h5py.File(path, "r") as f:
+        for k, v in f.attrs.items():
+            if k not in PROVENANCE_KEYS:
+                out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+        declared = declared_dims(f)
+        for name, ds in f.items():
+            if not isinstance(ds, h5py.Dataset):
+                continue
+            offset = None
+            if ds.size * ds.dtype.itemsize >= min_bytes and ds.chunks is None and not ds.is_virtual:
+                offset = ds.id.get_offset()
+            data = (np.memmap(path, dtype=ds.dtype, mode="r", offset=offset, shape=ds.shape)
+                    if offset is not None else ds[()])
+            out.vars[name] = Var(data, dims_of(ds, name, declared), str(_text(ds.attrs.get("units", ""))),
+                                 str(_text(ds.attrs.get("long_name", ""))))
+    return out
