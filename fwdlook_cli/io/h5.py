@@ -40,12 +40,16 @@ def set_attrs(obj, attrs: dict) -> None:
         kind = ("str" if isinstance(value, str) else "float" if isinstance(value, float)
                 else "int" if isinstance(value, int) and not isinstance(value, bool) and -2**63 <= value < 2**63
                 else None)
-        bname = name.encode()
-        if kind is None or h5py.h5a.exists(obj.id, bname):
+        if kind is None:
             obj.attrs[name] = value
             continue
         dt, ftype, mtype = _attr_type(kind)
-        h5py.h5a.create(obj.id, bname, ftype, _SCALAR).write(np.array(value, dtype=dt), mtype=mtype)
+        try:
+            attr = h5py.h5a.create(obj.id, name.encode(), ftype, _SCALAR)
+        except (OSError, KeyError, RuntimeError, ValueError):   # already there: h5py replaces it
+            obj.attrs[name] = value
+            continue
+        attr.write(np.array(value, dtype=dt), mtype=mtype)
 
 
 @contextlib.contextmanager
@@ -124,31 +128,59 @@ def put_scale(group: h5py.Group, name: str, data, units: str, long_name: str):
     return ds
 
 
+_POOL = None
+
+
+def worker_pool():
+    """One worker thread for work that releases the GIL (SHA-256 digests, zlib) beside the main thread."""
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fwdlook-io")
+    return _POOL
+
+
+class GzipChunks:
+    """The chunks of ``rows_per_chunk`` full rows of a 2-D array that hold a non-zero byte, deflated
+    (zlib ``level``, what HDF5's deflate filter writes) in the worker thread from construction on, so
+    that the compression runs beside whatever the caller does next; :func:`put_sparse_gzip` writes them."""
+
+    def __init__(self, data, rows_per_chunk: int = 16, level: int = 1):
+        import zlib
+
+        a = np.ascontiguousarray(data)
+        if a.ndim != 2 or a.size == 0:
+            raise ValueError(f"GzipChunks: a non-empty 2-D array, got shape {a.shape}")
+        self.shape, self.dtype, self.level = a.shape, a.dtype, level
+        self.rows = max(1, min(int(rows_per_chunk), a.shape[0]))
+        flat = a.view(np.uint8).reshape(a.shape[0], -1)
+        pool, self.jobs = worker_pool(), []
+        for i0 in range(0, a.shape[0], self.rows):
+            block = flat[i0:i0 + self.rows]
+            if not block.any():
+                continue                                  # an all-zero chunk is not written
+            if block.shape[0] < self.rows:                # an edge chunk is stored at full size
+                block = np.concatenate([block, np.zeros((self.rows - block.shape[0], block.shape[1]), np.uint8)])
+            self.jobs.append((i0, pool.submit(zlib.compress, memoryview(block).cast("B"), level)))
+
+
 def put_sparse_gzip(group: h5py.Group, name: str, data, units: str, long_name: str, *, dims=(),
                     rows_per_chunk: int = 16, level: int = 1):
     """A 2-D dataset stored gzip-compressed (HDF5's deflate filter, ``level``) in chunks of
     ``rows_per_chunk`` full rows, of which only the chunks holding a non-zero byte are written: an
     unwritten chunk reads as the fill value 0, so every reader sees the same array, bit for bit.
-    Images are mostly empty (a quarter of the paper image's rows hold a non-zero pixel), and zlib spent
-    most of its time on the zeros; the chunks written are compressed by ``zlib`` and handed to HDF5 as
-    they are (``write_direct_chunk``), which is what the filter would have written."""
-    import zlib
-
-    a = np.ascontiguousarray(data)
-    if a.ndim != 2 or a.size == 0:
-        return put(group, name, a, units, long_name, dims=dims, compression="gzip", compression_opts=level)
-    n_rows, n_cols = a.shape
-    rows = max(1, min(int(rows_per_chunk), n_rows))
-    ds = group.create_dataset(name, shape=a.shape, dtype=a.dtype, chunks=(rows, n_cols), compression="gzip",
-                              compression_opts=level, fillvalue=np.zeros((), a.dtype))
-    flat = a.view(np.uint8).reshape(n_rows, -1)
-    for i0 in range(0, n_rows, rows):
-        block = flat[i0:i0 + rows]
-        if not block.any():
-            continue
-        if block.shape[0] < rows:                     # an edge chunk is stored at full size
-            block = np.concatenate([block, np.zeros((rows - block.shape[0], block.shape[1]), np.uint8)])
-        ds.id.write_direct_chunk((i0, 0), zlib.compress(block.tobytes(), level))
+    ``data``: the array, or its :class:`GzipChunks` (compressed beforehand, beside other work).
+    The chunks are compressed by ``zlib`` and handed to HDF5 as they are (``write_direct_chunk``)."""
+    if not isinstance(data, GzipChunks):
+        a = np.asarray(data)
+        if a.ndim != 2 or a.size == 0:
+            return put(group, name, a, units, long_name, dims=dims, compression="gzip", compression_opts=level)
+        data = GzipChunks(a, rows_per_chunk, level)
+    ds = group.create_dataset(name, shape=data.shape, dtype=data.dtype, chunks=(data.rows, data.shape[1]),
+                              compression="gzip", compression_opts=data.level, fillvalue=np.zeros((), data.dtype))
+    for i0, job in data.jobs:
+        ds.id.write_direct_chunk((i0, 0), job.result())
     set_attrs(ds, {"units": units, "long_name": long_name})
     for axis, scale in enumerate(dims):
         if scale is not None:

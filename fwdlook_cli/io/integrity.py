@@ -26,18 +26,16 @@ from __future__ import annotations
 
 import hashlib
 import json
-import threading
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 
 import numpy as np
+
+from .h5 import worker_pool
 
 DIGEST_ATTR = "sha256"
 DATASETS_ATTR = "stage_datasets"
 STAGE_FORMAT_VERSION = 2       # 2: one root declaration, byte-only digests (files of 1 are stale)
 THREAD_MIN_BYTES = 1 << 18     # smaller arrays are hashed inline (a thread hand-off costs more)
-
-_pool: ThreadPoolExecutor | None = None
-_pool_lock = threading.Lock()
 
 
 def digest(data) -> str:
@@ -56,11 +54,7 @@ def digest_async(data) -> Future:
         fut: Future = Future()
         fut.set_result(digest(a))
         return fut
-    global _pool
-    with _pool_lock:
-        if _pool is None:
-            _pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fwdlook-digest")
-    return _pool.submit(digest, a)
+    return worker_pool().submit(digest, a)
 
 
 def declaration(data, dims, sha256: str) -> dict:
