@@ -49,7 +49,9 @@ def digest(data) -> str:
 
 def digest_async(data) -> Future:
     """:func:`digest` of ``data`` as a future: computed in a worker thread when large."""
-    a = np.asarray(data)
+    if not isinstance(data, np.ndarray):          # e.g. an open h5py dataset: read here, not in a thread
+        data = np.asarray(data)
+    a = data
     if a.nbytes < THREAD_MIN_BYTES:
         fut: Future = Future()
         fut.set_result(digest(a))
