@@ -266,3 +266,29 @@ def test_libyaml_dump_is_the_pure_python_dump():
     for p in paths:
         scn = load_scenario(p)
         assert dump_scenario(scn) == yaml.safe_dump(scn, sort_keys=False, default_flow_style=None, width=100), p
+
+
+# ----------------------------------------------------------------------------------------------
+# the ground image's tail percentiles
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("kind", ["normal", "ties", "sorted", "half-zero", "constant-bulk", "nan", "inf", "small"])
+def test_tail_percentiles_are_numpys_bit_for_bit(kind):
+    from fwdlook_cli.forward.process import tail_percentiles
+
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        n = int(rng.integers(10, 300)) if kind == "small" else int(rng.integers(4096, 200_000))
+        x = rng.standard_normal(n) * 300
+        if kind == "ties":
+            x = np.round(x / 50) * 50
+        elif kind == "sorted":
+            x = np.sort(x)
+        elif kind == "half-zero":
+            x[rng.random(n) < 0.5] = 0.0
+        elif kind == "constant-bulk":
+            x[n // 50:] = 1700.0
+        elif kind in ("nan", "inf"):
+            x[int(rng.integers(n))] = np.nan if kind == "nan" else -np.inf
+        for q in ((0.1, 99.9), (0.0, 100.0), (2.5, 97.5)):
+            want = np.percentile(x, list(q))
+            assert tail_percentiles(x, *q).tobytes() == want.tobytes(), (kind, n, q)
