@@ -292,3 +292,20 @@ def test_tail_percentiles_are_numpys_bit_for_bit(kind):
         for q in ((0.1, 99.9), (0.0, 100.0), (2.5, 97.5)):
             want = np.percentile(x, list(q))
             assert tail_percentiles(x, *q).tobytes() == want.tobytes(), (kind, n, q)
+
+
+def test_worker_pool_works_in_a_forked_child(tmp_path):
+    import os
+
+    from fwdlook_cli.io.h5 import worker_pool
+
+    assert worker_pool().submit(lambda: 1).result(timeout=10) == 1     # the parent's pool exists
+    pid = os.fork()
+    if pid == 0:                                                       # child: a pool of its own
+        try:
+            ok = worker_pool().submit(lambda: 2).result(timeout=10) == 2
+        except Exception:  # noqa: BLE001
+            ok = False
+        os._exit(0 if ok else 1)
+    _, status = os.waitpid(pid, 0)
+    assert os.WEXITSTATUS(status) == 0

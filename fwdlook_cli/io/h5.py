@@ -128,17 +128,20 @@ def put_scale(group: h5py.Group, name: str, data, units: str, long_name: str):
     return ds
 
 
-_POOL = None
+_POOL = (None, None)
 
 
 def worker_pool():
-    """One worker thread for work that releases the GIL (SHA-256 digests, zlib) beside the main thread."""
+    """One worker thread for work that releases the GIL (SHA-256 digests, zlib) beside the main thread;
+    a new one in a forked child (the parent's thread does not exist there: its pool would never run)."""
     global _POOL
-    if _POOL is None:
+    pool, pid = _POOL
+    if pool is None or pid != os.getpid():
         from concurrent.futures import ThreadPoolExecutor
 
-        _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fwdlook-io")
-    return _POOL
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fwdlook-io")
+        _POOL = (pool, os.getpid())
+    return pool
 
 
 class GzipChunks:
