@@ -26,7 +26,8 @@ from typing import Callable
 from .errors import BadInput
 from .io.integrity import STAGE_FORMAT_VERSION
 from .io.stagefile import StageData, _canon, declared_digests, load_verified, read_stage, write_stage
-from .io.stageview import read_stage_lazy, read_stage_mapped, reshaped_views, view_file_key, virtual_layout
+from .io.stageview import (mapped_stage, read_stage_lazy, read_stage_mapped, reshaped_views, view_file_key,
+                             virtual_layout)
 
 log = logging.getLogger(__name__)
 
@@ -134,6 +135,8 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
             del out
             data, fh = read_stage_lazy(paths[i])
             open_files.append(fh)
+            if st.name in captured:     # the same file, once: its large arrays as memory maps
+                captured[st.name] = (lambda mapped=mapped_stage(data, paths[i]): mapped)
         else:
             data = out
         timings[st.name] = time.perf_counter() - t0

@@ -76,6 +76,29 @@ def read_stage_lazy(path: Path, min_bytes: int = 1 << 20):
     return out, f
 
 
+def _mapped(ds, path):
+    """A read-only memory map of an open, uncompressed, contiguous dataset (None for another layout)."""
+    if ds.chunks is not None or ds.is_virtual:
+        return None
+    offset = ds.id.get_offset()
+    return None if offset is None else np.memmap(path, dtype=ds.dtype, mode="r", offset=offset, shape=ds.shape)
+
+
+def mapped_stage(lazy, path: Path):
+    """The :class:`StageData` of :func:`read_stage_lazy` (its file still open) with every open dataset
+    replaced by a memory map of it (or read, for another layout): valid after the file is closed."""
+    from .stagefile import StageData, Var
+
+    out = StageData(attrs=dict(lazy.attrs))
+    for name, var in lazy.vars.items():
+        data = var.data
+        if isinstance(data, h5py.Dataset):
+            mapped = _mapped(data, path)
+            data = mapped if mapped is not None else data[()]
+        out.vars[name] = Var(data, var.dims, var.units, var.long_name)
+    return out
+
+
 def read_stage_mapped(path: Path, min_bytes: int = 1 << 20):
     """A stage file as :class:`StageData` whose large contiguous arrays are read-only memory maps of the
     file (``np.memmap`` at the dataset's offset: HDF5 stores an uncompressed contiguous dataset as its
@@ -92,11 +115,8 @@ def read_stage_mapped(path: Path, min_bytes: int = 1 << 20):
         for name, ds in f.items():
             if not isinstance(ds, h5py.Dataset):
                 continue
-            offset = None
-            if ds.size * ds.dtype.itemsize >= min_bytes and ds.chunks is None and not ds.is_virtual:
-                offset = ds.id.get_offset()
-            data = (np.memmap(path, dtype=ds.dtype, mode="r", offset=offset, shape=ds.shape)
-                    if offset is not None else ds[()])
+            data = _mapped(ds, path) if ds.size * ds.dtype.itemsize >= min_bytes else None
+            data = ds[()] if data is None else data
             out.vars[name] = Var(data, dims_of(ds, name, declared), str(_text(ds.attrs.get("units", ""))),
                                  str(_text(ds.attrs.get("long_name", ""))))
     return out
