@@ -64,8 +64,9 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     With ``all`` the first missing or stale file decides where the chain starts; otherwise the latest
     valid file does (the earlier ones were never kept).  ``captured``: {stage name: None}, filled with
     a function returning each named stage's output (from its file when kept, its large arrays memory
-    maps of it, so that the output is not held in memory meanwhile nor copied whole).  A ``lazy_input`` stage after a written stage gets that file's
-    large arrays as open datasets instead of the arrays in memory (bounded memory; the same numbers).
+    maps of it, so that the output is neither held in memory meanwhile nor copied whole).  A
+    ``lazy_input`` stage after a written stage gets that file's large arrays as open datasets instead
+    of the arrays in memory (bounded memory; the same numbers).
     """
     if keep not in KEEP_STAGES:
         raise BadInput(f"--keep-stages {keep}: allowed: {', '.join(KEEP_STAGES)}")
