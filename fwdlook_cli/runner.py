@@ -24,8 +24,10 @@ from typing import Callable
 
 
 from .errors import BadInput
-from .io.stagefile import StageData, _canon, load_verified, read_stage, write_stage
-from .io.stageview import read_stage_lazy, reshaped_views, view_file_key, virtual_layout
+from .io.integrity import STAGE_FORMAT_VERSION
+from .io.stagefile import StageData, _canon, declared_digests, load_verified, read_stage, write_stage
+from .io.stageview import (mapped_stage, read_stage_lazy, read_stage_mapped, reshaped_views, view_file_key,
+                             virtual_layout)
 
 log = logging.getLogger(__name__)
 
@@ -42,11 +44,12 @@ KEEP_STAGES = ("all", "last", "none")
 
 
 def stage_key(name: str, params: dict, previous_key: str) -> str:
-    """Hash of a stage's name, settings, input key and the software version (new code, new files)."""
+    """Hash of a stage's name, settings, input key, the software version and the stage-file format
+    (new code or a new format, new files: a file of another format is stale, never trusted)."""
     from . import __version__
 
     blob = json.dumps({"stage": name, "params": _canon(params), "input": previous_key,
-                       "version": __version__}, sort_keys=True, default=str)
+                       "version": __version__, "format": STAGE_FORMAT_VERSION}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -60,9 +63,10 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     ``last`` writes only the final stage and the stages named in ``captured``; ``none`` writes none.
     With ``all`` the first missing or stale file decides where the chain starts; otherwise the latest
     valid file does (the earlier ones were never kept).  ``captured``: {stage name: None}, filled with
-    a function returning each named stage's output (read from its file when kept, so that the output
-    is not held in memory meanwhile).  A ``lazy_input`` stage after a written stage gets that file's
-    large arrays as open datasets instead of the arrays in memory (bounded memory; the same numbers).
+    a function returning each named stage's output (from its file when kept, its large arrays memory
+    maps of it, so that the output is neither held in memory meanwhile nor copied whole).  A
+    ``lazy_input`` stage after a written stage gets that file's large arrays as open datasets instead
+    of the arrays in memory (bounded memory; the same numbers).
     """
     if keep not in KEEP_STAGES:
         raise BadInput(f"--keep-stages {keep}: allowed: {', '.join(KEEP_STAGES)}")
@@ -96,33 +100,44 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
         data = read_stage(paths[first - 1])
     del source                          # the input cube is freed once stage 1 has consumed it
     written_prev = first > 0            # the input of stage `first` is on disk
+    known: dict = {}                    # {name: (array, sha256)} of the last file written (no rehash)
+    prev_is_view = None                 # whether the last file written is a view (None: not known)
     for i, st in enumerate(stages):
         if i < first:
             timings[st.name] = 0.0
             if st.name in captured:
-                captured[st.name] = functools.partial(read_stage, paths[i])
+                captured[st.name] = functools.partial(read_stage_mapped, paths[i])
             continue
         t0 = time.perf_counter()
         out = st.fn(data, **st.params)
         t_compute = time.perf_counter() - t0
+        is_view = False
         if i in kept:
             extra, virtual = {"compute_s": t_compute}, None
-            if st.view and written_prev and not _is_view(paths[i - 1]):
-                virtual = _virtual_layouts(out, data, paths[i - 1])
+            if st.view and written_prev and not (prev_is_view if prev_is_view is not None
+                                                 else _is_view(paths[i - 1])):
+                virtual = _virtual_layouts(out, data, paths[i - 1], known)
                 if virtual:
                     extra.update(view_source=paths[i - 1].name, view_source_sha256=keys[i - 1])
-            write_stage(paths[i], out, stage=st.name, key=keys[i], input_key=keys[i - 1] if i else source_key,
-                        params=st.params, extra_attrs=extra, virtual=virtual)
+                    is_view = True
+            known = write_stage(paths[i], out, stage=st.name, key=keys[i],
+                                input_key=keys[i - 1] if i else source_key, params=st.params,
+                                extra_attrs=extra, virtual=virtual, known=known)
+        else:
+            known = {}
+        prev_is_view = is_view
         written_prev = i in kept
         for fh in open_files:           # a lazy input is consumed
             fh.close()
         open_files = []
         if st.name in captured:
-            captured[st.name] = functools.partial(read_stage, paths[i]) if i in kept else (lambda out=out: out)
+            captured[st.name] = functools.partial(read_stage_mapped, paths[i]) if i in kept else (lambda out=out: out)
         if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input:
             del out
             data, fh = read_stage_lazy(paths[i])
             open_files.append(fh)
+            if st.name in captured:     # the same file, once: its large arrays as memory maps
+                captured[st.name] = (lambda mapped=mapped_stage(data, paths[i]): mapped)
         else:
             data = out
         timings[st.name] = time.perf_counter() - t0
@@ -180,10 +195,19 @@ def _is_view(path: Path) -> bool:
         return "view_source" in f.attrs
 
 
-def _virtual_layouts(out: StageData, previous: StageData, previous_path: Path) -> dict:
-    """Virtual layouts for the arrays of ``out`` that reshape arrays of the previous (written) stage."""
-    layouts = {}
+def _virtual_layouts(out: StageData, previous: StageData, previous_path: Path, known: dict) -> dict:
+    """{name: (virtual layout, sha256)} for the arrays of ``out`` that reshape arrays of the previous
+    (written) stage: the same bytes, so the digest that file declares (``known`` when it was written
+    in this run, else read from its declaration, which the reuse check verified)."""
+    layouts, digests = {}, None
     for name in reshaped_views(out, previous):
         src = previous.vars[name].data
-        layouts[name] = virtual_layout(previous_path, name, out.vars[name].data.shape, src.dtype, src.shape)
+        if name in known:
+            sha = known[name][1]
+        else:
+            digests = declared_digests(previous_path) if digests is None else digests
+            if name not in digests:
+                continue
+            sha = digests[name]
+        layouts[name] = (virtual_layout(previous_path, name, out.vars[name].data.shape, src.dtype, src.shape), sha)
     return layouts

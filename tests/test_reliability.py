@@ -614,7 +614,10 @@ def _drop(f):
 
 
 def _strip_digest(f):
-    del f[_largest(f)].attrs["sha256"]
+    """The largest dataset's sha256 removed from the root declaration (io/integrity.py)."""
+    decl = json.loads(f.attrs["stage_datasets"])
+    del decl[_largest(f)]["sha256"]
+    f.attrs["stage_datasets"] = json.dumps(decl)
 
 
 DAMAGE = {"bit-flip": _bitflip, "truncated-dataset": _truncate_dataset, "retyped": _retype,

@@ -11,8 +11,45 @@ import os
 from pathlib import Path
 
 import h5py
+import numpy as np
 
 from .. import __version__
+
+_SCALAR = None
+_TYPES: dict = {}
+
+
+def _attr_type(kind: str):
+    """(numpy dtype, file type, memory type) of an attribute kind, as ``h5py.AttributeManager.create``."""
+    types = _TYPES.get(kind)
+    if types is None:
+        dt = h5py.string_dtype("utf-8") if kind == "str" else np.dtype("<f8" if kind == "float" else "<i8")
+        types = _TYPES[kind] = (dt, h5py.h5t.py_create(dt, logical=True), h5py.h5t.py_create(dt))
+    return types
+
+
+def set_attrs(obj, attrs: dict) -> None:
+    """``obj.attrs.update(attrs)`` through HDF5's own calls for str, float and int values (the same
+    types h5py writes: variable-length UTF-8 strings, float64, int64), at about a third of the time of
+    ``obj.attrs[k] = v`` (26 against 90 us per attribute here); other values, and names already
+    present, go through h5py."""
+    global _SCALAR
+    if _SCALAR is None:
+        _SCALAR = h5py.h5s.create(h5py.h5s.SCALAR)
+    for name, value in attrs.items():
+        kind = ("str" if isinstance(value, str) else "float" if isinstance(value, float)
+                else "int" if isinstance(value, int) and not isinstance(value, bool) and -2**63 <= value < 2**63
+                else None)
+        if kind is None:
+            obj.attrs[name] = value
+            continue
+        dt, ftype, mtype = _attr_type(kind)
+        try:
+            attr = h5py.h5a.create(obj.id, name.encode(), ftype, _SCALAR)
+        except (OSError, KeyError, RuntimeError, ValueError):   # already there: h5py replaces it
+            obj.attrs[name] = value
+            continue
+        attr.write(np.array(value, dtype=dt), mtype=mtype)
 
 
 @contextlib.contextmanager
@@ -36,9 +73,8 @@ def atomic_h5(path: str | Path):
     try:
         try:
             with h5py.File(sink, "w") as f:
-                f.attrs["software"] = "fwdlook"
-                f.attrs["software_version"] = __version__
-                f.attrs["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+                set_attrs(f, {"software": "fwdlook", "software_version": __version__,
+                              "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")})
                 yield f
         finally:
             sink.close()
@@ -79,8 +115,7 @@ def atomic_write_text(path: str | Path, text: str) -> None:
 def put(group: h5py.Group, name: str, data, units: str, long_name: str, *, dims=(), **kw):
     """Create a dataset with its ``units`` and ``long_name`` and attach dimension scales ``dims``."""
     ds = group.create_dataset(name, data=data, **kw)
-    ds.attrs["units"] = units
-    ds.attrs["long_name"] = long_name
+    set_attrs(ds, {"units": units, "long_name": long_name})
     for axis, scale in enumerate(dims):
         if scale is not None:
             ds.dims[axis].attach_scale(scale)
@@ -90,4 +125,67 @@ def put(group: h5py.Group, name: str, data, units: str, long_name: str, *, dims=
 def put_scale(group: h5py.Group, name: str, data, units: str, long_name: str):
     ds = put(group, name, data, units, long_name)
     ds.make_scale(name)
+    return ds
+
+
+_POOL = (None, None)
+
+
+def worker_pool():
+    """One worker thread for work that releases the GIL (SHA-256 digests, zlib) beside the main thread;
+    a new one in a forked child (the parent's thread does not exist there: its pool would never run)."""
+    global _POOL
+    pool, pid = _POOL
+    if pool is None or pid != os.getpid():
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fwdlook-io")
+        _POOL = (pool, os.getpid())
+    return pool
+
+
+class GzipChunks:
+    """The chunks of ``rows_per_chunk`` full rows of a 2-D array that hold a non-zero byte, deflated
+    (zlib ``level``, what HDF5's deflate filter writes) in the worker thread from construction on, so
+    that the compression runs beside whatever the caller does next; :func:`put_sparse_gzip` writes them."""
+
+    def __init__(self, data, rows_per_chunk: int = 16, level: int = 1):
+        import zlib
+
+        a = np.ascontiguousarray(data)
+        if a.ndim != 2 or a.size == 0:
+            raise ValueError(f"GzipChunks: a non-empty 2-D array, got shape {a.shape}")
+        self.shape, self.dtype, self.level = a.shape, a.dtype, level
+        self.rows = max(1, min(int(rows_per_chunk), a.shape[0]))
+        flat = a.view(np.uint8).reshape(a.shape[0], -1)
+        pool, self.jobs = worker_pool(), []
+        for i0 in range(0, a.shape[0], self.rows):
+            block = flat[i0:i0 + self.rows]
+            if not block.any():
+                continue                                  # an all-zero chunk is not written
+            if block.shape[0] < self.rows:                # an edge chunk is stored at full size
+                block = np.concatenate([block, np.zeros((self.rows - block.shape[0], block.shape[1]), np.uint8)])
+            self.jobs.append((i0, pool.submit(zlib.compress, memoryview(block).cast("B"), level)))
+
+
+def put_sparse_gzip(group: h5py.Group, name: str, data, units: str, long_name: str, *, dims=(),
+                    rows_per_chunk: int = 16, level: int = 1):
+    """A 2-D dataset stored gzip-compressed (HDF5's deflate filter, ``level``) in chunks of
+    ``rows_per_chunk`` full rows, of which only the chunks holding a non-zero byte are written: an
+    unwritten chunk reads as the fill value 0, so every reader sees the same array, bit for bit.
+    ``data``: the array, or its :class:`GzipChunks` (compressed beforehand, beside other work).
+    The chunks are compressed by ``zlib`` and handed to HDF5 as they are (``write_direct_chunk``)."""
+    if not isinstance(data, GzipChunks):
+        a = np.asarray(data)
+        if a.ndim != 2 or a.size == 0:
+            return put(group, name, a, units, long_name, dims=dims, compression="gzip", compression_opts=level)
+        data = GzipChunks(a, rows_per_chunk, level)
+    ds = group.create_dataset(name, shape=data.shape, dtype=data.dtype, chunks=(data.rows, data.shape[1]),
+                              compression="gzip", compression_opts=data.level, fillvalue=np.zeros((), data.dtype))
+    for i0, job in data.jobs:
+        ds.id.write_direct_chunk((i0, 0), job.result())
+    set_attrs(ds, {"units": units, "long_name": long_name})
+    for axis, scale in enumerate(dims):
+        if scale is not None:
+            ds.dims[axis].attach_scale(scale)
     return ds

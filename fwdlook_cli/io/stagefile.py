@@ -13,8 +13,9 @@ from typing import Any
 import h5py
 import numpy as np
 
-from .h5 import atomic_h5, put
-from .integrity import DATASETS_ATTR, DIGEST_ATTR, declare, digest
+from .h5 import atomic_h5, put, set_attrs
+from .integrity import (DATASETS_ATTR, DIGEST_ATTR, STAGE_FORMAT_VERSION, declaration, digest, digest_async,
+                        read_declaration)
 
 
 @dataclass
@@ -63,49 +64,80 @@ def _canon(value):
 
 PROVENANCE_KEYS = ("format", "stage", "config_sha256", "input_sha256", "settings", "software",
                    "software_version", "created_utc", "compute_s", "stage_datasets", "view_source",
-                   "view_source_sha256")
+                   "view_source_sha256", "format_version")
+
 
 def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key: str, params: dict,
-                extra_attrs: dict | None = None, virtual: dict | None = None) -> None:
-    """``virtual``: {var name: h5py.VirtualLayout} for arrays stored as views of another file
-    (:mod:`io.stageview`); every other array is written in full, uncompressed and contiguous (complex
-    stage data compresses to 90-95 % at 30 times the write time: README, Speed)."""
+                extra_attrs: dict | None = None, virtual: dict | None = None, known: dict | None = None) -> dict:
+    """``virtual``: {var name: (h5py.VirtualLayout, sha256 of the bytes it maps)} for arrays stored as
+    views of another file (:mod:`io.stageview`); every other array is written in full, uncompressed and
+    contiguous (complex stage data compresses to 90-95 % at 30 times the write time: README, Speed).
+    ``known``: {var name: (array, sha256)} digests already computed in this run (the previous stage's
+    file); an array that is the same object keeps its digest.  Returns {name: (array, sha256)} of what
+    the file declares (``known`` for the next stage).  The digests of large arrays are computed in a
+    worker thread while HDF5 writes (io/integrity.py)."""
     virtual = virtual or {}
+    known = known or {}
+    pending = {}
+    for name, var in data.vars.items():
+        if name in virtual:
+            continue
+        prior = known.get(name)
+        pending[name] = prior[1] if prior is not None and prior[0] is var.data else digest_async(var.data)
     with atomic_h5(path) as f:
+        carried = {}
         for k, v in {**data.attrs, **(extra_attrs or {})}.items():
             if k not in PROVENANCE_KEYS:
-                f.attrs[k] = json.dumps(v) if isinstance(v, (dict, list)) else v
-        f.attrs["format"] = "fwdlook-stage"      # provenance last: never taken from carried attrs
-        f.attrs["stage"] = stage
-        f.attrs["config_sha256"] = key
-        f.attrs["input_sha256"] = input_key
-        f.attrs["settings"] = json.dumps(_canon(params), sort_keys=True, default=str)
-        f.attrs[DATASETS_ATTR] = json.dumps(list(data.vars))    # integrity.py: what the file declares
+                carried[k] = json.dumps(v) if isinstance(v, (dict, list)) else v
+        set_attrs(f, carried)
+        root = {"format": "fwdlook-stage", "format_version": STAGE_FORMAT_VERSION, "stage": stage,
+                "config_sha256": key, "input_sha256": input_key,          # provenance last: never taken
+                "settings": json.dumps(_canon(params), sort_keys=True, default=str)}   # from carried attrs
         for k in ("view_source", "view_source_sha256"):          # a view's source (io.stageview)
             if k in (extra_attrs or {}):
-                f.attrs[k] = extra_attrs[k]
+                root[k] = extra_attrs[k]
         scales = {}
         for name, var in data.vars.items():  # coordinates first, as dimension scales
             if var.dims == (name,):
                 ds = put(f, name, var.data, var.units, var.long_name)
-                declare(ds, var.data)
                 ds.make_scale(name)
                 scales[name] = ds
         for name, var in data.vars.items():
             if var.dims == (name,):
                 continue
             if name in virtual:
-                ds = f.create_virtual_dataset(name, virtual[name])
-                ds.attrs["units"], ds.attrs["long_name"] = var.units, var.long_name
+                ds = f.create_virtual_dataset(name, virtual[name][0])
             else:
-                ds = put(f, name, var.data, var.units, var.long_name)
-            declare(ds, var.data)
-            ds.attrs["dims"] = json.dumps(list(var.dims))
+                ds = f.create_dataset(name, data=var.data)
+            set_attrs(ds, {"units": var.units, "long_name": var.long_name, "dims": json.dumps(list(var.dims))})
             for axis, dim in enumerate(var.dims):
                 if dim not in scales or scales[dim].shape[0] != var.data.shape[axis]:
                     raise ValueError(f"stage {stage}: {name} axis {axis} is '{dim}', which has no coordinate "
                                      f"of length {var.data.shape[axis]} in the stage output")
                 ds.dims[axis].attach_scale(scales[dim])
+        declared, out = {}, {}
+        for name, var in data.vars.items():
+            sha = virtual[name][1] if name in virtual else pending[name]
+            sha = sha if isinstance(sha, str) else sha.result()
+            declared[name] = declaration(var.data, var.dims, sha)
+            out[name] = (var.data, sha)
+        root[DATASETS_ATTR] = json.dumps(declared)   # integrity.py: what the file declares
+        set_attrs(f, root)
+    return out
+
+
+def declared_dims(f) -> dict:
+    """{dataset: dims} from a stage file's declaration ({} for a file without one, e.g. image.h5)."""
+    try:
+        return {k: tuple(v["dims"]) for k, v in read_declaration(_text(f.attrs[DATASETS_ATTR])).items()}
+    except Exception:  # noqa: BLE001  (none, or not of this version: dims from the datasets' attributes)
+        return {}
+
+
+def dims_of(ds, name: str, declared: dict) -> tuple:
+    if name in declared:
+        return declared[name]
+    return tuple(json.loads(_text(ds.attrs["dims"]))) if "dims" in ds.attrs else (name,)
 
 
 def read_stage(path: Path) -> StageData:
@@ -115,13 +147,22 @@ def read_stage(path: Path) -> StageData:
             if k in PROVENANCE_KEYS:
                 continue
             out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+        declared = declared_dims(f)
         for name, ds in f.items():
             if not isinstance(ds, h5py.Dataset):
                 continue
-            dims = tuple(json.loads(ds.attrs["dims"])) if "dims" in ds.attrs else (name,)
-            out.vars[name] = Var(ds[()], dims, str(ds.attrs.get("units", "")),
-                                 str(ds.attrs.get("long_name", "")))
+            out.vars[name] = Var(ds[()], dims_of(ds, name, declared), str(_text(ds.attrs.get("units", ""))),
+                                 str(_text(ds.attrs.get("long_name", ""))))
     return out
+
+
+def declared_digests(path: Path) -> dict:
+    """{dataset: sha256} a stage file declares ({} when it has no readable declaration)."""
+    try:
+        with h5py.File(path, "r") as f:
+            return {k: v[DIGEST_ATTR] for k, v in read_declaration(_text(f.attrs[DATASETS_ATTR])).items()}
+    except Exception:  # noqa: BLE001
+        return {}
 
 
 def stage_file_key(path: Path) -> str | None:
@@ -143,10 +184,6 @@ def _text(value):
 def load_verified(path, key: str):
     """(StageData, None) for a sound stage file made by ``key``; (None, None) when the file is missing
     or was made by other settings (normal: recompute); (None, reason) when it is damaged."""
-    import h5py
-
-    from .stagefile import PROVENANCE_KEYS, StageData, Var
-
     try:
         f = h5py.File(path, "r")
     except FileNotFoundError:
@@ -159,34 +196,38 @@ def load_verified(path, key: str):
                 return None, None
             if _text(f.attrs.get("format")) != "fwdlook-stage":
                 return None, "root attribute format is not fwdlook-stage"
+            if _text(f.attrs.get("format_version")) != STAGE_FORMAT_VERSION:
+                return None, f"root attribute format_version is not {STAGE_FORMAT_VERSION}"
             try:
-                names = json.loads(_text(f.attrs[DATASETS_ATTR]))
+                declared = read_declaration(_text(f.attrs[DATASETS_ATTR]))
             except Exception:  # noqa: BLE001
                 return None, f"root attribute {DATASETS_ATTR} missing or malformed (no declaration)"
             out = StageData()
             for k, v in f.attrs.items():
-                if k not in PROVENANCE_KEYS and k != DATASETS_ATTR:
+                if k not in PROVENANCE_KEYS:
                     out.attrs[k] = _text(v)
-            for name in names:
+            for name, want in declared.items():
                 ds = f.get(str(name))
                 if not isinstance(ds, h5py.Dataset):
                     return None, f"/{name}: declared dataset missing"
-                want_dtype, want_shape = _text(ds.attrs.get("dtype")), _text(ds.attrs.get("shape"))
-                want_digest = _text(ds.attrs.get(DIGEST_ATTR))
-                if want_dtype is None or want_shape is None or want_digest is None:
-                    return None, f"/{name}: no dtype, shape or sha256 declaration"
-                if json.loads(want_shape) != list(ds.shape):
+                want_dtype, want_shape = want.get("dtype"), want.get("shape")
+                want_digest, dims = want.get(DIGEST_ATTR), want.get("dims")
+                if want_dtype is None or want_shape is None or want_digest is None or dims is None:
+                    return None, f"/{name}: no dtype, shape, dims or sha256 declaration"
+                if list(want_shape) != list(ds.shape):
                     return None, f"/{name}: shape {list(ds.shape)}, declared {want_shape}"
                 if np.dtype(want_dtype) != ds.dtype:
                     return None, f"/{name}: dtype {ds.dtype}, declared {np.dtype(want_dtype)}"
                 data = ds[()]
                 if digest(data) != want_digest:
                     return None, f"/{name}: data does not match its sha256 digest (bit rot or edited)"
-                dims = tuple(json.loads(_text(ds.attrs["dims"]))) if "dims" in ds.attrs else (str(name),)
                 if len(dims) != np.ndim(data):
                     return None, f"/{name}: {len(dims)} dimension names for {np.ndim(data)} axes"
-                out.vars[str(name)] = Var(data, dims, str(_text(ds.attrs.get("units", ""))),
+                out.vars[str(name)] = Var(data, tuple(dims), str(_text(ds.attrs.get("units", ""))),
                                           str(_text(ds.attrs.get("long_name", ""))))
+            extra = [n for n, o in f.items() if isinstance(o, h5py.Dataset) and n not in declared]
+            if extra:
+                return None, f"/{extra[0]}: dataset not declared"
             return out, None
     except Exception as exc:  # noqa: BLE001  (any read failure inside the file is damage)
         text = str(exc).splitlines()[0][:120] if str(exc) else ""

@@ -58,20 +58,65 @@ def read_stage_lazy(path: Path, min_bytes: int = 1 << 20):
     """A stage file as :class:`StageData` whose large arrays (``min_bytes`` or more, not coordinates)
     stay on disk as open ``h5py.Dataset`` objects, read block by block by a stage that slices them
     (``monopulse_image`` reads whole CPIs); returns (data, open file) — close the file when done."""
-    import json
-
-    from .stagefile import PROVENANCE_KEYS, StageData, Var
+    from .stagefile import PROVENANCE_KEYS, StageData, Var, _text, declared_dims, dims_of
 
     f = h5py.File(path, "r")
     out = StageData()
     for k, v in f.attrs.items():
         if k not in PROVENANCE_KEYS:
             out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+    declared = declared_dims(f)
     for name, ds in f.items():
         if not isinstance(ds, h5py.Dataset):
             continue
-        dims = tuple(json.loads(ds.attrs["dims"])) if "dims" in ds.attrs else (name,)
+        dims = dims_of(ds, name, declared)
         lazy = dims != (name,) and ds.size * ds.dtype.itemsize >= min_bytes
-        out.vars[name] = Var(ds if lazy else ds[()], dims, str(ds.attrs.get("units", "")),
-                             str(ds.attrs.get("long_name", "")))
+        out.vars[name] = Var(ds if lazy else ds[()], dims, str(_text(ds.attrs.get("units", ""))),
+                             str(_text(ds.attrs.get("long_name", ""))))
     return out, f
+
+
+def _mapped(ds, path):
+    """A read-only memory map of an open, uncompressed, contiguous dataset (None for another layout)."""
+    if ds.chunks is not None or ds.is_virtual:
+        return None
+    offset = ds.id.get_offset()
+    return None if offset is None else np.memmap(path, dtype=ds.dtype, mode="r", offset=offset, shape=ds.shape)
+
+
+def mapped_stage(lazy, path: Path):
+    """The :class:`StageData` of :func:`read_stage_lazy` (its file still open) with every open dataset
+    replaced by a memory map of it (or read, for another layout): valid after the file is closed."""
+    from .stagefile import StageData, Var
+
+    out = StageData(attrs=dict(lazy.attrs))
+    for name, var in lazy.vars.items():
+        data = var.data
+        if isinstance(data, h5py.Dataset):
+            mapped = _mapped(data, path)
+            data = mapped if mapped is not None else data[()]
+        out.vars[name] = Var(data, var.dims, var.units, var.long_name)
+    return out
+
+
+def read_stage_mapped(path: Path, min_bytes: int = 1 << 20):
+    """A stage file as :class:`StageData` whose large contiguous arrays are read-only memory maps of the
+    file (``np.memmap`` at the dataset's offset: HDF5 stores an uncompressed contiguous dataset as its
+    raw bytes), so a reader that looks at a few slices (the dwell metrics) pages in only those, with no
+    copy of the rest; other arrays are read.  The maps stay valid after the file is closed or removed."""
+    from .stagefile import PROVENANCE_KEYS, StageData, Var, _text, declared_dims, dims_of
+
+    out = StageData()
+    with h5py.File(path, "r") as f:
+        for k, v in f.attrs.items():
+            if k not in PROVENANCE_KEYS:
+                out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+        declared = declared_dims(f)
+        for name, ds in f.items():
+            if not isinstance(ds, h5py.Dataset):
+                continue
+            data = _mapped(ds, path) if ds.size * ds.dtype.itemsize >= min_bytes else None
+            data = ds[()] if data is None else data
+            out.vars[name] = Var(data, dims_of(ds, name, declared), str(_text(ds.attrs.get("units", ""))),
+                                 str(_text(ds.attrs.get("long_name", ""))))
+    return out

@@ -117,5 +117,7 @@ def scenario_hash(resolved: dict) -> str:
 
 
 def dump_scenario(resolved: dict) -> str:
-    """Re-loadable YAML of a resolved scenario (not a dict repr)."""
-    return yaml.safe_dump(resolved, sort_keys=False, default_flow_style=None, width=100)
+    """Re-loadable YAML of a resolved scenario (not a dict repr); libyaml's emitter where PyYAML has it
+    (``yaml.CSafeDumper``: the same text, about 10 times faster than the pure-Python one)."""
+    dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+    return yaml.dump(resolved, Dumper=dumper, sort_keys=False, default_flow_style=None, width=100)
