@@ -101,7 +101,7 @@ def subaperture_layout(n_pulses, sub_pulses, beam_deg, angle_deg, dwell_half_wid
 def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, velocity_mps, range_m, angle_deg,
                 fc_hz, prf_hz, slope_per_deg, beta_per_deg2, position_ref_m, sub_pulses=40,
                 dwell_half_width_deg=3.2, fft_oversample=8, twin_null=True, twin_axis_deg=0.0, twin_orders=1,
-                twin_max_corr2=0.9):
+                twin_max_corr2=0.9, block_cells=None):
     """Rotated sum and difference of every (direction, range) integrated over its dwell.
 
     Returns ``(s_rot, d_rot, gain, pos_dwell)``: complex64 [n_angle, n_range] images S', D' (module
@@ -110,11 +110,11 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     """
     lam = C_MPS / fc_hz
     k = slope_per_deg
+    block_cells = DWELL_BLOCK_CELLS if block_cells is None else block_cells
     m, n_r = sum_rt.shape
     n_a = len(angle_deg)
     L = sub_pulses
     n_sub, beam_j, g0, n_loc = subaperture_layout(m, L, scan_angle_deg, angle_deg, dwell_half_width_deg)
-    mm = n_sub * L
     g = g0[:, None] + np.arange(n_loc)[None, :]                              # [n_sub, n_loc] global index
     valid = (g >= 0) & (g < n_a)
     gi = np.clip(g, 0, n_a - 1)
@@ -137,13 +137,9 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     rate_hz_s = 2.0 * (np.einsum("ji,ji->j", acc_c, ub) - (np.einsum("ji,ji->j", vel_c, vel_c) - vr**2) / rb) / lam
     chirp = _cis(-np.pi * rate_hz_s[:, None] * tau[None, :] ** 2)            # [n_sub, L]
     n_fft = int(fft_oversample * L)
-    spec = []
-    for x in (sum_rt, diff_rt):
-        xs = np.asarray(x)[:mm].reshape(n_sub, L, n_r) * chirp[:, :, None]
-        spec.append(scipy.fft.fft(xs, n=n_fft, axis=1, workers=-1).reshape(-1))   # [n_sub * n_fft * n_r]
 
     # 2. per (sub-aperture, direction): offset of the direction from the beam axis at the centre, the
-    #    pattern weight, and the twin's envelope
+    #    pattern weight, and the twin's envelope (over the whole dwell: small [n_sub, n_loc] arrays)
     p_dir = ground_points(r_mid, theta, p_ref)
     delta = np.degrees(np.arctan2(p_dir[..., 0] - pos_c[:, None, 0], p_dir[..., 1] - pos_c[:, None, 1])) \
         - beam_j[:, None]
@@ -159,14 +155,48 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     pos_dwell = np.stack([np.bincount(gi[valid], weights=(w**2 * pos_c[:, None, i])[valid], minlength=n_a)
                           for i in range(3)], axis=-1) / np.maximum(gain, 1e-300)[:, None]
 
-    # 3. exact range history of P(r, theta) at each sub-aperture centre: |P - p_j|^2 = rho^2 + 2 rho b + c
+    # 3-4. per block of sub-apertures (bounded memory: the spectra and the [sub-aperture, direction,
+    #    range] temporaries of one block only), summed over the dwell into the global directions
     rr = np.asarray(range_m, dtype=np.float64)
     rho = np.sqrt(np.maximum(rr**2 - p_ref[2] ** 2, 0.0))                    # [n_r]
-    u = np.stack([np.sin(np.radians(theta)), np.cos(np.radians(theta))], axis=-1)   # [n_sub, n_loc, 2]
-    dg = p_ref[None, :2] - pos_c[:, :2]                                      # [n_sub, 2]
+    rho32 = rho.astype(np.float32)
+    s_rot = np.zeros((n_a, n_r), np.complex128)
+    d_rot = np.zeros((n_a, n_r), np.complex128)
+    step = max(1, int(block_cells) // max(1, n_loc * n_r + n_fft * n_r))
+    for j0 in range(0, n_sub, step):
+        j = slice(j0, min(n_sub, j0 + step))
+        s_part, d_part = _focus_block(sum_rt, diff_rt, j, L=L, n_fft=n_fft, chirp=chirp[j], theta=theta[j],
+                                      w=w[j], pos_c=pos_c[j], vel_c=vel_c[j], beam_j=beam_j[j], p_ref=p_ref,
+                                      rr=rr, rho=rho, rho32=rho32, lam=lam, prf_hz=prf_hz, k=k)
+        gj, vj = gi[j].ravel(), valid[j].ravel()
+        acc = scipy.sparse.csr_matrix((vj.astype(np.float32), (gj, np.arange(gj.size))), shape=(n_a, gj.size))
+        s_rot += acc @ s_part.reshape(gj.size, n_r)
+        d_rot += acc @ d_part.reshape(gj.size, n_r)
+        del s_part, d_part
+    return s_rot.astype(np.complex64), d_rot.astype(np.complex64), gain, pos_dwell
+
+
+DWELL_BLOCK_CELLS = 1 << 19     # (sub-aperture x (direction + FFT bin) x range) cells per block of dwell_focus
+
+
+def _focus_block(sum_rt, diff_rt, j, *, L, n_fft, chirp, theta, w, pos_c, vel_c, beam_j, p_ref, rr, rho, rho32,
+                 lam, prf_hz, k):
+    """Steps 1 and 3 of :func:`dwell_focus` for the sub-apertures ``j`` (a slice): their spectra, each
+    direction's interpolated read at its Doppler, the exact phase and the rotation; returns the
+    weighted S', D' parts [n_j, n_loc, n_r] (complex64)."""
+    n_j = chirp.shape[0]
+    n_r = sum_rt.shape[1]
+    rows = slice(j.start * L, (j.start + n_j) * L)
+    spec = []
+    for x in (sum_rt, diff_rt):
+        xs = np.asarray(x[rows]).reshape(n_j, L, n_r) * chirp[:, :, None]
+        spec.append(scipy.fft.fft(xs, n=n_fft, axis=1, workers=-1).reshape(-1))   # [n_j * n_fft * n_r]
+    # exact range history of P(r, theta) at each sub-aperture centre: |P - p_j|^2 = rho^2 + 2 rho b + c
+    u = np.stack([np.sin(np.radians(theta)), np.cos(np.radians(theta))], axis=-1)   # [n_j, n_loc, 2]
+    dg = p_ref[None, :2] - pos_c[:, :2]                                      # [n_j, 2]
     b = np.einsum("jli,ji->jl", u, dg)
     c = np.sum(dg**2, axis=1) + pos_c[:, 2] ** 2
-    r_jr = np.sqrt(rho**2 + 2.0 * rho * b[:, :, None] + c[:, None, None])   # [n_sub, n_loc, n_r]
+    r_jr = np.sqrt(rho**2 + 2.0 * rho * b[:, :, None] + c[:, None, None])   # [n_j, n_loc, n_r]
     # Doppler of P at the centre, 2 v.(P - p_j) / (lambda |P - p_j|), as an FFT bin (mod PRF)
     vd = np.einsum("ji,ji->j", vel_c[:, :2], dg) - vel_c[:, 2] * pos_c[:, 2]
     vu = np.einsum("jli,ji->jl", u, vel_c[:, :2])
@@ -174,19 +204,18 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     pos_bin = np.mod(f_hz / prf_hz * n_fft, n_fft)
     i0 = np.floor(pos_bin).astype(np.int64)
     frac = (pos_bin - i0).astype(np.float32)
-    base = (np.arange(n_sub)[:, None, None] * n_fft) * n_r + np.arange(n_r)[None, None, :]
+    base = (np.arange(n_j)[:, None, None] * n_fft) * n_r + np.arange(n_r)[None, None, :]
     f0 = base + i0 * n_r
     f1 = base + np.mod(i0 + 1, n_fft) * n_r
-    # FFT bins count from the sub-aperture's first pulse: move the phase origin to its centre
     # exact phase of P at t_j (minus the t_ref range), with the FFT's origin moved to the centre
     focus = _cis_cycles(2.0 * (r_jr - rr) / lam + f_hz * (0.5 * (L - 1) / prf_hz), np.complex64)
-    del r_jr, f_hz, pos_bin
+    del r_jr, f_hz, pos_bin, i0, base
     zs = spec[0][f0] * (1 - frac) + spec[0][f1] * frac                       # linear interpolation in Doppler
     zd = spec[1][f0] * (1 - frac) + spec[1][f1] * frac
+    del spec, f0, f1, frac
     # rotation by the offset of P(r, theta) itself from the beam axis: parallax makes it range dependent
     # (the antenna is up to 130 m from p_ref when the beam passes a direction)
     th = np.radians(theta)[:, :, None]
-    rho32 = rho.astype(np.float32)
     kd = np.arctan2(rho32 * np.sin(th).astype(np.float32) + dg[:, None, None, 0].astype(np.float32),
                     rho32 * np.cos(th).astype(np.float32) + dg[:, None, None, 1].astype(np.float32))
     kd = (np.float32(np.degrees(k)) * kd - (k * beam_j[:, None, None]).astype(np.float32))   # k delta
@@ -197,13 +226,7 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     del kd, ek
     s_part = (ch * zs - sh * zd) * focus                                     # S' = s cosh - d sinh
     d_part = (ch * zd - sh * zs) * focus                                     # D' = d cosh - s sinh
-
-    # 4. sum over the dwell: every (sub-aperture, direction) adds into its global direction
-    acc = scipy.sparse.csr_matrix((valid.ravel().astype(np.float32), (gi.ravel(), np.arange(gi.size))),
-                                  shape=(n_a, gi.size))
-    s_rot = acc @ s_part.reshape(gi.size, n_r)
-    d_rot = acc @ d_part.reshape(gi.size, n_r)
-    return s_rot.astype(np.complex64), d_rot.astype(np.complex64), gain, pos_dwell
+    return s_part, d_part
 
 
 def _orthogonalise(w, e, g, n_a, t_s, n_orders=1, max_corr2=0.9):
