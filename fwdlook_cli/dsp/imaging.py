@@ -15,6 +15,9 @@ oversampling, with the floor taken on the native samples (below).
 """
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import scipy.fft
 
@@ -59,19 +62,19 @@ def median_floor(power, axis_cells):
     return out
 
 
-def oversample_rows(x, factor: int):
+def oversample_rows(x, factor: int, workers: int = -1):
     """Band-limited oversampling of the last axis of ``x`` [rows, n] by FFT zero-padding (amplitudes
     kept); the same arithmetic as :func:`dsp.peaks.oversample_range`, one padded buffer."""
     if factor == 1:
         return np.array(x)
     n = x.shape[-1]
-    spec = scipy.fft.fft(x, axis=-1, workers=-1)
+    spec = scipy.fft.fft(x, axis=-1, workers=workers)
     pad = np.zeros(spec.shape[:-1] + (n * factor,), dtype=spec.dtype)
     half = n // 2
     np.multiply(spec[..., : n - half], factor, out=pad[..., : n - half])
     np.multiply(spec[..., n - half:], factor, out=pad[..., n * factor - half:])
     del spec
-    return scipy.fft.ifft(pad, axis=-1, workers=-1, overwrite_x=True)
+    return scipy.fft.ifft(pad, axis=-1, workers=workers, overwrite_x=True)
 
 
 BLOCK_CELLS = 1 << 18       # oversampled cells per block: temporaries of a few MB, reused from the heap
@@ -86,24 +89,50 @@ def kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dyn
     return tuple(np.concatenate([p[k] for p in parts]) for k in range(1, 6))
 
 
+def image_threads() -> int:
+    """Threads for the image's blocks: the cores this process may use, at most 4 (numpy's element-wise
+    work and the FFTs release the GIL; each block is independent)."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):       # pragma: no cover (not Linux)
+        n = os.cpu_count() or 1
+    return max(1, min(4, n))
+
+
 def iter_kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,
-                    max_ratio: float, margin_db: float = 6.0, block_cells: int = BLOCK_CELLS, **calibration):
+                    max_ratio: float, margin_db: float = 6.0, block_cells: int = BLOCK_CELLS, threads: int = 1,
+                    post=None, **calibration):
     """Per block of whole CPIs (every quantity is per CPI, so blocking changes nothing but the size of
     the temporaries): (first CPI, i_cpi, i_range_os, ratio, power, native power) with global CPI
-    indices."""
+    indices, in CPI order; ``post(tuple)`` instead where given (run in the block's thread).
+
+    ``threads`` > 1 runs the blocks on a thread pool (the FFTs then one thread each): the same numbers,
+    the blocks' results handed over in order.
+    """
     n_cpi, n_dop, n_r = sum_z.shape
-    step = max(1, int(block_cells) // max(1, n_dop * n_r * range_oversample))
-    for c0 in range(0, n_cpi, step):
+    # the blocks in flight together hold what one block of ``block_cells`` would (the same memory)
+    step = max(1, int(block_cells) // max(1, threads * n_dop * n_r * range_oversample))
+    workers = 1 if threads > 1 else -1
+
+    def one(c0):
         i_cpi, i_r, ratio, power, p0 = kept_cells_block(
             sum_z[c0:c0 + step], diff_z[c0:c0 + step], range_oversample=range_oversample,
             threshold_db=threshold_db, dynamic_range_db=dynamic_range_db, max_ratio=max_ratio,
-            margin_db=margin_db, **calibration)
-        yield c0, i_cpi + c0, i_r, ratio, power, p0
+            margin_db=margin_db, fft_workers=workers, **calibration)
+        block = (c0, i_cpi + c0, i_r, ratio, power, p0)
+        return block if post is None else post(block)
+
+    starts = range(0, n_cpi, step)
+    if threads <= 1 or len(starts) == 1:
+        yield from map(one, starts)
+        return
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        yield from pool.map(one, starts)
 
 
 def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,
                      max_ratio: float, margin_db: float = 6.0, ratio_bounds=None, diff_gain_db: float = 0.0,
-                     diff_phase_deg: float = 0.0):
+                     diff_phase_deg: float = 0.0, fft_workers: int = -1):
     """Cells of the monopulse image: (i_cpi, i_range_os, ratio, power) of every kept cell, ordered as
     ``np.nonzero`` on the full [cpi, doppler, range_os] mask orders them, and the native sum power
     [cpi, doppler, range] (for the real-beam image).
@@ -121,7 +150,7 @@ def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: floa
     row_max = p0.max(axis=2)                                         # [cpi, doppler]
     rows = np.flatnonzero(row_max.reshape(-1) >= level_lo.repeat(n_dop) * 10 ** (-margin_db / 10))
     row_cpi = rows // n_dop
-    s = oversample_rows(sum_z.reshape(-1, n_r)[rows], range_oversample)
+    s = oversample_rows(sum_z.reshape(-1, n_r)[rows], range_oversample, workers=fft_workers)
     power = power_f32(s)
     # exact oversampled peak per CPI from the selected rows (the peak row is always among them)
     peak = np.zeros(n_cpi)
@@ -141,7 +170,7 @@ def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: floa
     new_row[:1] = True
     np.not_equal(i_row[1:], i_row[:-1], out=new_row[1:])
     hit = i_row[new_row]
-    d = oversample_rows(diff_z.reshape(-1, n_r)[rows[hit]], range_oversample)
+    d = oversample_rows(diff_z.reshape(-1, n_r)[rows[hit]], range_oversample, workers=fft_workers)
     dk = d[np.cumsum(new_row) - 1, i_r]
     del d
     ratio = np.multiply(dk.real, sk.real)                   # Re(d conj s) / |s|^2, float32

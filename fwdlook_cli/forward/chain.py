@@ -26,7 +26,7 @@ import scipy.fft
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both
 from ..dsp.blas import batched_matmul
-from ..dsp.imaging import azimuth_at_t_ref_cells, iter_kept_cells
+from ..dsp.imaging import azimuth_at_t_ref_cells, image_threads, iter_kept_cells
 from ..dsp.keystone_common import cis_rad as _cis
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, cpi_doppler_band_hz,
                      fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector)
@@ -320,12 +320,10 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     rb_power = np.zeros(data["sum_z"].shape[::2])                              # [n_cpi, n_r]
     cells = []
     # cells over the CPI level, oversampling only the Doppler rows that can hold one, one block of
-    # whole CPIs at a time (dsp.imaging): geometry and projection per block, the image accumulated
-    for c0, i_cpi, i_r, ratio_kept, power_kept, power_native in iter_kept_cells(
-            data["sum_z"], data["diff_z"], range_oversample=range_oversample, threshold_db=threshold_db,
-            dynamic_range_db=dynamic_range_db, max_ratio=max_ratio, ratio_bounds=bounds,
-            diff_gain_db=diff_gain_db, diff_phase_deg=diff_phase_deg):
-        rb_power[c0:c0 + len(power_native)] = power_native.sum(axis=1, dtype=np.float64)
+    # whole CPIs at a time (dsp.imaging): geometry and projection per block (in the block's thread),
+    # the image accumulated in CPI order
+    def project(block):
+        c0, i_cpi, i_r, ratio_kept, power_kept, power_native = block
         if ratio_model == "tanh":
             offset = np.arctanh(ratio_kept) / slope_per_deg        # exact inverse for the Gaussian beams
         else:
@@ -338,7 +336,14 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
         a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
         inside = (a_idx >= 0) & (a_idx < n_a)
         flat = i_r[ok][inside] * n_a + a_idx[inside]
-        cells.append((gx[ok], gy[ok], w[ok], flat, w[ok][inside]))
+        return c0, power_native.sum(axis=1, dtype=np.float64), (gx[ok], gy[ok], w[ok], flat, w[ok][inside])
+
+    for c0, rb_rows, part in iter_kept_cells(
+            data["sum_z"], data["diff_z"], range_oversample=range_oversample, threshold_db=threshold_db,
+            dynamic_range_db=dynamic_range_db, max_ratio=max_ratio, ratio_bounds=bounds,
+            diff_gain_db=diff_gain_db, diff_phase_deg=diff_phase_deg, threads=image_threads(), post=project):
+        rb_power[c0:c0 + len(rb_rows)] = rb_rows
+        cells.append(part)
     flat, w_in = _concat_column(cells, 3), _concat_column(cells, 4)       # each part freed as it goes
     image = np.bincount(flat, weights=w_in, minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
     del flat, w_in

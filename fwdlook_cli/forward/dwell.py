@@ -50,12 +50,15 @@ the CPI chain's ``doppler_spectra`` + ``monopulse_image``; the whole chain 1.01 
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import scipy.fft
 import scipy.sparse
 
 from ..dsp.antenna import two_way_width_for
 from ..dsp.geometry import C_MPS, azimuth_at_t_ref
+from ..dsp.imaging import image_threads
 from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
@@ -162,25 +165,33 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     rho32 = rho.astype(np.float32)
     s_rot = np.zeros((n_a, n_r), np.complex128)
     d_rot = np.zeros((n_a, n_r), np.complex128)
-    step = max(1, int(block_cells) // max(1, n_loc * n_r + n_fft * n_r))
-    for j0 in range(0, n_sub, step):
+    threads = image_threads()
+    # the blocks in flight together hold what one block of ``block_cells`` would (the same memory)
+    step = max(1, int(block_cells) // max(1, threads * (n_loc * n_r + n_fft * n_r)))
+
+    def block(j0):                # one block's sums over its sub-apertures, in its own thread
         j = slice(j0, min(n_sub, j0 + step))
         s_part, d_part = _focus_block(sum_rt, diff_rt, j, L=L, n_fft=n_fft, chirp=chirp[j], theta=theta[j],
                                       w=w[j], pos_c=pos_c[j], vel_c=vel_c[j], beam_j=beam_j[j], p_ref=p_ref,
-                                      rr=rr, rho=rho, rho32=rho32, lam=lam, prf_hz=prf_hz, k=k)
+                                      rr=rr, rho=rho, rho32=rho32, lam=lam, prf_hz=prf_hz, k=k,
+                                      fft_workers=1 if threads > 1 else -1)
         gj, vj = gi[j].ravel(), valid[j].ravel()
         acc = scipy.sparse.csr_matrix((vj.astype(np.float32), (gj, np.arange(gj.size))), shape=(n_a, gj.size))
-        s_rot += acc @ s_part.reshape(gj.size, n_r)
-        d_rot += acc @ d_part.reshape(gj.size, n_r)
-        del s_part, d_part
+        return acc @ s_part.reshape(gj.size, n_r), acc @ d_part.reshape(gj.size, n_r)
+
+    starts = range(0, n_sub, step)
+    with ThreadPoolExecutor(max_workers=threads) as pool:     # the blocks' sums added in order
+        for s_blk, d_blk in pool.map(block, starts):
+            s_rot += s_blk
+            d_rot += d_blk
     return s_rot.astype(np.complex64), d_rot.astype(np.complex64), gain, pos_dwell
 
 
-DWELL_BLOCK_CELLS = 1 << 19     # (sub-aperture x (direction + FFT bin) x range) cells per block of dwell_focus
+DWELL_BLOCK_CELLS = 1 << 18     # (sub-aperture x (direction + FFT bin) x range) cells per block of dwell_focus
 
 
 def _focus_block(sum_rt, diff_rt, j, *, L, n_fft, chirp, theta, w, pos_c, vel_c, beam_j, p_ref, rr, rho, rho32,
-                 lam, prf_hz, k):
+                 lam, prf_hz, k, fft_workers=-1):
     """Steps 1 and 3 of :func:`dwell_focus` for the sub-apertures ``j`` (a slice): their spectra, each
     direction's interpolated read at its Doppler, the exact phase and the rotation; returns the
     weighted S', D' parts [n_j, n_loc, n_r] (complex64)."""
@@ -190,7 +201,7 @@ def _focus_block(sum_rt, diff_rt, j, *, L, n_fft, chirp, theta, w, pos_c, vel_c,
     spec = []
     for x in (sum_rt, diff_rt):
         xs = np.asarray(x[rows]).reshape(n_j, L, n_r) * chirp[:, :, None]
-        spec.append(scipy.fft.fft(xs, n=n_fft, axis=1, workers=-1).reshape(-1))   # [n_j * n_fft * n_r]
+        spec.append(scipy.fft.fft(xs, n=n_fft, axis=1, workers=fft_workers).reshape(-1))   # [n_j * n_fft * n_r]
     # exact range history of P(r, theta) at each sub-aperture centre: |P - p_j|^2 = rho^2 + 2 rho b + c
     u = np.stack([np.sin(np.radians(theta)), np.cos(np.radians(theta))], axis=-1)   # [n_j, n_loc, 2]
     dg = p_ref[None, :2] - pos_c[:, :2]                                      # [n_j, 2]
