@@ -342,3 +342,16 @@ def test_threaded_image_blocks_equal_one_thread(spectra):
     cells = lambda blocks: [np.concatenate([b[k] for b in blocks]) for k in range(1, 6)]   # noqa: E731
     for a, b in zip(cells(one), cells(three)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_worker_threads_follow_the_environment(monkeypatch):
+    """A sweep's workers set OMP_NUM_THREADS=1: the stages' block pools then run one thread."""
+    from fwdlook_cli.dsp.blas import worker_threads
+
+    monkeypatch.delenv("FWDLOOK_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert worker_threads() == 1
+    monkeypatch.setenv("FWDLOOK_THREADS", "2")
+    assert worker_threads() <= 2
+    monkeypatch.setenv("FWDLOOK_THREADS", "junk")
+    assert worker_threads() == 1                   # falls through to OMP_NUM_THREADS

@@ -9,6 +9,8 @@ the pool of whichever BLAS numpy loaded (OpenBLAS, MKL, BLIS).
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 try:                                            # a dependency (pyproject.toml); tolerated if absent
@@ -23,3 +25,19 @@ def batched_matmul(a, b):
         return np.matmul(a, b)
     with threadpool_limits(limits=1, user_api="blas"):
         return np.matmul(a, b)
+
+
+def worker_threads() -> int:
+    """Threads for independent blocks of a stage (image, dwell, keystone columns): the cores this process
+    may use, at most 4 (numpy's element-wise loops and the FFTs release the GIL), or fewer where
+    ``FWDLOOK_THREADS`` or ``OMP_NUM_THREADS`` says so (a sweep's workers set the latter to 1)."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):       # pragma: no cover (not Linux)
+        n = os.cpu_count() or 1
+    for var in ("FWDLOOK_THREADS", "OMP_NUM_THREADS"):
+        value = os.environ.get(var, "").strip()
+        if value.isdigit() and int(value) > 0:
+            n = min(n, int(value))
+            break
+    return max(1, min(4, n))

@@ -15,11 +15,11 @@ oversampling, with the floor taken on the native samples (below).
 """
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.fft
+
 
 
 def power_f32(z):
@@ -87,16 +87,6 @@ def kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dyn
                                  dynamic_range_db=dynamic_range_db, max_ratio=max_ratio, margin_db=margin_db,
                                  block_cells=block_cells))
     return tuple(np.concatenate([p[k] for p in parts]) for k in range(1, 6))
-
-
-def image_threads() -> int:
-    """Threads for the image's blocks: the cores this process may use, at most 4 (numpy's element-wise
-    work and the FFTs release the GIL; each block is independent)."""
-    try:
-        n = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):       # pragma: no cover (not Linux)
-        n = os.cpu_count() or 1
-    return max(1, min(4, n))
 
 
 def iter_kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,

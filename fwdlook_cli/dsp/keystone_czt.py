@@ -74,8 +74,9 @@ class KeystonePlan:
 
     _POST_CACHE_SIZE = 4
 
-    def __init__(self, n_slow, alpha, *, t0_index=0.0, dtype=np.complex64):
+    def __init__(self, n_slow, alpha, *, t0_index=0.0, dtype=np.complex64, workers=-1):
         n = _check_n(n_slow)
+        self.workers = workers          # scipy.fft workers of every transform of the plan
         self.dtype = _check_dtype(dtype)
         alpha = _per_column(alpha, "alpha", positive=True)
         t0 = _per_column(t0_index, "t0_index")
@@ -105,7 +106,7 @@ class KeystonePlan:
         alpha_u, inverse = np.unique(alpha, return_inverse=True)
         d_half = np.arange(L // 2 + 1, dtype=np.float64)
         h = _cis(-(alpha_u / (2.0 * n)) * (d_half**2)[:, None], self.dtype)[abs_d]   # phase reduced in float64
-        self._filt = sfft.fft(h, axis=0, workers=-1, overwrite_x=True)[:, inverse]
+        self._filt = sfft.fft(h, axis=0, workers=workers, overwrite_x=True)[:, inverse]
         del h
 
         # output chirp for F = 0: (1/n) W^(c_min m' + m'^2/2), a function of alpha only
@@ -178,7 +179,7 @@ class KeystonePlan:
         if x.dtype != self.dtype:
             x = x.astype(self.dtype)
 
-        X = sfft.fft(x, axis=0, workers=-1)  # slow-time spectrum, FFT order
+        X = sfft.fft(x, axis=0, workers=self.workers)  # slow-time spectrum, FFT order
         buf = np.empty((L, nc), dtype=self.dtype)
         pre = self._pre
         # centre the Doppler index while applying the input chirp (no fftshift pass)
@@ -186,8 +187,8 @@ class KeystonePlan:
         np.multiply(X[n - s :], pre[:s], out=buf[:s])
         del X
         buf[n:] = 0
-        buf = sfft.fft(buf, axis=0, workers=-1, overwrite_x=True)
+        buf = sfft.fft(buf, axis=0, workers=self.workers, overwrite_x=True)
         buf *= self._filt  # eq. (21): convolution with h = W^(-m^2/2)
-        buf = sfft.ifft(buf, axis=0, workers=-1, overwrite_x=True)
+        buf = sfft.ifft(buf, axis=0, workers=self.workers, overwrite_x=True)
         # output chirp W^(m'^2/2 + c_min m') / n and ambiguity correction exp(j2pi F tau)
         return np.multiply(buf[:n], post)

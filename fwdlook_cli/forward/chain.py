@@ -25,8 +25,8 @@ import scipy.fft
 
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both
-from ..dsp.blas import batched_matmul
-from ..dsp.imaging import azimuth_at_t_ref_cells, image_threads, iter_kept_cells
+from ..dsp.blas import batched_matmul, worker_threads
+from ..dsp.imaging import azimuth_at_t_ref_cells, iter_kept_cells
 from ..dsp.keystone_common import cis_rad as _cis
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, cpi_doppler_band_hz,
                      fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector)
@@ -341,7 +341,7 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     for c0, rb_rows, part in iter_kept_cells(
             data["sum_z"], data["diff_z"], range_oversample=range_oversample, threshold_db=threshold_db,
             dynamic_range_db=dynamic_range_db, max_ratio=max_ratio, ratio_bounds=bounds,
-            diff_gain_db=diff_gain_db, diff_phase_deg=diff_phase_deg, threads=image_threads(), post=project):
+            diff_gain_db=diff_gain_db, diff_phase_deg=diff_phase_deg, threads=worker_threads(), post=project):
         rb_power[c0:c0 + len(rb_rows)] = rb_rows
         cells.append(part)
     flat, w_in = _concat_column(cells, 3), _concat_column(cells, 4)       # each part freed as it goes

@@ -58,7 +58,7 @@ import scipy.sparse
 
 from ..dsp.antenna import two_way_width_for
 from ..dsp.geometry import C_MPS, azimuth_at_t_ref
-from ..dsp.imaging import image_threads
+from ..dsp.blas import worker_threads
 from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
@@ -165,7 +165,7 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     rho32 = rho.astype(np.float32)
     s_rot = np.zeros((n_a, n_r), np.complex128)
     d_rot = np.zeros((n_a, n_r), np.complex128)
-    threads = image_threads()
+    threads = worker_threads()
     # the blocks in flight together hold what one block of ``block_cells`` would (the same memory)
     step = max(1, int(block_cells) // max(1, threads * (n_loc * n_r + n_fft * n_r)))
 

@@ -8,8 +8,11 @@ taken in float32 for the complex64 data.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
+from ..dsp.blas import worker_threads
 from ..dsp.keystone import keystone_dft, keystone_sinc
 from ..dsp.keystone_common import _cis
 from ..dsp.keystone_czt import KeystonePlan
@@ -60,9 +63,12 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
     t0_index = np.broadcast_to(np.asarray(t0_index, dtype=np.float64), (n_cols,))
     nfft = 2 * p if implementation == "czt" else p
     step = max(1, int(block_bytes) // (8 * nfft))
+    threads = min(worker_threads(), -(-n_cols // step)) if implementation == "czt" else 1
+    step = max(1, step // threads)       # the blocks in flight hold what one block did
     y_sum = np.empty((p, n_cols), np.complex64)
     y_diff = np.empty((p, n_cols), np.complex64)
-    for lo in range(0, n_cols, step):
+
+    def block(lo):                       # columns are independent: each block in its own thread
         blk = slice(lo, min(n_cols, lo + step))
         trk = None
         if tracking is not None:
@@ -71,15 +77,23 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
         y_sum[:, blk], y_diff[:, blk] = _keystone_block(
             x_sum[:, blk], x_diff[:, blk], alpha=alpha[blk], t0_index=t0_index[blk],
             implementation=implementation, doppler_ref=doppler_ref, n_taps=n_taps, tracking=trk,
-            ambiguity=ambiguity if np.ndim(ambiguity) == 0 else np.asarray(ambiguity)[blk])
+            ambiguity=ambiguity if np.ndim(ambiguity) == 0 else np.asarray(ambiguity)[blk],
+            fft_workers=1 if threads > 1 else -1)
+
+    if threads > 1:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            list(pool.map(block, range(0, n_cols, step)))
+    else:
+        for lo in range(0, n_cols, step):
+            block(lo)
     return y_sum, y_diff
 
 
 def _keystone_block(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, doppler_ref, n_taps,
-                    tracking):
+                    tracking, fft_workers=-1):
     p = x_sum.shape[0]
     demod = remod = None
-    plan = KeystonePlan(p, alpha, t0_index=t0_index) if implementation == "czt" else None
+    plan = KeystonePlan(p, alpha, t0_index=t0_index, workers=fft_workers) if implementation == "czt" else None
     if tracking is not None:
         hist, t, prf_hz, scale = tracking
         derivs = history_taylor(hist, t)
