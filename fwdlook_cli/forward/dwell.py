@@ -59,6 +59,7 @@ from ..dsp.geometry import C_MPS, azimuth_at_t_ref
 from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
+from .dwell_fit import fit_region
 
 
 SUB_APERTURE_DEG = 0.48          # scan per sub-aperture: its rotation and weight are taken at its centre
@@ -240,7 +241,8 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
                 dynamic_range_db: float, position_ref_m: list, sub_pulses: int = 40,
                 dwell_half_width_deg: float = 3.2, twin_null: bool = True, twin_orders: int = 1,
                 twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5, diff_gain_db: float = 0.0,
-                diff_phase_deg: float = 0.0, boresight_offset_deg: float = 0.0) -> StageData:
+                diff_phase_deg: float = 0.0, boresight_offset_deg: float = 0.0,
+                fit_half_width_deg: float = 0.0) -> StageData:
     """Stage ``dwell_image``: the monopulse image from whole-dwell sums (module docstring).
 
     Same output variables and grid conventions as ``chain.monopulse_image`` (range at t_ref oversampled
@@ -275,6 +277,16 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     level = max(floor * 10 ** (threshold_db / 10), power.max() * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
     keep = (power > level) & (np.abs(ratio) < max_ratio)
+    if fit_half_width_deg > 0:       # the joint fit owns the directions near the flight axis (dwell_fit.py)
+        in_fit = np.abs(angle_deg[looked] - twin_axis) <= fit_half_width_deg
+        keep &= ~in_fit[:, None]
+        p_nat = s_rot[looked][in_fit]
+        fit_theta, fit_prof = fit_region(
+            data["sum"], diff, scan_angle_deg=beam, position_m=data["position_m"], range_m=range_m,
+            active=np.any(p_nat.real**2 + p_nat.imag**2 > level, axis=0), axis_deg=twin_axis,
+            half_width_deg=fit_half_width_deg, dwell_half_width_deg=dwell_half_width_deg,
+            angle_step_deg=angle_step_deg, fc_hz=fc_hz, slope_per_deg=slope_per_deg,
+            beta_per_deg2=beta_per_deg2, position_ref_m=p_ref, boresight_offset_deg=boresight_offset_deg)
     i_dir, i_r = np.nonzero(keep)
     # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from the
     # dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
@@ -286,6 +298,17 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     fin = np.isfinite(az)
     az = np.where(fin, az, angle_deg[looked][i_dir])
     w = power[keep]
+    if fit_half_width_deg > 0:
+        out_fit = np.abs(az - twin_axis) > fit_half_width_deg
+        az, w, i_r = az[out_fit], w[out_fit], i_r[out_fit]
+        # fitted amplitudes on the dwell image's scale (a point on the imaged direction: S' = c L gain)
+        col = np.clip(np.rint((fit_theta - angle_deg[0]) / angle_step_deg).astype(np.int64), 0, len(angle_deg) - 1)
+        prof = oversample_range(fit_prof * (sub_pulses * gain[col])[:, None].astype(np.float32), range_oversample)
+        p_fit = (prof.real**2 + prof.imag**2).astype(np.float64)
+        k_fit, r_fit = np.nonzero(p_fit > level)
+        az = np.concatenate([az, fit_theta[k_fit]])
+        w = np.concatenate([w, p_fit[k_fit, r_fit]])
+        i_r = np.concatenate([i_r, r_fit])
     n_a = len(angle_deg)
     step = angle_step_deg
     a_idx = np.rint((az - angle_deg[0]) / step).astype(np.int64)
