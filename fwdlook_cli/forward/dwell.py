@@ -279,14 +279,16 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     keep = (power > level) & (np.abs(ratio) < max_ratio)
     if fit_half_width_deg > 0:       # the joint fit owns the directions near the flight axis (dwell_fit.py)
         in_fit = np.abs(angle_deg[looked] - twin_axis) <= fit_half_width_deg
-        keep &= ~in_fit[:, None]
         p_nat = s_rot[looked][in_fit]
-        fit_theta, fit_prof = fit_region(
+        fit_theta, fit_prof, fitted = fit_region(
             data["sum"], diff, scan_angle_deg=beam, position_m=data["position_m"], range_m=range_m,
-            active=np.any(p_nat.real**2 + p_nat.imag**2 > level, axis=0), axis_deg=twin_axis,
+            profile=np.max(p_nat.real**2 + p_nat.imag**2, axis=0), level=level, axis_deg=twin_axis,
             half_width_deg=fit_half_width_deg, dwell_half_width_deg=dwell_half_width_deg,
             angle_step_deg=angle_step_deg, fc_hz=fc_hz, slope_per_deg=slope_per_deg,
             beta_per_deg2=beta_per_deg2, position_ref_m=p_ref, boresight_offset_deg=boresight_offset_deg)
+        # in the fitted range cells the fit replaces the region's directions (elsewhere the dwell's stay)
+        fitted_os = np.repeat(fitted, range_oversample)[: keep.shape[1]]
+        keep &= ~(in_fit[:, None] & fitted_os[None, :])
     i_dir, i_r = np.nonzero(keep)
     # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from the
     # dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
@@ -299,7 +301,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     az = np.where(fin, az, angle_deg[looked][i_dir])
     w = power[keep]
     if fit_half_width_deg > 0:
-        out_fit = np.abs(az - twin_axis) > fit_half_width_deg
+        out_fit = (np.abs(az - twin_axis) > fit_half_width_deg) | ~fitted_os[i_r]
         az, w, i_r = az[out_fit], w[out_fit], i_r[out_fit]
         # fitted amplitudes on the dwell image's scale (a point on the imaged direction: S' = c L gain)
         col = np.clip(np.rint((fit_theta - angle_deg[0]) / angle_step_deg).astype(np.int64), 0, len(angle_deg) - 1)

@@ -45,8 +45,11 @@ from ..dsp.keystone_common import _cis as _cis_cycles
 
 PFA = 1e-3                 # false-alarm probability of one more atom over the whole dictionary
 FIT_DYNAMIC_DB = 35.0      # atoms weaker than this under the cluster's strongest are model residue
-MAX_ATOMS = 40             # per cluster: a guard against a runaway fit, never reached on the paper scenes
-RANGE_MARGIN_BINS = 2      # range cells added on each side of the cells that hold an echo
+MAX_ATOMS = 80             # per cluster: a guard against a runaway fit (the paper rows need about 40)
+CLUSTER_HALF_BINS = 3      # range cells fitted on each side of a range peak (the main lobe and its skirts)
+SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
+                           # mixing products (or weak scatterers), left to the dwell image
+COARSE_RANGE_M = 100.0     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
 
 
 class FitModel:
@@ -103,14 +106,15 @@ def _refine(model, theta0, step, range_m, resid, n_rounds=3):
 
 def _solve(a, y):
     """Least-squares amplitudes per range cell: a [B, 2N, K], y [B, 2N] -> c [B, K]."""
-    gram = np.einsum("bnk,bnl->bkl", np.conj(a), a)
-    rhs = np.einsum("bnk,bn->bk", np.conj(a), y)
+    ah = np.conj(np.swapaxes(a, 1, 2))
+    gram = ah @ a
+    rhs = (ah @ y[:, :, None])[..., 0]
     ridge = 1e-9 * np.trace(gram, axis1=1, axis2=2).real[:, None, None] * np.eye(a.shape[2])
     return np.linalg.solve(gram + ridge, rhs[..., None])[..., 0]
 
 
 def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, max_atoms=MAX_ATOMS,
-                relax_sweeps=2):
+                relax_sweeps=2, coarse=None):
     """Group OMP with continuous angles over one cluster of range cells.
 
     ``y`` [B, 2N] whitened data (sum then difference over the window's pulses), ``range_m`` [B] the
@@ -119,7 +123,8 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
     """
     n_b = len(range_m)
     step = float(theta_grid_deg[1] - theta_grid_deg[0])
-    coarse = model.atoms(theta_grid_deg, [range_m[n_b // 2]])[0]             # [2N, M], centre cell
+    if coarse is None:                                                       # [2N, M], centre cell
+        coarse = model.atoms(theta_grid_deg, [range_m[n_b // 2]])[0]
     coarse_norm = np.sum(coarse.real**2 + coarse.imag**2, axis=0)
     keep = coarse_norm > 1e-6 * coarse_norm.max()
     coarse, coarse_norm, grid = coarse[:, keep], coarse_norm[keep], np.asarray(theta_grid_deg)[keep]
@@ -141,22 +146,29 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
         stats.append(float(stat[m]))
         a_act = np.concatenate([a_act, model.atoms([theta], range_m)], axis=2)
         c = _solve(a_act, y)
-        resid = y - np.einsum("bnk,bk->bn", a_act, c)
+        resid = y - (a_act @ c[:, :, None])[..., 0]
     for _ in range(relax_sweeps if thetas else 0):                             # RELAX: each angle again
         for i in range(len(thetas)):
-            others = y - np.einsum("bnk,bk->bn", np.delete(a_act, i, axis=2), np.delete(c, i, axis=1))
+            others = y - (a_act @ c[:, :, None])[..., 0] + a_act[:, :, i] * c[:, i, None]
             thetas[i] = _refine(model, thetas[i], 0.5 * step, range_m, others)
             a_act[:, :, i] = model.atoms([thetas[i]], range_m)[:, :, 0]
             c = _solve(a_act, y)
     return np.asarray(thetas), c, np.asarray(stats)
 
 
-def range_clusters(active):
-    """Runs of consecutive True in ``active`` [n_r] (dilated by RANGE_MARGIN_BINS): list of index arrays."""
-    act = np.asarray(active, bool).copy()
-    for s in range(1, RANGE_MARGIN_BINS + 1):
-        act[:-s] |= active[s:]
-        act[s:] |= active[:-s]
+def range_clusters(profile, level, half_bins=CLUSTER_HALF_BINS, sidelobe_db=SIDELOBE_DB):
+    """Clusters of range cells to fit: +-``half_bins`` around every local maximum of ``profile`` [n_r]
+    (the region's strongest power per range cell) above ``level`` and within ``sidelobe_db`` of the
+    profile's maximum, overlapping windows merged."""
+    p = np.asarray(profile, dtype=np.float64)
+    n = len(p)
+    left = np.concatenate([[-np.inf], p[:-1]])
+    right = np.concatenate([p[1:], [-np.inf]])
+    floor = max(float(level), float(p.max(initial=0.0)) * 10 ** (-sidelobe_db / 10))
+    peaks = np.flatnonzero((p > floor) & (p >= left) & (p > right))
+    act = np.zeros(n, bool)
+    for q in peaks:
+        act[max(0, q - half_bins):min(n, q + half_bins + 1)] = True
     edges = np.flatnonzero(np.diff(np.concatenate([[0], act.astype(np.int8), [0]])))
     return [np.arange(a, b) for a, b in zip(edges[::2], edges[1::2])]
 
@@ -167,7 +179,7 @@ def noise_sigma(x):
     return float(np.sqrt(np.median(p.real**2 + p.imag**2) / np.log(2.0)))
 
 
-def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, active, axis_deg, half_width_deg,
+def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile, level, axis_deg, half_width_deg,
                dwell_half_width_deg, angle_step_deg, fc_hz, slope_per_deg, beta_per_deg2, position_ref_m,
                boresight_offset_deg=0.0, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB):
     """Fit every cluster of ``active`` range cells [n_r] for the scatterers within ``half_width_deg`` of
@@ -177,7 +189,7 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, active, 
     pulse that sees the region); the dictionary spans every direction those pulses illuminate
     (half_width + 2 dwell_half_width), so the scatterers beyond the region that leak into the window
     are fitted too, and dropped.  Returns (theta [K], profile [K, n_r] complex amplitude per range cell,
-    zero outside the atom's cluster), for the atoms inside the region.
+    zero outside the atom's cluster) for the atoms inside the region, and the range cells fitted [n_r].
     """
     beam = np.asarray(scan_angle_deg, dtype=np.float64)
     win = np.flatnonzero(np.abs(beam - axis_deg) <= half_width_deg + dwell_half_width_deg)
@@ -191,14 +203,22 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, active, 
     xd = np.asarray(diff_rt)[win] / np.float32(sig[1])
     thetas, profiles = [], []
     n_r = len(range_m)
-    for cells in range_clusters(active):
+    dictionaries = {}
+    covered = np.zeros(n_r, bool)
+    for cells in range_clusters(profile, level):
+        covered[cells] = True
         y = np.concatenate([xs[:, cells].T, xd[:, cells].T], axis=1)               # [B, 2N]
-        theta, c, _ = fit_cluster(model, y, np.asarray(range_m)[cells], grid, pfa=pfa, dynamic_db=dynamic_db)
+        r_c = float(np.asarray(range_m)[cells].mean())
+        key = int(round(r_c / COARSE_RANGE_M))
+        if key not in dictionaries:
+            dictionaries[key] = model.atoms(grid, [key * COARSE_RANGE_M])[0]
+        theta, c, _ = fit_cluster(model, y, np.asarray(range_m)[cells], grid, pfa=pfa, dynamic_db=dynamic_db,
+                                  coarse=dictionaries[key])
         inside = np.abs(theta - axis_deg) <= half_width_deg
         prof = np.zeros((int(inside.sum()), n_r), np.complex64)
         prof[:, cells] = c[:, inside].T
         thetas.append(theta[inside])
         profiles.append(prof)
     if not thetas:
-        return np.zeros(0), np.zeros((0, n_r), np.complex64)
-    return np.concatenate(thetas), np.concatenate(profiles, axis=0)
+        return np.zeros(0), np.zeros((0, n_r), np.complex64), covered
+    return np.concatenate(thetas), np.concatenate(profiles, axis=0), covered
