@@ -44,7 +44,7 @@ from ..dsp.geometry import C_MPS
 from ..dsp.keystone_common import _cis as _cis_cycles
 
 PFA = 1e-3                 # false-alarm probability of one more atom over the whole dictionary
-FIT_DYNAMIC_DB = 35.0      # atoms weaker than this under the cluster's strongest are model residue
+FIT_DYNAMIC_DB = 30.0      # atoms weaker than this under the cluster's strongest are model residue
 MAX_ATOMS = 80             # per cluster: a guard against a runaway fit (the paper rows need about 40)
 CLUSTER_HALF_BINS = 3      # range cells fitted on each side of a range peak (the main lobe and its skirts)
 SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
