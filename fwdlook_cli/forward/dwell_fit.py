@@ -49,6 +49,7 @@ MAX_ATOMS = 80             # per cluster: a guard against a runaway fit (the pap
 CLUSTER_HALF_BINS = 3      # range cells fitted on each side of a range peak (the main lobe and its skirts)
 SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
                            # mixing products (or weak scatterers), left to the dwell image
+SLOPE_SCALE_DEG = 3.0      # the slope atom's offset unit (about the dwell half-width): conditioning only
 COARSE_RANGE_M = 100.0     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
 
 
@@ -66,8 +67,9 @@ class FitModel:
         self.offset = float(boresight_offset_deg)
         self.w = (1.0 / sigma[0], 1.0 / sigma[1])
 
-    def atoms(self, theta_deg, range_m):
-        """Whitened atoms [B, 2N, K] for angles ``theta_deg`` [K] and slant ranges ``range_m`` [B]."""
+    def atoms(self, theta_deg, range_m, with_slope=False):
+        """Whitened atoms [B, 2N, K] for angles ``theta_deg`` [K] and slant ranges ``range_m`` [B]; with
+        ``with_slope`` also the slope atoms a d / SLOPE_SCALE_DEG (an amplitude drifting over the dwell)."""
         th = np.radians(np.atleast_1d(np.asarray(theta_deg, dtype=np.float64)))
         r = np.atleast_1d(np.asarray(range_m, dtype=np.float64))
         rho = np.sqrt(np.maximum(r**2 - self.p_ref[2] ** 2, 0.0))[:, None, None]
@@ -80,27 +82,42 @@ class FitModel:
         ch, sh = np.cosh(self.k * d), np.sinh(self.k * d)
         g_s = (env * ch * ch * self.w[0]).astype(np.float32)
         g_d = (env * ch * sh * self.w[1]).astype(np.float32)
-        return np.concatenate([ph * g_s, ph * g_d], axis=1)
+        a = np.concatenate([ph * g_s, ph * g_d], axis=1)
+        if not with_slope:
+            return a
+        tau = np.concatenate([d, d], axis=1).astype(np.float32) / np.float32(SLOPE_SCALE_DEG)
+        return a, a * tau
 
 
-def _group_stat(a, resid):
-    """sum_b |a_b^H r_b|^2 / ||a_b||^2 for atoms a [B, 2N, K] and residuals [B, 2N]: [K]."""
+def _group_stat(a, resid, ta=None):
+    """sum_b ||projection of r_b on span(a_b[, ta_b])||^2 for atoms a [B, 2N, K] (and their slope atoms
+    ta) and residuals [B, 2N]: [K]."""
+    def dot(u, v):
+        return np.einsum("bnk,bnk->bk", np.conj(u), v)
+
     num = np.einsum("bnk,bn->bk", np.conj(a), resid)
-    den = np.einsum("bnk,bnk->bk", a.real, a.real) + np.einsum("bnk,bnk->bk", a.imag, a.imag)
-    return np.sum((num.real**2 + num.imag**2) / np.maximum(den, 1e-30), axis=0)
+    g11 = dot(a, a).real
+    if ta is None:
+        return np.sum((num.real**2 + num.imag**2) / np.maximum(g11, 1e-30), axis=0)
+    num2 = np.einsum("bnk,bn->bk", np.conj(ta), resid)
+    g22, g12 = dot(ta, ta).real, dot(a, ta)
+    det = np.maximum(g11 * g22 - np.abs(g12) ** 2, 1e-30)
+    quad = g22 * np.abs(num) ** 2 + g11 * np.abs(num2) ** 2 - 2.0 * np.real(np.conj(num) * g12 * num2)
+    return np.sum(quad / det, axis=0)
 
 
-def _refine(model, theta0, step, range_m, resid, n_rounds=3):
+def _refine(model, theta0, step, range_m, resid, n_rounds=4):
     """Continuous angle maximising the group statistic near ``theta0``: parabolic steps on 3 points."""
     theta, h = float(theta0), float(step)
     for _ in range(n_rounds):
-        f = _group_stat(model.atoms(theta + h * np.array([-1.0, 0.0, 1.0]), range_m), resid)
+        a, ta = model.atoms(theta + h * np.array([-1.0, 0.0, 1.0]), range_m, with_slope=True)
+        f = _group_stat(a, resid, ta)
         den = f[0] - 2.0 * f[1] + f[2]
         if den < 0:
-            theta += float(np.clip(0.5 * h * (f[0] - f[2]) / den, -h, h))
+            theta += float(np.clip(0.5 * h * (f[0] - f[2]) / den, -2.0 * h, 2.0 * h))
         else:                                  # not concave here: move to the better neighbour
-            theta += h * (-1.0 if f[0] > f[2] else 1.0) if max(f[0], f[2]) > f[1] else 0.0
-        h *= 0.4
+            theta += 2.0 * h * (-1.0 if f[0] > f[2] else 1.0) if max(f[0], f[2]) > f[1] else 0.0
+        h *= 0.5
     return theta
 
 
@@ -144,16 +161,17 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
         theta = _refine(model, grid[m], step, range_m, resid)
         thetas.append(theta)
         stats.append(float(stat[m]))
-        a_act = np.concatenate([a_act, model.atoms([theta], range_m)], axis=2)
+        a_act = np.concatenate([a_act, *model.atoms([theta], range_m, with_slope=True)], axis=2)
         c = _solve(a_act, y)
         resid = y - (a_act @ c[:, :, None])[..., 0]
     for _ in range(relax_sweeps if thetas else 0):                             # RELAX: each angle again
         for i in range(len(thetas)):
-            others = y - (a_act @ c[:, :, None])[..., 0] + a_act[:, :, i] * c[:, i, None]
-            thetas[i] = _refine(model, thetas[i], 0.5 * step, range_m, others)
-            a_act[:, :, i] = model.atoms([thetas[i]], range_m)[:, :, 0]
+            pair = slice(2 * i, 2 * i + 2)
+            others = y - (a_act @ c[:, :, None])[..., 0] + (a_act[:, :, pair] @ c[:, pair, None])[..., 0]
+            thetas[i] = _refine(model, thetas[i], step, range_m, others)
+            a_act[:, :, pair] = np.concatenate(model.atoms([thetas[i]], range_m, with_slope=True), axis=2)
             c = _solve(a_act, y)
-    return np.asarray(thetas), c, np.asarray(stats)
+    return np.asarray(thetas), c[:, 0::2], np.asarray(stats)
 
 
 def range_clusters(profile, level, half_bins=CLUSTER_HALF_BINS, sidelobe_db=SIDELOBE_DB):
