@@ -49,6 +49,7 @@ MAX_ATOMS = 80             # per cluster: a guard against a runaway fit (the pap
 CLUSTER_HALF_BINS = 3      # range cells fitted on each side of a range peak (the main lobe and its skirts)
 SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
                            # mixing products (or weak scatterers), left to the dwell image
+SLOPE_ATOMS = int(__import__("os").environ.get("SLOPE", "1"))
 SLOPE_SCALE_DEG = 3.0      # the slope atom's offset unit (about the dwell half-width): conditioning only
 COARSE_RANGE_M = 100.0     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
 
@@ -106,12 +107,19 @@ def _group_stat(a, resid, ta=None):
     return np.sum(quad / det, axis=0)
 
 
+def _columns(model, theta, range_m, resid):
+    """(a, resid, ta) for _group_stat: ta the slope atoms when SLOPE_ATOMS, else None."""
+    if SLOPE_ATOMS:
+        a, ta = model.atoms(theta, range_m, with_slope=True)
+        return a, resid, ta
+    return model.atoms(theta, range_m), resid, None
+
+
 def _refine(model, theta0, step, range_m, resid, n_rounds=4):
     """Continuous angle maximising the group statistic near ``theta0``: parabolic steps on 3 points."""
     theta, h = float(theta0), float(step)
     for _ in range(n_rounds):
-        a, ta = model.atoms(theta + h * np.array([-1.0, 0.0, 1.0]), range_m, with_slope=True)
-        f = _group_stat(a, resid, ta)
+        f = _group_stat(*_columns(model, theta + h * np.array([-1.0, 0.0, 1.0]), range_m, resid))
         den = f[0] - 2.0 * f[1] + f[2]
         if den < 0:
             theta += float(np.clip(0.5 * h * (f[0] - f[2]) / den, -2.0 * h, 2.0 * h))
@@ -150,6 +158,7 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
     c = np.zeros((n_b, 0), np.complex64)
     a_act = np.zeros((n_b, y.shape[1], 0), np.complex64)
     resid = y
+    n_col = 1 + SLOPE_ATOMS
     while len(thetas) < max_atoms:
         corr = resid @ np.conj(coarse)                                       # [B, M]
         stat = np.sum(corr.real**2 + corr.imag**2, axis=0) / coarse_norm
@@ -161,17 +170,17 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
         theta = _refine(model, grid[m], step, range_m, resid)
         thetas.append(theta)
         stats.append(float(stat[m]))
-        a_act = np.concatenate([a_act, *model.atoms([theta], range_m, with_slope=True)], axis=2)
+        a_act = np.concatenate([a_act, *_columns(model, [theta], range_m, resid)[::2][: 1 + SLOPE_ATOMS]], axis=2)
         c = _solve(a_act, y)
         resid = y - (a_act @ c[:, :, None])[..., 0]
     for _ in range(relax_sweeps if thetas else 0):                             # RELAX: each angle again
         for i in range(len(thetas)):
-            pair = slice(2 * i, 2 * i + 2)
+            pair = slice(n_col * i, n_col * (i + 1))
             others = y - (a_act @ c[:, :, None])[..., 0] + (a_act[:, :, pair] @ c[:, pair, None])[..., 0]
             thetas[i] = _refine(model, thetas[i], step, range_m, others)
-            a_act[:, :, pair] = np.concatenate(model.atoms([thetas[i]], range_m, with_slope=True), axis=2)
+            a_act[:, :, pair] = np.concatenate(_columns(model, [thetas[i]], range_m, y)[::2][:n_col], axis=2)
             c = _solve(a_act, y)
-    return np.asarray(thetas), c[:, 0::2], np.asarray(stats)
+    return np.asarray(thetas), c[:, 0::n_col], np.asarray(stats)
 
 
 def range_clusters(profile, level, half_bins=CLUSTER_HALF_BINS, sidelobe_db=SIDELOBE_DB):
