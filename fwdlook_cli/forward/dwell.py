@@ -64,6 +64,8 @@ from .dwell_fit import fit_region
 
 SUB_APERTURE_DEG = 0.48          # scan per sub-aperture: its rotation and weight are taken at its centre
 DWELL_HALF_WIDTH_BEAMS = 0.75    # dwell of a direction: offsets within 0.75 two-way widths (3.2 deg, paper)
+FIT_REGION_BEAMS = 1.5           # dwell_fit: the joint fit owns directions within 1.5 dwell half-widths of the
+                                 # flight axis (4.8 deg: the mirror pairs closer than the dwell window and beyond)
 
 
 
@@ -385,7 +387,9 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "beta_per_deg2": pattern_beta_per_deg2(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
         "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
-        "position_ref_m": [float(v) for v in geo["p_ref"]]})]
+        "position_ref_m": [float(v) for v in geo["p_ref"]],
+        "fit_half_width_deg": (FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg
+                               if proc.get("dwell_fit", "joint") == "joint" else 0.0)})]
 
 
 def dwell_duration_s(cube) -> float:

@@ -49,7 +49,7 @@ MAX_ATOMS = 80             # per cluster: a guard against a runaway fit (the pap
 CLUSTER_HALF_BINS = 3      # range cells fitted on each side of a range peak (the main lobe and its skirts)
 SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
                            # mixing products (or weak scatterers), left to the dwell image
-SLOPE_ATOMS = int(__import__("os").environ.get("SLOPE", "1"))
+SLOPE_ATOMS = 0           # 1: each atom also gets a slope atom (amplitude drift); it mimics a mirror twin
 SLOPE_SCALE_DEG = 3.0      # the slope atom's offset unit (about the dwell half-width): conditioning only
 COARSE_RANGE_M = 100.0     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
 
