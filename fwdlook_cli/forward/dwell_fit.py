@@ -51,7 +51,8 @@ SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's stro
                            # mixing products (or weak scatterers), left to the dwell image
 SLOPE_ATOMS = 0           # 1: each atom also gets a slope atom (amplitude drift); it mimics a mirror twin
 SLOPE_SCALE_DEG = 3.0      # the slope atom's offset unit (about the dwell half-width): conditioning only
-COARSE_RANGE_M = 100.0     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
+COARSE_RANGE_M = 100.0
+RELAX_NEIGHBOUR_DEG = 1.5  # after each new atom, the atoms this close to it or to its mirror are refined again     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
 
 
 class FitModel:
@@ -139,7 +140,7 @@ def _solve(a, y):
 
 
 def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, max_atoms=MAX_ATOMS,
-                relax_sweeps=2, coarse=None):
+                relax_sweeps=2, coarse=None, axis_deg=0.0):
     """Group OMP with continuous angles over one cluster of range cells.
 
     ``y`` [B, 2N] whitened data (sum then difference over the window's pulses), ``range_m`` [B] the
@@ -170,17 +171,29 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
         theta = _refine(model, grid[m], step, range_m, resid)
         thetas.append(theta)
         stats.append(float(stat[m]))
-        a_act = np.concatenate([a_act, *_columns(model, [theta], range_m, resid)[::2][: 1 + SLOPE_ATOMS]], axis=2)
+        a_act = np.concatenate([a_act, *_columns(model, [theta], range_m, resid)[::2][:n_col]], axis=2)
         c = _solve(a_act, y)
+        # RELAX (Li & Stoica 1996) on the atoms the new one correlates with: its neighbours and its
+        # mirror twin's (the greedy pick of one of two correlated atoms is biased by the other)
+        near = [i for i, t in enumerate(thetas)
+                if min(abs(t - theta), abs(t + theta - 2.0 * axis_deg)) <= RELAX_NEIGHBOUR_DEG]
+        for _ in range(relax_sweeps):
+            for i in near:
+                a_act, c = _relax_one(model, a_act, c, thetas, i, y, range_m, step, n_col)
         resid = y - (a_act @ c[:, :, None])[..., 0]
     for _ in range(relax_sweeps if thetas else 0):                             # RELAX: each angle again
         for i in range(len(thetas)):
-            pair = slice(n_col * i, n_col * (i + 1))
-            others = y - (a_act @ c[:, :, None])[..., 0] + (a_act[:, :, pair] @ c[:, pair, None])[..., 0]
-            thetas[i] = _refine(model, thetas[i], step, range_m, others)
-            a_act[:, :, pair] = np.concatenate(_columns(model, [thetas[i]], range_m, y)[::2][:n_col], axis=2)
-            c = _solve(a_act, y)
+            a_act, c = _relax_one(model, a_act, c, thetas, i, y, range_m, step, n_col)
     return np.asarray(thetas), c[:, 0::n_col], np.asarray(stats)
+
+
+def _relax_one(model, a_act, c, thetas, i, y, range_m, step, n_col):
+    """Refine atom i's angle with the others held, then re-solve every amplitude (``thetas`` in place)."""
+    pair = slice(n_col * i, n_col * (i + 1))
+    others = y - (a_act @ c[:, :, None])[..., 0] + (a_act[:, :, pair] @ c[:, pair, None])[..., 0]
+    thetas[i] = _refine(model, thetas[i], step, range_m, others)
+    a_act[:, :, pair] = np.concatenate(_columns(model, [thetas[i]], range_m, y)[::2][:n_col], axis=2)
+    return a_act, _solve(a_act, y)
 
 
 def range_clusters(profile, level, half_bins=CLUSTER_HALF_BINS, sidelobe_db=SIDELOBE_DB):
@@ -240,7 +253,7 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
         if key not in dictionaries:
             dictionaries[key] = model.atoms(grid, [key * COARSE_RANGE_M])[0]
         theta, c, _ = fit_cluster(model, y, np.asarray(range_m)[cells], grid, pfa=pfa, dynamic_db=dynamic_db,
-                                  coarse=dictionaries[key])
+                                  coarse=dictionaries[key], axis_deg=axis_deg)
         inside = np.abs(theta - axis_deg) <= half_width_deg
         prof = np.zeros((int(inside.sum()), n_r), np.complex64)
         prof[:, cells] = c[:, inside].T
