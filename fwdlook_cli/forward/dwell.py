@@ -43,7 +43,13 @@ range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
    azimuth theta + eps seen from the dwell's mean antenna position, moved to the t_ref frame exactly
    (``dsp.geometry.azimuth_at_t_ref``): one target's resolved cell lands on one angle bin.
 
-Cost (``fwdlook bench``, paper cube): the ``dwell_image`` stage is about 46 plain 2-D FFTs of the
+6. **Joint fit near the flight axis** (``processing.dwell_fit: joint``, ``dwell_fit.py``).  Within
+   ``FIT_REGION_BEAMS`` dwell half-widths of the flight axis (4.8 deg) the mirror pairs and the
+   neighbours closer than 1/T_dwell still mix in steps 3-4; there the range cells around every range
+   peak are fitted jointly (a group OMP over the dictionary of predicted [Sigma, Delta] histories,
+   continuous angles, RELAX) and the fitted scatterers replace those directions' cells in the image.
+
+Cost (``fwdlook bench``, paper cube, before step 6): the ``dwell_image`` stage is about 46 plain 2-D FFTs of the
 2500 x 280 cube (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range, 8.8 k x 280
 cells, one interpolated read, the phase, the rotation and one sparse sum over the dwell), the same as
 the CPI chain's ``doppler_spectra`` + ``monopulse_image``; the whole chain 1.01 x ``chain_tracking_s``.
