@@ -46,7 +46,7 @@ from ..dsp.keystone_common import _cis as _cis_cycles
 PFA = 1e-3                 # false-alarm probability of one more atom over the whole dictionary
 FIT_DYNAMIC_DB = 30.0      # atoms weaker than this under the cluster's strongest are model residue
 MAX_ATOMS = 80             # per cluster: a guard against a runaway fit (the paper rows need about 40)
-CLUSTER_HALF_BINS = 3      # range cells fitted on each side of a range peak (the main lobe and its skirts)
+CLUSTER_HALF_BINS = 2      # range cells fitted on each side of the strong ones (a scatterer's skirts)
 SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
                            # mixing products (or weak scatterers), left to the dwell image
 SLOPE_ATOMS = 0           # 1: each atom also gets a slope atom (amplitude drift); it mimics a mirror twin
@@ -197,17 +197,15 @@ def _relax_one(model, a_act, c, thetas, i, y, range_m, step, n_col):
 
 
 def range_clusters(profile, level, half_bins=CLUSTER_HALF_BINS, sidelobe_db=SIDELOBE_DB):
-    """Clusters of range cells to fit: +-``half_bins`` around every local maximum of ``profile`` [n_r]
-    (the region's strongest power per range cell) above ``level`` and within ``sidelobe_db`` of the
-    profile's maximum, overlapping windows merged."""
+    """Clusters of range cells to fit: the runs of cells where ``profile`` [n_r] (the region's strongest
+    power per range cell) is above ``level`` and within ``sidelobe_db`` of its maximum, widened by
+    +-``half_bins`` (a scatterer's skirts stay inside its cluster), overlapping runs merged."""
     p = np.asarray(profile, dtype=np.float64)
     n = len(p)
-    left = np.concatenate([[-np.inf], p[:-1]])
-    right = np.concatenate([p[1:], [-np.inf]])
     floor = max(float(level), float(p.max(initial=0.0)) * 10 ** (-sidelobe_db / 10))
-    peaks = np.flatnonzero((p > floor) & (p >= left) & (p > right))
+    hot = np.flatnonzero(p > floor)
     act = np.zeros(n, bool)
-    for q in peaks:
+    for q in hot:
         act[max(0, q - half_bins):min(n, q + half_bins + 1)] = True
     edges = np.flatnonzero(np.diff(np.concatenate([[0], act.astype(np.int8), [0]])))
     return [np.arange(a, b) for a, b in zip(edges[::2], edges[1::2])]
