@@ -203,12 +203,10 @@ def test_dwell_lattice_away_from_boresight(scenario, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 9's full-lattice criterion is not met near boresight: "
-                   "|x| <= 90 m (mirror pairs +-x share one Doppler history, x = 0 and +-30 m are 5 Hz apart) "
-                   "mix; measured 63/63/60 detected, max 1.36/1.25/1.38 m, az RMS 0.14/0.13/0.16 deg")
 @pytest.mark.parametrize("scenario", ["paper_fig5_a0.yaml", "paper_fig6_a10.yaml", "paper_fig6_a50.yaml"])
 def test_dwell_lattice_all_63_issue9(scenario, tmp_path):
-    """Issue 9: all 63 detected, every one within 0.3 m, azimuth RMS <= 0.1 deg and max <= 0.3 deg."""
+    """Issue 9: all 63 detected, every one within 0.3 m, azimuth RMS <= 0.1 deg and max <= 0.3 deg
+    (tracking + dwell with the joint fit near the flight axis, processing.dwell_fit: joint)."""
     m = _run(scenario, tmp_path)
     rows = m["targets"]
     assert all(r["detected"] for r in rows)
