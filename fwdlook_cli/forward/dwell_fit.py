@@ -33,7 +33,7 @@ phase history, so rho is the pattern's alone: the time envelopes of the two-way 
 e^{-(2 beta - k^2) d^2}) offset by 2 theta correlate as e^{-(2 beta - k^2) theta^2} (0.83 for
 theta = 1.1 deg, the paper's x = +-30 m), and the difference channel, odd about each beam axis,
 lowers it further; only at theta -> 0 does rho -> 1.  x = 0 against +-30 m: 5 Hz apart over
-T_dwell = 0.14 s (0.7 cycle) and envelopes 1.1 deg apart: rho about 0.5 (README, measured).
+T_dwell = 0.14 s (0.7 cycle) of phase history besides envelopes 1.1 deg apart.
 """
 from __future__ import annotations
 
