@@ -43,7 +43,13 @@ range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
    azimuth theta + eps seen from the dwell's mean antenna position, moved to the t_ref frame exactly
    (``dsp.geometry.azimuth_at_t_ref``): one target's resolved cell lands on one angle bin.
 
-Cost (``fwdlook bench``, paper cube): the ``dwell_image`` stage is about 46 plain 2-D FFTs of the
+6. **Joint fit near the flight axis** (``processing.dwell_fit: joint``, ``dwell_fit.py``).  Within
+   ``FIT_REGION_BEAMS`` dwell half-widths of the flight axis (4.8 deg) the mirror pairs and the
+   neighbours closer than 1/T_dwell still mix in steps 3-4; there the range cells around every range
+   peak are fitted jointly (a group OMP over the dictionary of predicted [Sigma, Delta] histories,
+   continuous angles, RELAX) and the fitted scatterers replace those directions' cells in the image.
+
+Cost (``fwdlook bench``, paper cube, before step 6): the ``dwell_image`` stage is about 46 plain 2-D FFTs of the
 2500 x 280 cube (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range, 8.8 k x 280
 cells, one interpolated read, the phase, the rotation and one sparse sum over the dwell), the same as
 the CPI chain's ``doppler_spectra`` + ``monopulse_image``; the whole chain 1.01 x ``chain_tracking_s``.
@@ -62,10 +68,13 @@ from ..dsp.blas import worker_threads
 from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
+from .dwell_fit import fit_region
 
 
 SUB_APERTURE_DEG = 0.48          # scan per sub-aperture: its rotation and weight are taken at its centre
 DWELL_HALF_WIDTH_BEAMS = 0.75    # dwell of a direction: offsets within 0.75 two-way widths (3.2 deg, paper)
+FIT_REGION_BEAMS = 1.5           # dwell_fit: the joint fit owns directions within 1.5 dwell half-widths of the
+                                 # flight axis (4.8 deg: the mirror pairs closer than the dwell window and beyond)
 
 
 
@@ -274,7 +283,8 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
                 dynamic_range_db: float, position_ref_m: list, sub_pulses: int = 40,
                 dwell_half_width_deg: float = 3.2, twin_null: bool = True, twin_orders: int = 1,
                 twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5, diff_gain_db: float = 0.0,
-                diff_phase_deg: float = 0.0, boresight_offset_deg: float = 0.0) -> StageData:
+                diff_phase_deg: float = 0.0, boresight_offset_deg: float = 0.0,
+                fit_half_width_deg: float = 0.0) -> StageData:
     """Stage ``dwell_image``: the monopulse image from whole-dwell sums (module docstring).
 
     Same output variables and grid conventions as ``chain.monopulse_image`` (range at t_ref oversampled
@@ -309,6 +319,18 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     level = max(floor * 10 ** (threshold_db / 10), power.max() * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
     keep = (power > level) & (np.abs(ratio) < max_ratio)
+    if fit_half_width_deg > 0:       # the joint fit owns the directions near the flight axis (dwell_fit.py)
+        in_fit = np.abs(angle_deg[looked] - twin_axis) <= fit_half_width_deg
+        p_nat = s_rot[looked][in_fit]
+        fit_theta, fit_prof, fitted = fit_region(
+            data["sum"], diff, scan_angle_deg=beam, position_m=data["position_m"], range_m=range_m,
+            profile=np.max(p_nat.real**2 + p_nat.imag**2, axis=0), level=level, axis_deg=twin_axis,
+            half_width_deg=fit_half_width_deg, dwell_half_width_deg=dwell_half_width_deg,
+            angle_step_deg=angle_step_deg, fc_hz=fc_hz, slope_per_deg=slope_per_deg,
+            beta_per_deg2=beta_per_deg2, position_ref_m=p_ref, boresight_offset_deg=boresight_offset_deg)
+        # in the fitted range cells the fit replaces the region's directions (elsewhere the dwell's stay)
+        fitted_os = np.repeat(fitted, range_oversample)[: keep.shape[1]]
+        keep &= ~(in_fit[:, None] & fitted_os[None, :])
     i_dir, i_r = np.nonzero(keep)
     # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from the
     # dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
@@ -320,6 +342,17 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     fin = np.isfinite(az)
     az = np.where(fin, az, angle_deg[looked][i_dir])
     w = power[keep]
+    if fit_half_width_deg > 0:
+        out_fit = (np.abs(az - twin_axis) > fit_half_width_deg) | ~fitted_os[i_r]
+        az, w, i_r = az[out_fit], w[out_fit], i_r[out_fit]
+        # fitted amplitudes on the dwell image's scale (a point on the imaged direction: S' = c L gain)
+        col = np.clip(np.rint((fit_theta - angle_deg[0]) / angle_step_deg).astype(np.int64), 0, len(angle_deg) - 1)
+        prof = oversample_range(fit_prof * (sub_pulses * gain[col])[:, None].astype(np.float32), range_oversample)
+        p_fit = (prof.real**2 + prof.imag**2).astype(np.float64)
+        k_fit, r_fit = np.nonzero(p_fit > level)
+        az = np.concatenate([az, fit_theta[k_fit]])
+        w = np.concatenate([w, p_fit[k_fit, r_fit]])
+        i_r = np.concatenate([i_r, r_fit])
     n_a = len(angle_deg)
     step = angle_step_deg
     a_idx = np.rint((az - angle_deg[0]) / step).astype(np.int64)
@@ -394,7 +427,9 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "beta_per_deg2": pattern_beta_per_deg2(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
         "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
-        "position_ref_m": [float(v) for v in geo["p_ref"]]})]
+        "position_ref_m": [float(v) for v in geo["p_ref"]],
+        "fit_half_width_deg": (FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg
+                               if proc.get("dwell_fit", "joint") == "joint" else 0.0)})]
 
 
 def dwell_duration_s(cube) -> float:
