@@ -207,7 +207,7 @@ def test_dwell_lattice_away_from_boresight(scenario, tmp_path):
 def test_dwell_lattice_all_63_issue9(scenario, tmp_path):
     """Issue 9: all 63 detected, every one within 0.3 m, azimuth RMS <= 0.1 deg and max <= 0.3 deg
     (tracking + dwell with the joint fit near the flight axis, processing.dwell_fit: joint)."""
-    m = _run(scenario, tmp_path)
+    m = _run(scenario, tmp_path, "processing.dwell_fit=joint")
     rows = m["targets"]
     assert all(r["detected"] for r in rows)
     assert max(abs(r["range_error_m"]) for r in rows) <= 0.3

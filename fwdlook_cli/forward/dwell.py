@@ -429,7 +429,7 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
         "position_ref_m": [float(v) for v in geo["p_ref"]],
         "fit_half_width_deg": (FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg
-                               if proc.get("dwell_fit", "joint") == "joint" else 0.0)})]
+                               if proc.get("dwell_fit", "none") == "joint" else 0.0)})]
 
 
 def dwell_duration_s(cube) -> float:

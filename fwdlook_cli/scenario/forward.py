@@ -125,10 +125,11 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "imaging": Field(choice("cpi", "dwell"), "cpi",
                          "cpi: the paper's per-CPI monopulse image (processing.cpi pulses); dwell: every image "
                          "direction integrated coherently over its whole two-way beam dwell (forward/dwell.py)"),
-        "dwell_fit": Field(choice("joint", "none"), "joint",
+        "dwell_fit": Field(choice("joint", "none"), "none",
                            "imaging: dwell near the flight axis (within 1.5 dwell half-widths, 4.8 deg for the paper): "
                            "joint, a sparse fit of the scatterers of each range cluster over the dwell "
-                           "(forward/dwell_fit.py); none, the per-direction dwell image there too"),
+                           "(forward/dwell_fit.py; about 50 times the chain's cost on the paper lattice); none, "
+                           "the per-direction dwell image there too"),
         "doppler_estimator": Field(choice("fft", "iaa"), "fft",
                                    "per-CPI Doppler estimate (imaging: cpi): fft, the zoomed DFT; iaa, the "
                                    "iterative adaptive approach (Yardibi et al. 2010) per range cell"),
