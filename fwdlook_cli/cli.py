@@ -325,6 +325,9 @@ def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene, backen
 
 def main(argv=None):
     """Console entry point: maps BadInput and click usage errors to one line and exit 2."""
+    from .dsp.blas import share_one_allocator_arena
+
+    share_one_allocator_arena()          # the stages' thread pools: one allocator arena (dsp/blas.py)
     try:
         rv = cli.main(args=argv, prog_name="fwdlook", standalone_mode=False)
     except BadInput as exc:

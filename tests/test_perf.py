@@ -355,3 +355,17 @@ def test_worker_threads_follow_the_environment(monkeypatch):
     assert worker_threads() <= 2
     monkeypatch.setenv("FWDLOOK_THREADS", "junk")
     assert worker_threads() == 1                   # falls through to OMP_NUM_THREADS
+
+
+def test_one_allocator_arena_on_glibc():
+    """The command line shares glibc's main arena among the stages' threads (dsp.blas): mallopt accepts
+    M_ARENA_MAX on glibc Linux; elsewhere the call reports that it did nothing."""
+    import platform
+
+    from fwdlook_cli.dsp.blas import share_one_allocator_arena
+
+    applied = share_one_allocator_arena()
+    if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
+        assert applied is True
+    else:
+        assert applied is False

@@ -41,3 +41,23 @@ def worker_threads() -> int:
             n = min(n, int(value))
             break
     return max(1, min(4, n))
+
+
+M_ARENA_MAX = -8            # glibc mallopt parameter
+
+
+def share_one_allocator_arena() -> bool:
+    """Make every thread allocate from glibc's main arena (``mallopt(M_ARENA_MAX, 1)``).
+
+    By default each thread of a stage's block pool gets its own arena, and an arena keeps the
+    temporaries its thread freed: the CPI image on 2 threads peaked at 27 MiB above its input against
+    10 MiB on one (measured, paper cube), 10.7 MiB with one shared arena.  Called by the command line
+    (the process is fwdlook's), never on import (a host program's allocator is its own).  Returns
+    whether it was applied (False off glibc)."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        return bool(libc.mallopt(M_ARENA_MAX, 1))
+    except (OSError, AttributeError):       # pragma: no cover (not glibc)
+        return False

@@ -117,7 +117,13 @@ def iter_kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float
         yield from map(one, starts)
         return
     with ThreadPoolExecutor(max_workers=threads) as pool:
-        yield from pool.map(one, starts)
+        pending = []                     # at most `threads` blocks in flight, handed over in order
+        for c0 in starts:
+            pending.append(pool.submit(one, c0))
+            if len(pending) >= threads:
+                yield pending.pop(0).result()
+        for fut in pending:
+            yield fut.result()
 
 
 def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,

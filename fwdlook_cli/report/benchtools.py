@@ -113,6 +113,9 @@ def _rss_probe() -> None:
     for name in ("fwdlook_cli.forward.chain", "fwdlook_cli.forward.evaluate"):   # before the base
         importlib.import_module(name)
 
+    from ..dsp.blas import share_one_allocator_arena
+
+    share_one_allocator_arena()          # as the command line does
     raw, scn_path, tmp = sys.argv[1:4]
     scn = json.loads(Path(scn_path).read_text())
     # warm-up on the tiny cube (HDF5, FFT plans, BLAS pools, lazily imported modules in use), as the
