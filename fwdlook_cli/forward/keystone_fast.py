@@ -45,7 +45,7 @@ def history_phase_shifted(derivs, dt_s):
     return acc
 
 
-THREADED = False             # column blocks on worker_threads() threads (see keystone_both)
+THREADED = True              # column blocks on worker_threads() threads (see keystone_both)
 BLOCK_BYTES = 2 << 20       # CZT work buffer per column block (L x columns x 8 bytes): ~50 columns at L = 5000
 
 
@@ -64,8 +64,8 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
     t0_index = np.broadcast_to(np.asarray(t0_index, dtype=np.float64), (n_cols,))
     nfft = 2 * p if implementation == "czt" else p
     step = max(1, int(block_bytes) // (8 * nfft))
-    # a thread pool over the column blocks measured 10 % faster on 2 cores at 1.3 x the cube more peak
-    # memory (each thread's allocator arena keeps its own block's temporaries): off unless asked for
+    # a thread pool over the column blocks (FFTs one thread each; the command line shares one
+    # allocator arena among the threads, dsp.blas, so the blocks in flight cost what one block did)
     threads = min(worker_threads(), -(-n_cols // step)) if implementation == "czt" and THREADED else 1
     step = max(1, step // threads)       # the blocks in flight hold what one block did
     y_sum = np.empty((p, n_cols), np.complex64)
