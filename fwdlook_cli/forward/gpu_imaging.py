@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..dsp.geometry import azimuth_at_t_ref
-from ..dsp.imaging import azimuth_at_t_ref_cells
 from ..dsp.xp import fft_kwargs, fft_module, get_xp, is_numpy, to_device, to_host
 from ..io.stagefile import StageData
 
@@ -99,67 +97,15 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     """Stage 7 with the cell selection on ``backend`` (:func:`kept_cells_xp`): the vars of
     :func:`forward.chain.monopulse_image`, the same parameters (offset d = R^-1(ratio) + b, R the tanh
     curve atanh(.)/k or the monotone table; angle = CPI beam angle + d in the t_ref frame)."""
-    range_m = np.asarray(data["range_m"])
-    dr = (range_m[1] - range_m[0]) / range_oversample
-    range_os = range_m[0] + dr * np.arange(range_m.shape[0] * range_oversample)
-    half = max_offset_beamwidths * beamwidth_deg
-    if ratio_model == "tanh":
-        max_ratio = np.tanh(slope_per_deg * half)
-        bounds = (-max_ratio, max_ratio)
-    elif ratio_model == "table":
-        tab_d, tab_r = np.asarray(ratio_offset_deg, np.float64), np.asarray(ratio, np.float64)
-        bounds = (float(np.interp(-half, tab_d, tab_r)), float(np.interp(half, tab_d, tab_r)))
-    else:
-        raise ValueError(f"ratio model {ratio_model!r}; allowed: tanh, table")
-    p_ref = np.asarray(position_ref_m, dtype=np.float64)
-    beam_all = np.asarray(data["cpi_beam_deg"])
-    pos_all = np.asarray(data["cpi_position_m"])
-    a0 = np.floor((beam_all.min() - beamwidth_deg) / angle_step_deg) * angle_step_deg
-    n_a = int(np.ceil((beam_all.max() + beamwidth_deg - a0) / angle_step_deg)) + 1
-    angle_deg = a0 + angle_step_deg * np.arange(n_a)
-    sum_z, diff_z = data["sum_z"], data["diff_z"]
-    rb_power = np.zeros((sum_z.shape[0], sum_z.shape[2]))                      # [n_cpi, n_r]
-    parts = []
-    for c0, i_cpi, i_r, ratio_k, power_k, rb in iter_kept_cells_xp(
-            sum_z, diff_z, backend=backend, range_oversample=range_oversample, threshold_db=threshold_db,
-            dynamic_range_db=dynamic_range_db, ratio_bounds=bounds, diff_gain_db=diff_gain_db,
-            diff_phase_deg=diff_phase_deg):
-        rb_power[c0:c0 + len(rb)] = rb
-        if ratio_model == "tanh":
-            offset = np.arctanh(ratio_k) / slope_per_deg           # exact inverse for Gaussian beams
-        else:
-            offset = np.interp(ratio_k, tab_r, tab_d)             # the monotone ratio table
-        offset = offset + boresight_offset_deg
-        az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam_all[i_cpi] + offset, pos_all[i_cpi], p_ref)
-        ok = np.isfinite(az_ref)
-        a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
-        inside = (a_idx >= 0) & (a_idx < n_a)
-        w = power_k.astype(np.float64)[ok]
-        parts.append((gx[ok], gy[ok], w, i_r[ok][inside] * n_a + a_idx[inside], w[inside]))
-    gx, gy, w, flat, w_in = (np.concatenate([p[k] for p in parts]) for k in range(5))
-    del parts
-    image = np.bincount(flat, weights=w_in, minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
+    from functools import partial
 
-    # real-beam image: the CPI sum power at the beam angle (same t_ref angle mapping)
-    n_cpi, n_r = rb_power.shape
-    rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_cpi, n_r)),
-                                   np.broadcast_to(beam_all[:, None], (n_cpi, n_r)), pos_all[:, None, :], p_ref)
-    rb_idx = np.rint((rb_az - a0) / angle_step_deg)
-    good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
-    rb_flat = np.broadcast_to(np.arange(n_r), (n_cpi, n_r))[good] * n_a + rb_idx[good].astype(np.int64)
-    real_beam = np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)
+    from .monopulse import monopulse_image as project_cells     # the CPU stage's projection
 
-    out = StageData(attrs=dict(data.attrs))
-    out.add("range_m", range_os, ("range_m",), "m", "slant range from the antenna at t_ref")
-    out.add("angle_deg", angle_deg, ("angle_deg",), "deg", "azimuth from the antenna at t_ref")
-    out.add("range_native_m", range_m, ("range_native_m",), "m", "slant range, native sampling")
-    out.add("image", image.astype(np.float32), ("range_m", "angle_deg"), "1", "monopulse image, sum power")
-    out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
-            "real-beam image, sum power against beam angle")
-    out.add("cell", np.arange(len(w)), ("cell",), "1", "projected Doppler cell")
-    out.add("cell_x_m", gx, ("cell",), "m", "ground x of each projected cell")
-    out.add("cell_y_m", gy, ("cell",), "m", "ground y of each projected cell")
-    out.add("cell_power", w.astype(np.float32), ("cell",), "1", "sum power of each projected cell")
-    out.attrs.update(range_oversample=range_oversample, angle_step_deg=angle_step_deg,
-                     slope_per_deg=slope_per_deg, position_ref_m=list(map(float, p_ref)))
-    return out
+    return project_cells(data, slope_per_deg=slope_per_deg, beamwidth_deg=beamwidth_deg,
+                         angle_step_deg=angle_step_deg, range_oversample=range_oversample,
+                         threshold_db=threshold_db, dynamic_range_db=dynamic_range_db,
+                         position_ref_m=position_ref_m, max_offset_beamwidths=max_offset_beamwidths,
+                         ratio_model=ratio_model, ratio_offset_deg=ratio_offset_deg, ratio=ratio,
+                         boresight_offset_deg=boresight_offset_deg, diff_gain_db=diff_gain_db,
+                         diff_phase_deg=diff_phase_deg,
+                         cell_blocks=partial(iter_kept_cells_xp, backend=backend))

@@ -26,7 +26,7 @@ from scipy.interpolate import CubicSpline
 from ..dsp.pulse import weighting
 from ..dsp.xp import cis, fft_kwargs, fft_module, get_xp, is_numpy, to_device, to_host
 from ..io.stagefile import StageData
-from .motion import DopplerPhaseHistory, cpi_doppler_band_hz
+from .motion import DopplerPhaseHistory, cpi_doppler_band_hz, cpi_means
 
 log = logging.getLogger(__name__)
 
@@ -243,15 +243,9 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     if estimator != "fft":
         raise ValueError(f"GPU Doppler stage: estimator {estimator!r}; allowed: fft")
     xp = get_xp(backend)
-    t = data["slow_time_s"]
-    n_cpi = len(t) // cpi
+    t_cpi, t_c, beam_c, vel = cpi_means(data, cpi, follow_speed)       # eq. (25): the CPI's INS means
+    n_cpi = t_cpi.shape[0]
     m = n_cpi * cpi
-    t_cpi = t[:m].reshape(n_cpi, cpi)
-    t_c = t_cpi.mean(axis=1)
-    beam_c = data["scan_angle_deg"][:m].reshape(n_cpi, cpi).mean(axis=1)
-    vel = data["velocity_mps"][:m].reshape(n_cpi, cpi, 3).mean(axis=1)
-    if not follow_speed:                               # eq. (25) off: the initial velocity for every CPI
-        vel = np.broadcast_to(data["velocity_mps"][0], vel.shape)
     f_lo, f_hi = cpi_doppler_band_hz(vel, beam_c, depression_deg, fc_hz, beamwidth_deg, prf_hz, cpi, band_beamwidths)
     f_z = f_lo[:, None] + (f_hi - f_lo)[:, None] * ((np.arange(n_doppler) + 0.5) / n_doppler)[None, :]
     w = weighting(window, cpi)

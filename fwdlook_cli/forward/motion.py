@@ -162,3 +162,19 @@ def cpi_doppler_band_hz(velocity_mps, beam_deg, depression_deg, fc_hz, beamwidth
     centre = 0.5 * (f_lo + f_hi)
     width = np.clip(f_hi - f_lo, min_width, prf_hz)
     return centre - width / 2, centre + width / 2
+
+
+def cpi_means(data, cpi: int, follow_speed: bool):
+    """Per CPI of ``cpi`` pulses (the last partial CPI dropped): (t_cpi [n_cpi, cpi], t_c, mean beam
+    angle, velocity) from a stage's ``slow_time_s``, ``scan_angle_deg`` and ``velocity_mps``.  The CPI
+    velocity is the INS mean, v_c = v + a t_c (eq. 25, the whole vector), or with ``follow_speed`` off
+    the initial velocity for every CPI."""
+    t = data["slow_time_s"]
+    n_cpi = len(t) // cpi
+    m = n_cpi * cpi
+    t_cpi = t[:m].reshape(n_cpi, cpi)
+    beam_c = data["scan_angle_deg"][:m].reshape(n_cpi, cpi).mean(axis=1)
+    vel = data["velocity_mps"][:m].reshape(n_cpi, cpi, 3).mean(axis=1)
+    if not follow_speed:
+        vel = np.broadcast_to(data["velocity_mps"][0], vel.shape)
+    return t_cpi, t_cpi.mean(axis=1), beam_c, vel

@@ -58,13 +58,10 @@ def read_stage_lazy(path: Path, min_bytes: int = 1 << 20):
     """A stage file as :class:`StageData` whose large arrays (``min_bytes`` or more, not coordinates)
     stay on disk as open ``h5py.Dataset`` objects, read block by block by a stage that slices them
     (``monopulse_image`` reads whole CPIs); returns (data, open file) — close the file when done."""
-    from .stagefile import PROVENANCE_KEYS, StageData, Var, _text, declared_dims, dims_of
+    from .stagefile import StageData, Var, _text, declared_dims, dims_of
 
     f = h5py.File(path, "r")
-    out = StageData()
-    for k, v in f.attrs.items():
-        if k not in PROVENANCE_KEYS:
-            out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+    out = StageData(attrs=_carried_attrs(f))
     declared = declared_dims(f)
     for name, ds in f.items():
         if not isinstance(ds, h5py.Dataset):
@@ -104,13 +101,10 @@ def read_stage_mapped(path: Path, min_bytes: int = 1 << 20):
     file (``np.memmap`` at the dataset's offset: HDF5 stores an uncompressed contiguous dataset as its
     raw bytes), so a reader that looks at a few slices (the dwell metrics) pages in only those, with no
     copy of the rest; other arrays are read.  The maps stay valid after the file is closed or removed."""
-    from .stagefile import PROVENANCE_KEYS, StageData, Var, _text, declared_dims, dims_of
+    from .stagefile import StageData, Var, _text, declared_dims, dims_of
 
-    out = StageData()
     with h5py.File(path, "r") as f:
-        for k, v in f.attrs.items():
-            if k not in PROVENANCE_KEYS:
-                out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+        out = StageData(attrs=_carried_attrs(f))
         declared = declared_dims(f)
         for name, ds in f.items():
             if not isinstance(ds, h5py.Dataset):
@@ -120,3 +114,11 @@ def read_stage_mapped(path: Path, min_bytes: int = 1 << 20):
             out.vars[name] = Var(data, dims_of(ds, name, declared), str(_text(ds.attrs.get("units", ""))),
                                  str(_text(ds.attrs.get("long_name", ""))))
     return out
+
+
+def _carried_attrs(f) -> dict:
+    """A stage file's root attributes other than its provenance, as Python values."""
+    from .stagefile import PROVENANCE_KEYS
+
+    return {k: v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
+            for k, v in f.attrs.items() if k not in PROVENANCE_KEYS}

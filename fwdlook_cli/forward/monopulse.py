@@ -1,0 +1,124 @@
+"""Stage 7, the monopulse image (Sec. 3.2 end; NOTES.md): the kept cells of the Doppler spectra, each
+at its monopulse angle in the t_ref frame, accumulated on (range, angle), and the real-beam image.
+
+The cell selection runs on the CPU (:func:`dsp.imaging.iter_kept_cells`, blocks of CPIs on a thread
+pool) or is passed in as ``cell_blocks`` (the GPU backend's, ``forward/gpu_imaging.py``); the
+projection is this one function for both.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..dsp.blas import worker_threads
+from ..dsp.geometry import azimuth_at_t_ref
+from ..dsp.imaging import azimuth_at_t_ref_cells, iter_kept_cells
+from ..io.stagefile import StageData
+
+
+def _concat_column(parts: list, k: int):
+    """Concatenate item ``k`` of every tuple in ``parts``, dropping each part's reference as it goes."""
+    arrays = []
+    for i, part in enumerate(parts):
+        arrays.append(part[k])
+        parts[i] = part[:k] + (None,) + part[k + 1:]
+    return np.concatenate(arrays)
+
+
+def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: float, angle_step_deg: float,
+                    range_oversample: int, threshold_db: float, dynamic_range_db: float,
+                    position_ref_m: list, max_offset_beamwidths: float = 0.5, ratio_model: str = "tanh",
+                    ratio_offset_deg=None, ratio=None, boresight_offset_deg: float = 0.0,
+                    diff_gain_db: float = 0.0, diff_phase_deg: float = 0.0, cell_blocks=None) -> StageData:
+    """Monopulse imaging from sum/difference Doppler estimates (Sec. 3.2 end; NOTES.md).
+
+    Per CPI, Doppler cell and range: the difference channel is divided by the calibration's imbalance
+    10^(g/20) exp(j phi), and the offset is d = R^-1(Re(diff/sum)) + b with R the ratio curve in use
+    (``ratio_model`` tanh: atanh(.)/k, exact for Gaussian beams; table: the monotone table
+    ``ratio_offset_deg``, ``ratio``) and b the boresight offset; angle = CPI beam angle + d, moved to the t_ref frame; the sum power is accumulated in a
+    (range, angle) image.  Cells below ``threshold_db`` over the CPI's median power (noise floor) or
+    more than ``dynamic_range_db`` under its peak, or with |d| beyond ``max_offset_beamwidths`` x the
+    beamwidth, are not projected.  The real-beam image (CPI sum power at the beam angle) is made too.
+    """
+    range_m = data["range_m"]
+    dr = (range_m[1] - range_m[0]) / range_oversample
+    range_os = range_m[0] + dr * np.arange(range_m.shape[0] * range_oversample)
+    half = max_offset_beamwidths * beamwidth_deg
+    max_ratio = np.tanh(slope_per_deg * half)
+    if ratio_model == "tanh":
+        bounds = (-max_ratio, max_ratio)
+    elif ratio_model == "table":
+        tab_d, tab_r = np.asarray(ratio_offset_deg, np.float64), np.asarray(ratio, np.float64)
+        bounds = (float(np.interp(-half, tab_d, tab_r)), float(np.interp(half, tab_d, tab_r)))
+    else:
+        raise ValueError(f"ratio model {ratio_model!r}; allowed: tanh, table")
+    p_ref = np.asarray(position_ref_m, dtype=np.float64)
+    beam_all = np.asarray(data["cpi_beam_deg"])
+    pos_all = np.asarray(data["cpi_position_m"])
+    a0 = np.floor((beam_all.min() - beamwidth_deg) / angle_step_deg) * angle_step_deg
+    n_a = int(np.ceil((beam_all.max() + beamwidth_deg - a0) / angle_step_deg)) + 1
+    angle_deg = a0 + angle_step_deg * np.arange(n_a)
+    rb_power = np.zeros(data["sum_z"].shape[::2])                              # [n_cpi, n_r]
+    cells = []
+    # cells over the CPI level, oversampling only the Doppler rows that can hold one, one block of
+    # whole CPIs at a time (dsp.imaging): geometry and projection per block (in the block's thread),
+    # the image accumulated in CPI order
+    def project(block):
+        c0, i_cpi, i_r, ratio_kept, power_kept, rb_rows = block
+        if ratio_model == "tanh":
+            offset = np.arctanh(ratio_kept) / slope_per_deg        # exact inverse for the Gaussian beams
+        else:
+            offset = np.interp(ratio_kept, tab_r, tab_d)          # the monotone ratio table
+        offset = offset + boresight_offset_deg
+        beam = beam_all[i_cpi]
+        az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam + offset, pos_all[i_cpi], p_ref)
+        w = power_kept.astype(np.float64)
+        ok = np.isfinite(az_ref)
+        a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
+        inside = (a_idx >= 0) & (a_idx < n_a)
+        flat = i_r[ok][inside] * n_a + a_idx[inside]
+        return c0, rb_rows, (gx[ok], gy[ok], w[ok], flat, w[ok][inside])
+
+    select = dict(range_oversample=range_oversample, threshold_db=threshold_db,
+                  dynamic_range_db=dynamic_range_db, ratio_bounds=bounds, diff_gain_db=diff_gain_db,
+                  diff_phase_deg=diff_phase_deg)
+    if cell_blocks is None:
+        def summed(block):            # the native power summed over Doppler: the real-beam rows
+            return project(block[:5] + (block[5].sum(axis=1, dtype=np.float64),))
+
+        blocks = iter_kept_cells(data["sum_z"], data["diff_z"], max_ratio=max_ratio, threads=worker_threads(),
+                                 post=summed, **select)
+    else:       # another cell selection (the GPU's, forward/gpu_imaging.py): the same blocks, rows summed
+        blocks = map(project, cell_blocks(data["sum_z"], data["diff_z"], **select))
+    for c0, rb_rows, part in blocks:
+        rb_power[c0:c0 + len(rb_rows)] = rb_rows
+        cells.append(part)
+    flat, w_in = _concat_column(cells, 3), _concat_column(cells, 4)       # each part freed as it goes
+    image = np.bincount(flat, weights=w_in, minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
+    del flat, w_in
+    gx, gy, w = _concat_column(cells, 0), _concat_column(cells, 1), _concat_column(cells, 2)
+
+    # real-beam image: incoherent CPI sum power at the beam angle (same t_ref angle mapping)
+    n_cpi, n_r = rb_power.shape
+    rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_cpi, n_r)),
+                                   np.broadcast_to(beam_all[:, None], (n_cpi, n_r)),
+                                   pos_all[:, None, :], p_ref)
+    rb_idx = np.rint((rb_az - a0) / angle_step_deg)
+    good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
+    rb_flat = (np.broadcast_to(np.arange(n_r), (n_cpi, n_r))[good] * n_a + rb_idx[good].astype(np.int64))
+    real_beam = np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)
+
+    out = StageData(attrs=dict(data.attrs))
+    out.add("range_m", range_os, ("range_m",), "m", "slant range from the antenna at t_ref")
+    out.add("angle_deg", angle_deg, ("angle_deg",), "deg", "azimuth from the antenna at t_ref")
+    out.add("range_native_m", range_m, ("range_native_m",), "m", "slant range, native sampling")
+    out.add("image", image.astype(np.float32), ("range_m", "angle_deg"), "1", "monopulse image, sum power")
+    out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
+            "real-beam image, sum power against beam angle")
+    # kept cells, for the ground projection and diagnostics
+    out.add("cell", np.arange(len(w)), ("cell",), "1", "projected Doppler cell")
+    out.add("cell_x_m", gx, ("cell",), "m", "ground x of each projected cell")
+    out.add("cell_y_m", gy, ("cell",), "m", "ground y of each projected cell")
+    out.add("cell_power", w.astype(np.float32), ("cell",), "1", "sum power of each projected cell")
+    out.attrs.update(range_oversample=range_oversample, angle_step_deg=angle_step_deg,
+                     slope_per_deg=slope_per_deg, position_ref_m=list(map(float, p_ref)))
+    return out
