@@ -77,8 +77,12 @@ def test_shared_chirp_tracking_keystone_matches_the_direct_formula(tracking_case
     assert ys.dtype == np.complex64
 
 
+@pytest.mark.parametrize("threads", ["1", "3"])
 @pytest.mark.parametrize("tracking", [False, True])
-def test_keystone_column_blocks_change_nothing(tracking_case, tracking):
+def test_keystone_column_blocks_change_nothing(tracking_case, tracking, threads, monkeypatch):
+    """One column per block, on one thread or on a pool of three (where the cores allow), gives the
+    whole-block keystone bit for bit."""
+    monkeypatch.setenv("FWDLOOK_THREADS", threads)
     c = tracking_case
     trk = (c["hist"], c["t"], c["prf"], c["scale"]) if tracking else None
     kw = dict(alpha=c["alpha"], t0_index=c["t0"], implementation="czt", ambiguity=0 if tracking else 3,

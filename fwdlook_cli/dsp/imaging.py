@@ -21,7 +21,6 @@ import numpy as np
 import scipy.fft
 
 
-
 def power_f32(z):
     """|z|^2 in float32, fused (no complex abs, no float64 temporaries)."""
     re, im = z.real, z.imag

@@ -45,7 +45,6 @@ def history_phase_shifted(derivs, dt_s):
     return acc
 
 
-THREADED = True              # column blocks on worker_threads() threads (see keystone_both)
 BLOCK_BYTES = 2 << 20       # CZT work buffer per column block (L x columns x 8 bytes): ~50 columns at L = 5000
 
 
@@ -66,7 +65,7 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
     step = max(1, int(block_bytes) // (8 * nfft))
     # a thread pool over the column blocks (FFTs one thread each; the command line shares one
     # allocator arena among the threads, dsp.blas, so the blocks in flight cost what one block did)
-    threads = min(worker_threads(), -(-n_cols // step)) if implementation == "czt" and THREADED else 1
+    threads = min(worker_threads(), -(-n_cols // step)) if implementation == "czt" else 1
     step = max(1, step // threads)       # the blocks in flight hold what one block did
     y_sum = np.empty((p, n_cols), np.complex64)
     y_diff = np.empty((p, n_cols), np.complex64)
