@@ -104,4 +104,4 @@ def test_bench_shows_progress(capsys, monkeypatch):
     assert code == 0
     assert "fft2_s" in json.loads(out)
     steps = [ln for ln in err.splitlines() if ln.startswith("bench [")]
-    assert [s.split("]")[0] for s in steps] == [f"bench [{i}/9" for i in range(1, 10)]
+    assert [s.split("]")[0] for s in steps] == [f"bench [{i}/10" for i in range(1, 11)]

@@ -9,6 +9,7 @@ the pool of whichever BLAS numpy loaded (OpenBLAS, MKL, BLIS).
 """
 from __future__ import annotations
 
+import contextlib
 import os
 
 import numpy as np
@@ -19,11 +20,16 @@ except ImportError:                             # pragma: no cover
     threadpool_limits = None
 
 
+def one_blas_thread():
+    """A context in which the BLAS runs on one thread (the stage's own threads share the cores)."""
+    if threadpool_limits is None:               # pragma: no cover
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def batched_matmul(a, b):
     """``np.matmul(a, b)`` over stacks of small matrices, the BLAS limited to one thread."""
-    if threadpool_limits is None:               # pragma: no cover
-        return np.matmul(a, b)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         return np.matmul(a, b)
 
 

@@ -53,10 +53,12 @@ Cost (``fwdlook bench``, paper cube, idle machine, without step 6): the ``dwell_
 60 plain 2-D FFTs of one channel (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range,
 8.8 k x 280 cells, one interpolated read, the phase, the rotation and one sparse sum over the dwell),
 run over blocks of sub-apertures on the stage thread pool (bounded memory); the whole chain 1.12-1.34 x
-``chain_tracking_s``.  Step 6 costs about 45 s on the paper lattice (README).
+``chain_tracking_s``.  Step 6 (the tracking preset's default) adds 1.2-2.2 s on the paper lattice, the
+whole chain about 4 x ``chain_tracking_s`` (README; ``dwell_fit.py`` says where it goes).
 """
 from __future__ import annotations
 
+import logging
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -74,6 +76,7 @@ from .dwell_fit import fit_region
 
 SUB_APERTURE_DEG = 0.48          # scan per sub-aperture: its rotation and weight are taken at its centre
 DWELL_HALF_WIDTH_BEAMS = 0.75    # dwell of a direction: offsets within 0.75 two-way widths (3.2 deg, paper)
+log = logging.getLogger(__name__)
 FIT_REGION_BEAMS = 1.5           # dwell_fit: the joint fit owns directions within 1.5 dwell half-widths of the
                                  # flight axis (4.8 deg: the mirror pairs closer than the dwell window and beyond)
 
@@ -184,6 +187,7 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
         s_part, d_part = _focus_block(sum_rt, diff_rt, j, L=L, n_fft=n_fft, chirp=chirp[j], theta=theta[j],
                                       w=w[j], pos_c=pos_c[j], vel_c=vel_c[j], beam_j=beam_j[j], p_ref=p_ref,
                                       rr=rr, rho=rho, rho32=rho32, lam=lam, prf_hz=prf_hz, k=k,
+                                      max_offset_deg=dwell_half_width_deg + NEAR_FIELD_MARGIN_DEG,
                                       fft_workers=1 if threads > 1 else -1)
         gj, vj = gi[j].ravel(), valid[j].ravel()
         acc = scipy.sparse.csr_matrix((vj.astype(np.float32), (gj, np.arange(gj.size))), shape=(n_a, gj.size))
@@ -197,11 +201,13 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     return s_rot.astype(np.complex64), d_rot.astype(np.complex64), gain, pos_dwell
 
 
+NEAR_FIELD_MARGIN_DEG = 1.0   # a sub-aperture sees P(r, theta) while its offset at r is within the dwell window + 1 deg
+                              # (parallax across the paper's 1.5-1.8 km window: under 0.2 deg)
 DWELL_BLOCK_CELLS = 1 << 18     # (sub-aperture x (direction + FFT bin) x range) cells per block of dwell_focus
 
 
 def _focus_block(sum_rt, diff_rt, j, *, L, n_fft, chirp, theta, w, pos_c, vel_c, beam_j, p_ref, rr, rho, rho32,
-                 lam, prf_hz, k, fft_workers=-1):
+                 lam, prf_hz, k, max_offset_deg, fft_workers=-1):
     """Steps 1 and 3 of :func:`dwell_focus` for the sub-apertures ``j`` (a slice): their spectra, each
     direction's interpolated read at its Doppler, the exact phase and the rotation; returns the
     weighted S', D' parts [n_j, n_loc, n_r] (complex64)."""
@@ -240,8 +246,14 @@ def _focus_block(sum_rt, diff_rt, j, *, L, n_fft, chirp, theta, w, pos_c, vel_c,
     kd = np.arctan2(rho32 * np.sin(th).astype(np.float32) + dg[:, None, None, 0].astype(np.float32),
                     rho32 * np.cos(th).astype(np.float32) + dg[:, None, None, 1].astype(np.float32))
     kd = (np.float32(np.degrees(k)) * kd - (k * beam_j[:, None, None]).astype(np.float32))   # k delta
+    # the weights w were taken at the window's middle range; where the offset at this range lies beyond
+    # the dwell window (near field: the antenna's motion is not small against the range) or the range
+    # has no ground point (r <= height, or a negative range of a recorded window), the sub-aperture does
+    # not see P and cosh(k delta) would amplify noise without bound (e^26 behind the antenna): zeroed
+    seen = (np.abs(kd) <= np.float32(k * max_offset_deg)) & (rr > p_ref[2])[None, None, :]
+    kd = np.where(seen, kd, np.float32(0.0))
     ek = np.exp(kd)
-    half_w = (0.5 * w[:, :, None]).astype(np.float32)
+    half_w = (0.5 * w[:, :, None]).astype(np.float32) * seen
     ch = half_w * (ek + 1.0 / ek)                                           # w cosh(k delta)
     sh = half_w * (ek - 1.0 / ek)                                           # w sinh(k delta)
     del kd, ek
@@ -327,7 +339,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
             data["sum"], diff, scan_angle_deg=beam, position_m=data["position_m"], range_m=range_m,
             profile=np.max(p_nat.real**2 + p_nat.imag**2, axis=0), level=level, axis_deg=twin_axis,
             half_width_deg=fit_half_width_deg, dwell_half_width_deg=dwell_half_width_deg,
-            angle_step_deg=angle_step_deg, fc_hz=fc_hz, slope_per_deg=slope_per_deg,
+            angle_step_deg=angle_step_deg, fc_hz=fc_hz, prf_hz=prf_hz, slope_per_deg=slope_per_deg,
             beta_per_deg2=beta_per_deg2, position_ref_m=p_ref, boresight_offset_deg=boresight_offset_deg)
         # in the fitted range cells the fit replaces the region's directions (elsewhere the dwell's stay)
         fitted_os = np.repeat(fitted, range_oversample)[: keep.shape[1]]
@@ -420,6 +432,13 @@ def dwell_stages(cube, proc: dict, geo: dict):
     # mirror directions (same Doppler) are parted only by the beam: inside one dwell window of each
     # other they are integrated together (resolved_flags' angle gate)
     geo["resolution_angle_gate_deg"] = 2.0 * DWELL_HALF_WIDTH_BEAMS * two_way_deg
+    fit = proc.get("dwell_fit", "none") == "joint" and fit_models_antenna(cube)
+    if fit:                                               # the fit's own resolution (dwell_fit.fit_resolved_flags)
+        geo["fit_region"] = {"half_width_deg": FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg,
+                             "dwell_half_width_deg": DWELL_HALF_WIDTH_BEAMS * two_way_deg,
+                             "fc_hz": cube.radar["fc_hz"], "slope_per_deg": float(cal.slope_per_deg),
+                             "beta_per_deg2": pattern_beta_per_deg2(cube),
+                             "boresight_offset_deg": float(cal.boresight_offset_deg)}
     return [Stage("dwell_image", dwell_image, {
         "sub_pulses": sub_pulses, "dwell_half_width_deg": DWELL_HALF_WIDTH_BEAMS * two_way_deg,
         "fc_hz": cube.radar["fc_hz"], "prf_hz": cube.radar["prf_hz"], "slope_per_deg": float(cal.slope_per_deg),
@@ -429,8 +448,20 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
         "position_ref_m": [float(v) for v in geo["p_ref"]],
-        "fit_half_width_deg": (FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg
-                               if proc.get("dwell_fit", "none") == "joint" else 0.0)})]
+        "fit_half_width_deg": FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg if fit else 0.0})]
+
+
+def fit_models_antenna(cube) -> bool:
+    """Whether the joint fit's pattern model (two Gaussian beams, dwell_fit.py) is the cube's antenna: a
+    cube whose ``/antenna`` declares ``gaussian2``.  Another pattern (sinc2, a table) or a cube without
+    ``/antenna`` would be fitted with the wrong weights (on the paper lattice with sinc2 beams: 10 m
+    and 0.35 deg off), so there the dwell image stays alone, and the log says so."""
+    pattern = (cube.antenna or {}).get("pattern", "gaussian2" if cube.antenna else None)
+    if pattern == "gaussian2":
+        return True
+    log.warning(f"processing.dwell_fit: joint models two Gaussian beams; this cube's antenna is "
+                f"{pattern or 'not declared (no /antenna)'}: the dwell image is used without the fit")
+    return False
 
 
 def dwell_duration_s(cube) -> float:

@@ -21,6 +21,14 @@ refined continuously (parabolic steps on the group's projected energy), the ampl
 least squares per cell, and at the end every angle re-refined with the others held (RELAX sweeps).
 The channels are whitened by their noise power (the cube's median sample power / ln 2).
 
+Cost.  The window is fitted at the slow-time rate its dictionary needs (``decimation_plan``: each cell
+brought to the axis direction's baseband, low-pass filtered, every Q-th pulse; Q = 3 for the paper),
+the phases relative to the axis in float32 (exact difference formula, ``FitModel.paired_phases``), the
+Gram matrices updated one atom at a time (``_ActiveSet``), each atom refined on its own cells, the
+RELAX steps of all the atoms concerned at once, the clusters on the stage's worker threads: 1.2-2.2 s
+for the paper lattice at a = 50, where the direct form took 45 s.  Clusters wider than
+``MAX_CLUSTER_CELLS`` (an extended scene) or needing ``MAX_ATOMS`` are left to the dwell image.
+
 Stop: the next atom's group statistic sum_b |a_b^H r_b|^2 / ||a_b||^2 (noise units) under the
 value that noise alone exceeds with probability ``PFA`` over the dictionary (Gamma(B) tail, B range
 cells), or under ``FIT_DYNAMIC_DB`` below the cluster's first atom (the model's own accuracy: the
@@ -37,30 +45,50 @@ T_dwell = 0.14 s (0.7 cycle) of phase history besides envelopes 1.1 deg apart.
 """
 from __future__ import annotations
 
+import logging
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
+from scipy.signal import fftconvolve, firwin
 from scipy.special import gammainccinv
 
+from ..dsp.blas import one_blas_thread, worker_threads
 from ..dsp.geometry import C_MPS
 from ..dsp.keystone_common import _cis as _cis_cycles
+
+log = logging.getLogger(__name__)
 
 PFA = 1e-3                 # false-alarm probability of one more atom over the whole dictionary
 FIT_DYNAMIC_DB = 30.0      # atoms weaker than this under the cluster's strongest are model residue
 MAX_ATOMS = 80             # per cluster: a guard against a runaway fit (the paper rows need about 40)
+MAX_CLUSTER_CELLS = 48     # a cluster wider than this (150 m at 3 m cells) is an extended scene, not points: the
+                           # sparse model does not hold there and the dwell image keeps it (as for a fit that
+                           # reaches MAX_ATOMS)
 CLUSTER_HALF_BINS = 2      # range cells fitted on each side of the strong ones (a scatterer's skirts)
 SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
                            # mixing products (or weak scatterers), left to the dwell image
-SLOPE_ATOMS = 0           # 1: each atom also gets a slope atom (amplitude drift); it mimics a mirror twin
-SLOPE_SCALE_DEG = 3.0      # the slope atom's offset unit (about the dwell half-width): conditioning only
-COARSE_RANGE_M = 100.0
-RELAX_NEIGHBOUR_DEG = 1.5  # after each new atom, the atoms this close to it or to its mirror are refined again     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
+COARSE_RANGE_M = 100.0     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
+DECIMATION_PASSBAND = 0.87  # the atoms' baseband within 87 % of the decimated Nyquist band (the filter: flat to 1e-4 up to 87.5 %)
+REFINE_CELL_DB = 15.0      # an atom's angle is refined on its cells within 15 dB of its strongest one (its main lobe in range)
+RESOLVED_MAX_CORR = 0.9    # two atoms the fit parts: |rho| <= 0.9, each amplitude's CRB <= 1/(1 - rho^2) = 5.3 x a lone one's
+MAX_RELAX_SWEEPS = 6       # RELAX sweeps until no angle moves by RELAX_TOL_DEG (correlated atoms converge slowly)
+RELAX_TOL_DEG = 5e-4
+REFINE_BLOCK_ATOMS = 8     # atoms refined together (their phases [cells, pulses, atoms, 3] bound the temporaries)
+RELAX_NEIGHBOUR_DEG = 0.75  # after each new atom, the atoms this close to it or to its mirror are refined again
 
 
 class FitModel:
-    """The window's geometry and the antenna model: builds the atoms a_b(theta) (module docstring)."""
+    """The window's geometry and the antenna model: builds the atoms a_b(theta) (module docstring).
+
+    With D_n = p_ref - p(t_n) (horizontal) and u = (sin theta, cos theta), the two-way path of pulse n to
+    the ground point at horizontal range rho from p_ref is R = sqrt(rho^2 + 2 rho u.D_n + |D_n|^2 + z_n^2):
+    one [N, K] product per call, the [B, N, K] work a square root and a phasor.  The patterns are taken
+    at the cluster's mean horizontal range: across a cluster (under 50 m) the azimuth seen from p(t_n)
+    moves by D_y sin(theta) d(rho) / rho^2 < 0.01 deg, a gain change under 40 dB below the atom."""
 
     def __init__(self, *, position_m, scan_angle_deg, fc_hz, slope_per_deg, beta_per_deg2, position_ref_m,
-                 boresight_offset_deg=0.0, sigma=(1.0, 1.0)):
-        self.pos = np.asarray(position_m, dtype=np.float64)
+                 boresight_offset_deg=0.0, sigma=(1.0, 1.0), demod=None):
+        pos = np.asarray(position_m, dtype=np.float64)
         self.beam = np.asarray(scan_angle_deg, dtype=np.float64)
         self.lam = C_MPS / fc_hz
         self.k = float(slope_per_deg)
@@ -68,75 +96,224 @@ class FitModel:
         self.p_ref = np.asarray(position_ref_m, dtype=np.float64)
         self.offset = float(boresight_offset_deg)
         self.w = (1.0 / sigma[0], 1.0 / sigma[1])
+        self.dx = self.p_ref[0] - pos[:, 0]                                # D_n [N]
+        self.dy = self.p_ref[1] - pos[:, 1]
+        self.e = self.dx**2 + self.dy**2 + pos[:, 2] ** 2                  # |D_n|^2 + z_n^2
+        self.n = len(self.beam)
+        # demod = (axis_deg, shift_hz, time_s [N]): atoms times conj(phase history of the axis direction)
+        # times exp(-j 2 pi shift t), the baseband of the slow-time decimated data (decimation_plan)
+        self.demod = demod
 
-    def atoms(self, theta_deg, range_m, with_slope=False):
-        """Whitened atoms [B, 2N, K] for angles ``theta_deg`` [K] and slant ranges ``range_m`` [B]; with
-        ``with_slope`` also the slope atoms a d / SLOPE_SCALE_DEG (an amplitude drifting over the dwell)."""
+    def path(self, theta_deg, range_m):
+        """Two-way path halves R_b(theta; n) [B, N, K] (float64)."""
         th = np.radians(np.atleast_1d(np.asarray(theta_deg, dtype=np.float64)))
+        rho = self.rho(range_m)[:, None, None]
+        ud = self.dx[:, None] * np.sin(th)[None, :] + self.dy[:, None] * np.cos(th)[None, :]     # [N, K]
+        return np.sqrt(rho * (rho + 2.0 * ud[None]) + self.e[None, :, None])
+
+    def rho(self, range_m):
+        r = np.asarray(range_m, dtype=np.float64)
+        return np.sqrt(np.maximum(r**2 - self.p_ref[2] ** 2, 0.0))
+
+    def phases(self, theta_deg, range_m):
+        """exp(-j 4 pi (R_b(theta; n) - r_b) / lambda), complex64 [B, N, K] for angles [K] and ranges [B]."""
+        th = np.atleast_1d(np.asarray(theta_deg, dtype=np.float64))
         r = np.atleast_1d(np.asarray(range_m, dtype=np.float64))
-        rho = np.sqrt(np.maximum(r**2 - self.p_ref[2] ** 2, 0.0))[:, None, None]
-        dx = self.p_ref[0] + rho * np.sin(th)[None, None, :] - self.pos[None, :, 0, None]   # [B, N, K]
-        dy = self.p_ref[1] + rho * np.cos(th)[None, None, :] - self.pos[None, :, 1, None]
-        rng = np.sqrt(dx**2 + dy**2 + self.pos[None, :, 2, None] ** 2)
-        ph = _cis_cycles(-2.0 * (rng - r[:, None, None]) / self.lam, np.complex64)
-        d = np.degrees(np.arctan2(dx, dy)) - self.beam[None, :, None] - self.offset
-        env = np.exp(-2.0 * self.beta * d**2)
-        ch, sh = np.cosh(self.k * d), np.sinh(self.k * d)
-        g_s = (env * ch * ch * self.w[0]).astype(np.float32)
-        g_d = (env * ch * sh * self.w[1]).astype(np.float32)
-        a = np.concatenate([ph * g_s, ph * g_d], axis=1)
-        if not with_slope:
-            return a
-        tau = np.concatenate([d, d], axis=1).astype(np.float32) / np.float32(SLOPE_SCALE_DEG)
-        return a, a * tau
+        return self.paired_phases(th[None, :], r[:, None])[:, :, 0, :]
+
+    def paired_phases(self, theta_deg, range_m, axis_path=None, shifted=True):
+        """The phases of ``phases`` for angles ``theta_deg`` [J, P] at ranges ``range_m`` [M, J] (or
+        [M, 1]: the same for every j): complex64 [M, N, J, P].  With ``demod`` relative to the axis
+        direction's R_b(axis; n) (``axis_path`` of the same ranges, when already computed), shifted by
+        -shift_hz unless ``shifted`` is False (the caller applies exp(-j 2 pi shift t_n) itself).
+
+        Relative to the axis the path difference needs no float64: with s = R_theta^2 - R_axis^2 =
+        2 rho (u_theta - u_axis).D_n (the rho^2 and |D_n|^2 + z^2 terms cancel exactly; the unit-vector
+        difference and its product with D_n in float64, [N, J, P]), dR = s / (R_axis + sqrt(R_axis^2 +
+        s)), a few hundred cycles at most, so float32 keeps the phase to 1e-4 cycle."""
+        th = np.radians(np.asarray(theta_deg, dtype=np.float64))
+        r = np.asarray(range_m, dtype=np.float64)
+        rho = self.rho(r)[:, None, :, None]                                             # [M, 1, J, 1]
+        if self.demod is None:
+            ud = self.dx[:, None, None] * np.sin(th)[None] + self.dy[:, None, None] * np.cos(th)[None]
+            rng = np.sqrt(rho * (rho + 2.0 * ud[None]) + self.e[None, :, None, None])
+            return _cis_cycles(-2.0 * (rng - r[:, None, :, None]) / self.lam, np.complex64)
+        ax = np.radians(self.demod[0])
+        dud = (self.dx[:, None, None] * (np.sin(th) - np.sin(ax))[None]
+               + self.dy[:, None, None] * (np.cos(th) - np.cos(ax))[None]).astype(np.float32)   # [N, J, P]
+        r_axis = self.axis_path(range_m) if axis_path is None else axis_path
+        s = (2.0 * rho).astype(np.float32) * dud[None]
+        cycles = s / (r_axis + np.sqrt(r_axis * r_axis + s))
+        cycles *= np.float32(-2.0 / self.lam)
+        if shifted:
+            cycles -= self.shift_cycles()[None, :, None, None]
+        cycles -= np.rint(cycles)
+        cycles *= np.float32(2.0 * np.pi)
+        out = np.empty(cycles.shape, np.complex64)
+        out.real = np.cos(cycles)
+        out.imag = np.sin(cycles)
+        return out
+
+    def axis_path(self, range_m):
+        """R_b(axis; n) for ranges [M, J]: float32 [M, N, J, 1]."""
+        rho = self.rho(np.asarray(range_m, dtype=np.float64))[:, None, :]
+        ax = np.radians(self.demod[0])
+        ud_axis = self.dx * np.sin(ax) + self.dy * np.cos(ax)
+        return np.sqrt(rho * (rho + 2.0 * ud_axis[None, :, None]) + self.e[None, :, None]).astype(np.float32)[..., None]
+
+    def shift_cycles(self):
+        """shift_hz t_n [N] (float32; zero without ``demod``)."""
+        if self.demod is None:
+            return np.zeros(self.n, np.float32)
+        return (self.demod[1] * self.demod[2]).astype(np.float32)
+
+    def gains(self, theta_deg, range_m):
+        """Whitened two-way sum and difference gains [N, K] (float32) at the cells' mean horizontal range:
+        e^{-2 beta d^2} cosh^2(k d) and e^{-2 beta d^2} cosh(k d) sinh(k d), d the offset (deg)."""
+        th = np.radians(np.atleast_1d(np.asarray(theta_deg, dtype=np.float64)))
+        rho = float(np.mean(self.rho(np.atleast_1d(range_m))))
+        d = (np.degrees(np.arctan2(self.dx[:, None] + rho * np.sin(th)[None, :],
+                                   self.dy[:, None] + rho * np.cos(th)[None, :]))
+             - self.beam[:, None] - self.offset).astype(np.float32)
+        env = np.exp(np.float32(-2.0 * self.beta) * d * d)
+        e = np.exp(np.float32(self.k) * d)
+        ch, sh = np.float32(0.5) * (e + 1 / e), np.float32(0.5) * (e - 1 / e)
+        env *= ch
+        return env * ch * np.float32(self.w[0]), env * sh * np.float32(self.w[1])
+
+    def atoms(self, theta_deg, range_m):
+        """Whitened atoms [B, 2N, K] for angles ``theta_deg`` [K] and slant ranges ``range_m`` [B]."""
+        ph = self.phases(theta_deg, range_m)
+        g_s, g_d = self.gains(theta_deg, range_m)
+        return np.concatenate([ph * g_s[None], ph * g_d[None]], axis=1)
 
 
-def _group_stat(a, resid, ta=None):
-    """sum_b ||projection of r_b on span(a_b[, ta_b])||^2 for atoms a [B, 2N, K] (and their slope atoms
-    ta) and residuals [B, 2N]: [K]."""
-    def dot(u, v):
-        return np.einsum("bnk,bnk->bk", np.conj(u), v)
-
-    num = np.einsum("bnk,bn->bk", np.conj(a), resid)
-    g11 = dot(a, a).real
-    if ta is None:
-        return np.sum((num.real**2 + num.imag**2) / np.maximum(g11, 1e-30), axis=0)
-    num2 = np.einsum("bnk,bn->bk", np.conj(ta), resid)
-    g22, g12 = dot(ta, ta).real, dot(a, ta)
-    det = np.maximum(g11 * g22 - np.abs(g12) ** 2, 1e-30)
-    quad = g22 * np.abs(num) ** 2 + g11 * np.abs(num2) ** 2 - 2.0 * np.real(np.conj(num) * g12 * num2)
-    return np.sum(quad / det, axis=0)
-
-
-def _columns(model, theta, range_m, resid):
-    """(a, resid, ta) for _group_stat: ta the slope atoms when SLOPE_ATOMS, else None."""
-    if SLOPE_ATOMS:
-        a, ta = model.atoms(theta, range_m, with_slope=True)
-        return a, resid, ta
-    return model.atoms(theta, range_m), resid, None
+def _group_stat(model, theta, cell_range_m, resid_conj, gain_range_m, axis_path=None):
+    """sum_m |a_m(theta_jp)^H r_mj|^2 / ||a(theta_jp)||^2 for the angles ``theta`` [J, P], each atom j
+    against its own conjugated residuals ``resid_conj`` [M, 2N, J] in its own cells (slant ranges
+    ``cell_range_m`` [M, J]; a zero residual row adds nothing): [J, P].  |a^H r| = |sum_n ph (g_s conj
+    r_s + g_d conj r_d)|, and ||a||^2 = sum_n g_s^2 + g_d^2 does not depend on the phase (nor on the
+    cell: the patterns at the cluster's range ``gain_range_m``).  With ``demod`` the residuals carry the
+    baseband shift exp(-j 2 pi shift t_n) already, and ``axis_path`` is the axis history of the cells."""
+    n = model.n
+    n_j, n_p = theta.shape
+    ph = model.paired_phases(theta, cell_range_m, axis_path=axis_path, shifted=False)    # [M, N, J, P]
+    g_s, g_d = (g.reshape(n, n_j, n_p) for g in model.gains(theta.ravel(), gain_range_m))
+    w = resid_conj[:, :n, :, None] * g_s[None] + resid_conj[:, n:, :, None] * g_d[None]    # [M, N, J, P]
+    num = np.einsum("mnjp,mnjp->mjp", ph, w)
+    norm = np.sum(g_s.astype(np.float64) ** 2 + g_d.astype(np.float64) ** 2, axis=0)
+    power = np.sum(num.real.astype(np.float64) ** 2 + num.imag.astype(np.float64) ** 2, axis=0)
+    return power / np.maximum(norm, 1e-30)
 
 
-def _refine(model, theta0, step, range_m, resid, n_rounds=4):
-    """Continuous angle maximising the group statistic near ``theta0``: parabolic steps on 3 points."""
-    theta, h = float(theta0), float(step)
+def _atom_cells(cell_power, floor_db=REFINE_CELL_DB):
+    """Each atom's own cells for its refinement: indices [M, J] into the cluster's cells (strongest
+    first) and a mask [M, J] of those within ``floor_db`` of the atom's strongest cell (padding False)."""
+    order = np.argsort(-cell_power, axis=0, kind="stable")
+    ranked = np.take_along_axis(cell_power, order, axis=0)
+    mask = ranked >= ranked[:1] * 10 ** (-floor_db / 10)
+    n_m = int(mask.sum(axis=0).max())
+    return order[:n_m], mask[:n_m]
+
+
+def _refine(model, theta0, step, range_m, resid, cell_power, n_rounds=3):
+    """Continuous angles maximising the group statistic near ``theta0`` [J], each against its own
+    residual ``resid`` [B, 2N, J] in its own cells (``_atom_cells`` of ``cell_power`` [B, J]: the cells
+    where the atom is more than REFINE_CELL_DB under its strongest add mostly the others' residue and noise):
+    parabolic steps on 3 points, all J at once."""
+    theta, h = np.array(theta0, dtype=np.float64), float(step)
+    if len(theta) > REFINE_BLOCK_ATOMS:       # independent per atom: in blocks, for bounded temporaries
+        return np.concatenate([_refine(model, theta[i:i + REFINE_BLOCK_ATOMS], step, range_m,
+                                       resid[:, :, i:i + REFINE_BLOCK_ATOMS], cell_power[:, i:i + REFINE_BLOCK_ATOMS],
+                                       n_rounds) for i in range(0, len(theta), REFINE_BLOCK_ATOMS)])
+    idx, mask = _atom_cells(cell_power)
+    resid_conj = np.conj(np.take_along_axis(resid, idx[:, None, :], axis=0)) * mask[:, None, :]    # [M, 2N, J]
+    cell_range = np.asarray(range_m)[idx]
+    axis_path = None
+    if model.demod is not None:          # the baseband shift and the axis history, once for all rounds
+        resid_conj *= np.tile(_cis_cycles(-model.shift_cycles(), np.complex64), 2)[None, :, None]
+        axis_path = model.axis_path(cell_range)
     for _ in range(n_rounds):
-        f = _group_stat(*_columns(model, theta + h * np.array([-1.0, 0.0, 1.0]), range_m, resid))
-        den = f[0] - 2.0 * f[1] + f[2]
-        if den < 0:
-            theta += float(np.clip(0.5 * h * (f[0] - f[2]) / den, -2.0 * h, 2.0 * h))
-        else:                                  # not concave here: move to the better neighbour
-            theta += 2.0 * h * (-1.0 if f[0] > f[2] else 1.0) if max(f[0], f[2]) > f[1] else 0.0
+        f = _group_stat(model, theta[:, None] + h * np.array([-1.0, 0.0, 1.0]), cell_range, resid_conj, range_m,
+                        axis_path)
+        den = f[:, 0] - 2.0 * f[:, 1] + f[:, 2]
+        vertex = np.clip(0.5 * h * (f[:, 0] - f[:, 2]) / np.where(den < 0, den, -1.0), -2.0 * h, 2.0 * h)
+        # not concave here: move to the better neighbour (or stay)
+        towards = np.where(np.maximum(f[:, 0], f[:, 2]) > f[:, 1], np.where(f[:, 0] > f[:, 2], -2.0 * h, 2.0 * h), 0.0)
+        theta = theta + np.where(den < 0, vertex, towards)
         h *= 0.5
     return theta
 
 
-def _solve(a, y):
-    """Least-squares amplitudes per range cell: a [B, 2N, K], y [B, 2N] -> c [B, K]."""
-    ah = np.conj(np.swapaxes(a, 1, 2))
-    gram = ah @ a
-    rhs = (ah @ y[:, :, None])[..., 0]
-    ridge = 1e-9 * np.trace(gram, axis1=1, axis2=2).real[:, None, None] * np.eye(a.shape[2])
-    return np.linalg.solve(gram + ridge, rhs[..., None])[..., 0]
+class _ActiveSet:
+    """The fitted atoms of one cluster with their Gram matrices and right-hand sides per range cell,
+    updated one column at a time (an atom added or moved), so that each least-squares solve costs
+    O(K^3) per cell instead of the O(N K^2) of forming A^H A again.  Atoms are stored [B, K, 2N]."""
+
+    def __init__(self, y, max_atoms):
+        self.y = y
+        self.max_atoms = int(max_atoms)
+        self.k = 0
+        self.c = np.zeros((y.shape[0], 0), np.complex128)
+        self._allocate(min(16, self.max_atoms))
+
+    def _allocate(self, capacity):
+        """Storage for ``capacity`` atoms, the ones held copied over (grown by doubling)."""
+        n_b, n_2 = self.y.shape
+        a = np.zeros((n_b, capacity, n_2), np.complex64)
+        gram = np.zeros((n_b, capacity, capacity), np.complex128)
+        rhs = np.zeros((n_b, capacity), np.complex128)
+        if self.k:
+            a[:, :self.k], gram[:, :self.k, :self.k], rhs[:, :self.k] = (
+                self.a[:, :self.k], self.gram[:, :self.k, :self.k], self.rhs[:, :self.k])
+        self.a, self.gram, self.rhs = a, gram, rhs
+
+    def set(self, idx, atoms):
+        """Atoms ``idx`` [J] (an index == k appends) := ``atoms`` [B, 2N, J]; their Gram rows and columns
+        and right-hand sides updated."""
+        idx = np.asarray(idx)
+        if int(idx.max()) >= self.a.shape[1]:
+            self._allocate(min(self.max_atoms, max(int(idx.max()) + 1, 2 * self.a.shape[1])))
+        self.k = max(self.k, int(idx.max()) + 1)
+        self.a[:, idx, :] = np.swapaxes(atoms, 1, 2)
+        atoms_conj = np.conj(atoms)
+        v = (self.a[:, :self.k, :] @ atoms_conj).astype(np.complex128)          # [B, k, J]: conj(a_k^H a_j)
+        self.gram[:, :self.k, idx] = np.conj(v)
+        self.gram[:, idx, :self.k] = np.swapaxes(v, 1, 2)
+        self.rhs[:, idx] = np.einsum("bnj,bn->bj", atoms_conj, self.y)
+
+    def solve(self):
+        """Least-squares amplitudes per range cell (a 1e-9 relative ridge): c [B, K]."""
+        k = self.k
+        gram = self.gram[:, :k, :k]
+        ridge = 1e-9 * np.trace(gram, axis1=1, axis2=2).real[:, None, None] * np.eye(k)
+        self.c = np.linalg.solve(gram + ridge, self.rhs[:, :k, None])[..., 0]
+        return self.c
+
+    def model(self):
+        """sum_j c_j a_j [B, 2N]."""
+        return (self.c.astype(np.complex64)[:, None, :] @ self.a[:, :self.k, :])[:, 0, :]
+
+    def relax(self, model, thetas, idx, range_m, step):
+        """RELAX (Li & Stoica 1996), one Jacobi sweep: the angles ``idx`` refined at once, each with the
+        others' fitted contributions removed, then every amplitude re-solved (``thetas`` in place)."""
+        idx = np.asarray(idx)
+        resid = self.y - self.model()
+        old = np.asarray(thetas)[idx]
+        new = np.empty(len(idx))
+        for lo in range(0, len(idx), REFINE_BLOCK_ATOMS):      # blocks of atoms: bounded temporaries
+            blk = idx[lo:lo + REFINE_BLOCK_ATOMS]
+            c = self.c[:, blk]
+            others = resid[:, :, None] + np.swapaxes(self.a[:, blk, :], 1, 2) * c[:, None, :].astype(np.complex64)
+            new[lo:lo + len(blk)] = _refine(model, old[lo:lo + len(blk)], 0.5 * step, range_m, others,
+                                            c.real**2 + c.imag**2, n_rounds=2)
+        moved = float(np.max(np.abs(new - old), initial=0.0))
+        for i, t in zip(idx, new):
+            thetas[i] = float(t)
+        for lo in range(0, len(idx), REFINE_BLOCK_ATOMS):
+            self.set(idx[lo:lo + REFINE_BLOCK_ATOMS], model.atoms(new[lo:lo + REFINE_BLOCK_ATOMS], range_m))
+        self.solve()
+        return moved
 
 
 def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, max_atoms=MAX_ATOMS,
@@ -153,47 +330,37 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
         coarse = model.atoms(theta_grid_deg, [range_m[n_b // 2]])[0]
     coarse_norm = np.sum(coarse.real**2 + coarse.imag**2, axis=0)
     keep = coarse_norm > 1e-6 * coarse_norm.max()
-    coarse, coarse_norm, grid = coarse[:, keep], coarse_norm[keep], np.asarray(theta_grid_deg)[keep]
+    coarse_conj, coarse_norm, grid = np.conj(coarse[:, keep]), coarse_norm[keep], np.asarray(theta_grid_deg)[keep]
     noise_stop = float(gammainccinv(n_b, pfa / max(len(grid), 1)))            # Gamma(B) tail, noise units
     thetas, stats = [], []
-    c = np.zeros((n_b, 0), np.complex64)
-    a_act = np.zeros((n_b, y.shape[1], 0), np.complex64)
+    act = _ActiveSet(y, max_atoms)
     resid = y
-    n_col = 1 + SLOPE_ATOMS
     while len(thetas) < max_atoms:
-        corr = resid @ np.conj(coarse)                                       # [B, M]
+        corr = resid @ coarse_conj                                           # [B, M]
         stat = np.sum(corr.real**2 + corr.imag**2, axis=0) / coarse_norm
         stat[np.abs(grid[:, None] - np.asarray(thetas)[None, :]).min(axis=1) < 0.5 * step if thetas else
              np.zeros(len(grid), bool)] = 0.0
         m = int(np.argmax(stat))
         if stat[m] < noise_stop or (stats and stat[m] < stats[0] * 10 ** (-dynamic_db / 10)):
             break
-        theta = _refine(model, grid[m], step, range_m, resid)
+        power_m = corr[:, m:m + 1].real ** 2 + corr[:, m:m + 1].imag ** 2
+        theta = float(_refine(model, [grid[m]], step, range_m, resid[:, :, None], power_m)[0])
         thetas.append(theta)
         stats.append(float(stat[m]))
-        a_act = np.concatenate([a_act, *_columns(model, [theta], range_m, resid)[::2][:n_col]], axis=2)
-        c = _solve(a_act, y)
-        # RELAX (Li & Stoica 1996) on the atoms the new one correlates with: its neighbours and its
-        # mirror twin's (the greedy pick of one of two correlated atoms is biased by the other)
+        act.set([len(thetas) - 1], model.atoms([theta], range_m))
+        act.solve()
+        # RELAX on the atoms the new one correlates with: its neighbours and its mirror twin's (the
+        # greedy pick of one of two correlated atoms is biased by the other)
         near = [i for i, t in enumerate(thetas)
                 if min(abs(t - theta), abs(t + theta - 2.0 * axis_deg)) <= RELAX_NEIGHBOUR_DEG]
-        for _ in range(relax_sweeps):
-            for i in near:
-                a_act, c = _relax_one(model, a_act, c, thetas, i, y, range_m, step, n_col)
-        resid = y - (a_act @ c[:, :, None])[..., 0]
-    for _ in range(relax_sweeps if thetas else 0):                             # RELAX: each angle again
-        for i in range(len(thetas)):
-            a_act, c = _relax_one(model, a_act, c, thetas, i, y, range_m, step, n_col)
-    return np.asarray(thetas), c[:, 0::n_col], np.asarray(stats)
-
-
-def _relax_one(model, a_act, c, thetas, i, y, range_m, step, n_col):
-    """Refine atom i's angle with the others held, then re-solve every amplitude (``thetas`` in place)."""
-    pair = slice(n_col * i, n_col * (i + 1))
-    others = y - (a_act @ c[:, :, None])[..., 0] + (a_act[:, :, pair] @ c[:, pair, None])[..., 0]
-    thetas[i] = _refine(model, thetas[i], step, range_m, others)
-    a_act[:, :, pair] = np.concatenate(_columns(model, [thetas[i]], range_m, y)[::2][:n_col], axis=2)
-    return a_act, _solve(a_act, y)
+        for sweep in range(MAX_RELAX_SWEEPS if len(near) > 1 else 0):     # alone, it was just refined
+            if act.relax(model, thetas, near, range_m, step) < RELAX_TOL_DEG and sweep + 1 >= relax_sweeps:
+                break
+        resid = y - act.model()
+    for sweep in range(MAX_RELAX_SWEEPS if thetas else 0):                      # RELAX: every angle again
+        if act.relax(model, thetas, np.arange(len(thetas)), range_m, step) < RELAX_TOL_DEG and sweep + 1 >= relax_sweeps:
+            break
+    return np.asarray(thetas), act.c.astype(np.complex64), np.asarray(stats)
 
 
 def range_clusters(profile, level, half_bins=CLUSTER_HALF_BINS, sidelobe_db=SIDELOBE_DB):
@@ -217,46 +384,154 @@ def noise_sigma(x):
     return float(np.sqrt(np.median(p.real**2 + p.imag**2) / np.log(2.0)))
 
 
+def decimation_plan(model, grid_deg, range_m, axis_deg, prf_hz):
+    """Slow-time decimation the dictionary allows: (Q, shift_hz, taps).
+
+    Relative to the axis direction's phase history, the atom at theta has the Doppler
+    f(theta; n) = -(2 / lambda) d/dt [R(theta; n) - R(axis; n)] (2 v (cos theta - 1) / lambda for a
+    straight flight: 0 to -600 Hz over the paper's +-11 deg); measured here over the window's pulses
+    and the whole grid, shifted to baseband by -shift_hz and widened by the antenna envelope's own
+    bandwidth (a Gaussian two-way pattern exp(-2 beta d^2) swept at w deg/s: -60 dB at
+    sqrt(27.6 beta) w / pi Hz), it fits in ``DECIMATION_PASSBAND`` of the band of a rate prf / Q.  The
+    anti-alias filter is a Kaiser (beta 8) windowed sinc of 40 Q + 1 taps cut at prf / (2 Q): flat to
+    1e-4 in the passband (-80 dB), its transition (a quarter of the cut-off frequency wide, centred on
+    it) beyond where any atom lives.  Q = 1: no decimation."""
+    grid = np.asarray(grid_deg, dtype=np.float64)
+    grid = np.unique(np.concatenate([grid[::8], grid[-1:], [axis_deg]]))    # f is smooth in theta: every 8th
+    rng = model.path(grid, [range_m])[0] - model.path([axis_deg], [range_m])[0]     # [N, M]
+    f_hz = -2.0 / model.lam * np.diff(rng, axis=0) * prf_hz
+    scan_dps = float(np.median(np.abs(np.diff(model.beam)))) * prf_hz
+    envelope_hz = np.sqrt(27.6 * model.beta) * scan_dps / np.pi
+    lo, hi = float(f_hz.min()), float(f_hz.max())
+    half = 0.5 * (hi - lo) + envelope_hz
+    q = int(np.floor(DECIMATION_PASSBAND * prf_hz / (2.0 * half)))
+    if q < 2:
+        return 1, 0.0, None
+    taps = firwin(40 * q + 1, prf_hz / (2.0 * q), window=("kaiser", 8.0), fs=prf_hz)
+    return q, 0.5 * (lo + hi), taps
+
+
 def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile, level, axis_deg, half_width_deg,
-               dwell_half_width_deg, angle_step_deg, fc_hz, slope_per_deg, beta_per_deg2, position_ref_m,
-               boresight_offset_deg=0.0, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB):
+               dwell_half_width_deg, angle_step_deg, fc_hz, prf_hz, slope_per_deg, beta_per_deg2, position_ref_m,
+               boresight_offset_deg=0.0, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, decimate=True):
     """Fit every cluster of ``active`` range cells [n_r] for the scatterers within ``half_width_deg`` of
     the flight axis ``axis_deg`` (azimuth at t_ref).
 
     The window holds the pulses whose beam is within half_width + dwell_half_width of the axis (every
     pulse that sees the region); the dictionary spans every direction those pulses illuminate
     (half_width + 2 dwell_half_width), so the scatterers beyond the region that leak into the window
-    are fitted too, and dropped.  Returns (theta [K], profile [K, n_r] complex amplitude per range cell,
-    zero outside the atom's cluster) for the atoms inside the region, and the range cells fitted [n_r].
+    are fitted too, and dropped.  The window is fitted at the slow-time rate its dictionary needs
+    (``decimation_plan``; ``decimate=False``: at the PRF): each cell's pulses multiplied by the conjugate
+    of the axis direction's history, low-pass filtered and kept every Q-th, the atoms built at those
+    pulses in the same baseband (the amplitudes are unchanged).  Returns (theta [K], profile [K, n_r]
+    complex amplitude per range cell, zero outside the atom's cluster) for the atoms inside the region,
+    and the range cells fitted [n_r].
     """
     beam = np.asarray(scan_angle_deg, dtype=np.float64)
+    pos = np.asarray(position_m, dtype=np.float64)
+    range_m = np.asarray(range_m, dtype=np.float64)
     win = np.flatnonzero(np.abs(beam - axis_deg) <= half_width_deg + dwell_half_width_deg)
     sig = (noise_sigma(sum_rt), noise_sigma(diff_rt))
-    model = FitModel(position_m=np.asarray(position_m)[win], scan_angle_deg=beam[win], fc_hz=fc_hz,
-                     slope_per_deg=slope_per_deg, beta_per_deg2=beta_per_deg2, position_ref_m=position_ref_m,
-                     boresight_offset_deg=boresight_offset_deg, sigma=sig)
+    kw = dict(fc_hz=fc_hz, slope_per_deg=slope_per_deg, beta_per_deg2=beta_per_deg2, position_ref_m=position_ref_m,
+              boresight_offset_deg=boresight_offset_deg)
     span = half_width_deg + 2.0 * dwell_half_width_deg
     grid = axis_deg + angle_step_deg * np.arange(-np.ceil(span / angle_step_deg), np.ceil(span / angle_step_deg) + 1)
-    xs = np.asarray(sum_rt)[win] / np.float32(sig[0])
-    xd = np.asarray(diff_rt)[win] / np.float32(sig[1])
-    thetas, profiles = [], []
+    full = FitModel(position_m=pos[win], scan_angle_deg=beam[win], sigma=sig, **kw)
+    q, shift_hz, taps = 1, 0.0, None
+    if decimate and len(win) > 1 and np.all(np.diff(win) == 1):
+        q, shift_hz, taps = decimation_plan(full, grid, float(np.median(range_m)), axis_deg, prf_hz)
+    if q > 1:
+        half_taps = len(taps) // 2
+        ext = np.arange(max(0, win[0] - half_taps), min(len(beam), win[-1] + half_taps + 1))
+        kept = np.arange(win[0], win[-1] + 1, q)
+        gain = float(np.sqrt(np.sum(taps**2)))                         # noise sigma after the filter
+        model = FitModel(position_m=pos[kept], scan_angle_deg=beam[kept], sigma=(sig[0] * gain, sig[1] * gain),
+                         demod=(axis_deg, shift_hz, kept / prf_hz), **kw)
+        ext_model = FitModel(position_m=pos[ext], scan_angle_deg=beam[ext], **kw)
+    else:
+        model = full
     n_r = len(range_m)
-    dictionaries = {}
     covered = np.zeros(n_r, bool)
+    jobs, dictionaries = [], {}
     for cells in range_clusters(profile, level):
-        covered[cells] = True
-        y = np.concatenate([xs[:, cells].T, xd[:, cells].T], axis=1)               # [B, 2N]
-        r_c = float(np.asarray(range_m)[cells].mean())
-        key = int(round(r_c / COARSE_RANGE_M))
+        if len(cells) > MAX_CLUSTER_CELLS:
+            log.info(f"dwell_fit: {len(cells)} contiguous range cells at {range_m[cells[0]]:.0f} m are an extended "
+                     f"scene, not points (over {MAX_CLUSTER_CELLS}): left to the dwell image")
+            continue
+        if q > 1:     # baseband of the axis history, filtered, every Q-th pulse of the window (whitened)
+            to_base = _cis_cycles(2.0 * (ext_model.path([axis_deg], range_m[cells])[:, :, 0]
+                                         - range_m[cells, None]) / full.lam - shift_hz * ext[None, :] / prf_hz,
+                                  np.complex64)                                           # [B, N_ext]
+            pick = kept - ext[0]
+            chans = [fftconvolve(x[ext[0]:ext[-1] + 1, cells].T * to_base, taps[None, :], mode="same", axes=1)
+                     [:, pick] / np.float32(s_ch * gain) for x, s_ch in ((sum_rt, sig[0]), (diff_rt, sig[1]))]
+            y = np.concatenate(chans, axis=1).astype(np.complex64)                       # [B, 2N/Q]
+        else:
+            y = np.concatenate([x[np.ix_(win, cells)].T / np.float32(s_ch)
+                                for x, s_ch in ((sum_rt, sig[0]), (diff_rt, sig[1]))], axis=1)   # [B, 2N]
+        key = int(round(float(range_m[cells].mean()) / COARSE_RANGE_M))
         if key not in dictionaries:
             dictionaries[key] = model.atoms(grid, [key * COARSE_RANGE_M])[0]
-        theta, c, _ = fit_cluster(model, y, np.asarray(range_m)[cells], grid, pfa=pfa, dynamic_db=dynamic_db,
-                                  coarse=dictionaries[key], axis_deg=axis_deg)
+        jobs.append((cells, y, dictionaries[key]))
+
+    def fit_one(job):
+        cells, y, coarse = job
+        theta, c, _ = fit_cluster(model, y, range_m[cells], grid, pfa=pfa, dynamic_db=dynamic_db, coarse=coarse,
+                                  axis_deg=axis_deg)
+        if len(theta) >= MAX_ATOMS:              # not sparse: the dwell image keeps these cells
+            log.info(f"dwell_fit: the cluster at {range_m[cells[0]]:.0f} m needs over {MAX_ATOMS} points: left "
+                     "to the dwell image")
+            return np.zeros(0), np.zeros((0, n_r), np.complex64), None
         inside = np.abs(theta - axis_deg) <= half_width_deg
         prof = np.zeros((int(inside.sum()), n_r), np.complex64)
         prof[:, cells] = c[:, inside].T
-        thetas.append(theta[inside])
-        profiles.append(prof)
+        return theta[inside], prof, cells
+
+    # the clusters are independent: one per worker thread (numpy's loops release the GIL), the BLAS on
+    # one thread meanwhile (its own pool would contend with them for the cores); results in order
+    threads = min(worker_threads(), len(jobs))
+    with one_blas_thread():
+        if threads > 1:
+            with ThreadPoolExecutor(max_workers=threads) as pool:
+                done = list(pool.map(fit_one, jobs))
+        else:
+            done = [fit_one(job) for job in jobs]
+    thetas, profiles = [t for t, _, _ in done], [p for _, p, _ in done]
+    for _, _, cells in done:
+        if cells is not None:
+            covered[cells] = True
     if not thetas:
         return np.zeros(0), np.zeros((0, n_r), np.complex64), covered
     return np.concatenate(thetas), np.concatenate(profiles, axis=0), covered
+
+
+def fit_resolved_flags(range_m, azimuth_deg, *, position_m, scan_angle_deg, axis_deg, half_width_deg,
+                       dwell_half_width_deg, fc_hz, slope_per_deg, beta_per_deg2, position_ref_m, range_resolution_m,
+                       boresight_offset_deg=0.0, max_corr=RESOLVED_MAX_CORR):
+    """What the joint fit resolves, per target at slant range ``range_m`` and azimuth ``azimuth_deg``
+    (both at t_ref): (inside [T], resolved [T]).  ``inside``: the target is in the fit's region.  There
+    it is resolved when its atom and every other target's within one range resolution are parted:
+    their normalised correlation |a_i^H a_j| / (||a_i|| ||a_j||) over the fit window (the module's
+    model at the target's range, full PRF) is at most ``max_corr``.  Mirror twins +-theta correlate
+    through the pattern alone (exp(-(2 beta - k^2) theta^2), module docstring); one target's own
+    twin at theta -> 0 does not exist, so the point on the axis is resolved from its neighbours by
+    the Doppler their phase histories differ by over the window."""
+    r = np.asarray(range_m, dtype=np.float64)
+    az = np.asarray(azimuth_deg, dtype=np.float64)
+    beam = np.asarray(scan_angle_deg, dtype=np.float64)
+    inside = np.abs(az - axis_deg) <= half_width_deg
+    resolved = np.ones(len(r), bool)
+    win = np.flatnonzero(np.abs(beam - axis_deg) <= half_width_deg + dwell_half_width_deg)
+    if not inside.any() or len(win) == 0:
+        return inside, resolved
+    model = FitModel(position_m=np.asarray(position_m)[win], scan_angle_deg=beam[win], fc_hz=fc_hz,
+                     slope_per_deg=slope_per_deg, beta_per_deg2=beta_per_deg2, position_ref_m=position_ref_m,
+                     boresight_offset_deg=boresight_offset_deg)
+    for i in np.flatnonzero(inside):
+        near = np.flatnonzero(np.abs(r - r[i]) < range_resolution_m)          # itself included
+        a = model.atoms(az[near], [r[i]])[0].astype(np.complex128)              # [2N, K]
+        a /= np.maximum(np.linalg.norm(a, axis=0), 1e-300)
+        corr = np.abs(a.conj().T @ a[:, near == i][:, 0])
+        corr[near == i] = 0.0
+        resolved[i] = bool(corr.max(initial=0.0) <= max_corr)
+    return inside, resolved

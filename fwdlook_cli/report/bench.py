@@ -55,7 +55,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     from ..dsp.keystone import keystone_dft, keystone_sinc
     from ..forward.simulate import simulate_scenario
 
-    n = 9
+    n = 10
     _step(1, n, "simulating the paper cube")
     paper = load_scenario(paper_scenario)
     tiny = load_scenario(tiny_scenario)
@@ -103,10 +103,14 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
                                           repeats=1)
 
     # whole chains, both channels, as `fwdlook process` runs them (medians of chain_repeats runs);
-    # dwell: the tracking chain with processing.imaging = dwell (forward/dwell.py)
-    for step, (method, imaging) in enumerate((("decimation", "cpi"), ("tracking", "cpi"), ("dwell", "dwell")), 6):
+    # dwell: the tracking chain with processing.imaging = dwell and the joint fit near the flight axis
+    # (the tracking preset, forward/dwell.py, dwell_fit.py); dwell_nofit: the same without the fit
+    chains = (("decimation", "cpi", "none"), ("tracking", "cpi", "none"), ("dwell", "dwell", "joint"),
+              ("dwell_nofit", "dwell", "none"))
+    for step, (method, imaging, fit) in enumerate(chains, 6):
         _step(step, n, f"whole chain, {method}, as fwdlook process runs it")
-        proc = dict(paper["processing"], method="tracking" if method == "dwell" else method, imaging=imaging)
+        proc = dict(paper["processing"], method="tracking" if imaging == "dwell" else method, imaging=imaging,
+                    dwell_fit=fit)
         scn = dict(paper, processing=proc)
         t = time_chain(cube, scn, repeats=chain_repeats)
         key = "chain_s" if method == "decimation" else f"chain_{method}_s"
@@ -133,7 +137,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     out["fft2_repeats"] = len(fft2_times) + len(fft2_after)
     out["cube_mib"] = (cube.sum.nbytes + cube.diff.nbytes) / 2**20
     out["chain_repeats"] = chain_repeats
-    _step(9, n, "done")
+    _step(10, n, "done")
     out["ratios_to_fft2"] = {k[:-2]: out[k] / out["fft2_s"] for k in list(out) if k.endswith("_s")
                              and k != "fft2_s"}
     return out

@@ -1,0 +1,210 @@
+"""The joint fit's fast path (forward/dwell_fit.py): the baseband phases in float32 against the float64
+paths, the incremental Gram matrices against A^H A, the decimation filter's passband, the fit on
+decimated slow time against the fit at the PRF and the truth, the extended-scene guard and the fit's
+resolution flags."""
+import numpy as np
+import pytest
+from scipy.signal import freqz
+
+from fwdlook_cli.dsp.geometry import C_MPS
+from fwdlook_cli.forward import dwell_fit as F
+
+FC_HZ, PRF_HZ, SPEED_MPS, HEIGHT_M = 18e9, 2500.0, 240.0, 50.0
+SLOPE, BETA = 0.147, 0.049           # the paper antenna's calibrated slope (1/deg) and pattern beta (1/deg^2)
+
+
+def _flight(accel_mps2=0.0, scan_deg=(-10.0, 10.0), rate_dps=30.0):
+    """Straight flight along +y from y = 0, uniformly accelerated, the beam scanning at ``rate_dps``."""
+    n = int(round((scan_deg[1] - scan_deg[0]) / rate_dps * PRF_HZ))
+    t = np.arange(n) / PRF_HZ
+    y = SPEED_MPS * t + 0.5 * accel_mps2 * t**2
+    pos = np.stack([np.zeros(n), y, np.full(n, HEIGHT_M)], axis=1)
+    beam = scan_deg[0] + rate_dps * t
+    return pos, beam, pos[n // 2]
+
+
+def _model(pos, beam, p_ref, **kw):
+    return F.FitModel(position_m=pos, scan_angle_deg=beam, fc_hz=FC_HZ, slope_per_deg=SLOPE, beta_per_deg2=BETA,
+                      position_ref_m=p_ref, **kw)
+
+
+def test_baseband_phases_in_float32_match_the_float64_paths():
+    """exp(-j 4 pi (R(theta) - R(axis)) / lambda - j 2 pi shift t) from the float32 difference formula
+    against the two float64 path lengths subtracted: within 1e-3 rad over +-11 deg, 1700 m."""
+    pos, beam, p_ref = _flight(accel_mps2=50.0)
+    t = np.arange(len(beam)) / PRF_HZ
+    shift = -350.0
+    base = _model(pos, beam, p_ref, demod=(0.0, shift, t))
+    plain = _model(pos, beam, p_ref)
+    theta = np.array([[-11.2, -1.1, 0.0], [0.4, 1.1, 11.2]])
+    ranges = np.array([[1650.0, 1700.0], [1703.0, 1760.0]])
+    got = base.paired_phases(theta, ranges)                                     # [M, N, J, P]
+    lam = C_MPS / FC_HZ
+    for m in range(2):
+        for j in range(2):
+            d_path = plain.path(theta[j], [ranges[m, j]])[0] - plain.path([0.0], [ranges[m, j]])[0]   # [N, P]
+            want = np.exp(-1j * (4 * np.pi * d_path / lam + 2 * np.pi * shift * t[:, None]))
+            err = np.angle(got[m, :, j, :] * np.conj(want))
+            assert np.max(np.abs(err)) < 1e-3
+    # the plain phases keep the slant range r_b: exp(-j 4 pi (R - r_b) / lambda)
+    ph = plain.phases([1.1], [1700.0])[:, :, 0]
+    want = np.exp(-4j * np.pi * (plain.path([1.1], [1700.0])[0, :, 0] - 1700.0) / lam)
+    assert np.max(np.abs(np.angle(ph[0] * np.conj(want)))) < 1e-3
+
+
+def test_active_set_gram_updates_equal_a_h_a():
+    """Atoms added and then replaced one column block at a time: the Gram matrices and right-hand sides
+    equal A^H A and A^H y formed directly, and the amplitudes equal numpy's least squares."""
+    rng = np.random.default_rng(3)
+    n_b, n_2, k = 3, 200, 20                  # past the first allocation (16 atoms): the storage grows
+
+    def rand(*shape):
+        return (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
+
+    y = rand(n_b, n_2)
+    act = F._ActiveSet(y, max_atoms=40)
+    atoms = rand(n_b, n_2, k)
+    for i in range(k):
+        act.set([i], atoms[:, :, i:i + 1])
+    atoms[:, :, [1, 3]] = rand(n_b, n_2, 2)
+    act.set([1, 3], atoms[:, :, [1, 3]])
+    a = atoms.astype(np.complex128)
+    gram = np.conj(np.swapaxes(a, 1, 2)) @ a
+    assert np.allclose(act.gram[:, :k, :k], gram, rtol=1e-5, atol=1e-3)
+    assert np.allclose(act.rhs[:, :k], np.einsum("bnk,bn->bk", np.conj(a), y), rtol=1e-5, atol=1e-3)
+    c = act.solve()
+    for b in range(n_b):
+        want = np.linalg.lstsq(a[b], y[b].astype(np.complex128), rcond=None)[0]
+        assert np.allclose(c[b], want, rtol=1e-4, atol=1e-5)
+    assert np.allclose(act.model(), np.einsum("bnk,bk->bn", a, c), atol=1e-4)
+
+
+def _plan(accel_mps2=50.0):
+    pos, beam, p_ref = _flight(accel_mps2)
+    win = np.flatnonzero(np.abs(beam) <= 8.0)
+    model = _model(pos[win], beam[win], p_ref)
+    grid = np.arange(-11.2, 11.25, 0.05)
+    return model, F.decimation_plan(model, grid, 1700.0, 0.0, PRF_HZ)
+
+
+def test_decimation_filter_is_flat_where_the_atoms_live_and_stops_what_aliases_onto_them():
+    """The plan's anti-alias filter: |H| within 2e-4 of 1 over the passband the atoms occupy
+    (DECIMATION_PASSBAND of the decimated Nyquist band) and under 1e-3 (-60 dB) from where the next
+    band's images would fold onto it (2 - DECIMATION_PASSBAND of the cut-off).  The paper geometry
+    (+-11.2 deg dictionary, 0 to -700 Hz relative to the axis) decimates by 3."""
+    model, (q, shift_hz, taps) = _plan()
+    assert q == 3 and -420.0 < shift_hz < -300.0
+    cut = PRF_HZ / (2 * q)
+    f_pass = np.linspace(0.0, F.DECIMATION_PASSBAND * cut, 400)
+    f_stop = np.linspace((2.0 - F.DECIMATION_PASSBAND) * cut, PRF_HZ / 2, 800)
+    _, h_pass = freqz(taps, worN=f_pass, fs=PRF_HZ)
+    _, h_stop = freqz(taps, worN=f_stop, fs=PRF_HZ)
+    assert np.max(np.abs(np.abs(h_pass) - 1.0)) < 2e-4
+    assert np.max(np.abs(h_stop)) < 1e-3
+
+
+def _cluster_data(pos, beam, p_ref, targets, n_r=40, r0=1650.0, dr=3.0, amp=10.0, seed=0):
+    """Sum and difference channels [N, n_r] of point scatterers (cell, theta) from the fit's own model
+    at the PRF, plus unit complex noise in both channels."""
+    rng = np.random.default_rng(seed)
+    range_m = r0 + dr * np.arange(n_r)
+    gen = _model(pos, beam, p_ref)
+    n = len(beam)
+    s = (rng.standard_normal((n, n_r)) + 1j * rng.standard_normal((n, n_r))) / np.sqrt(2)
+    d = (rng.standard_normal((n, n_r)) + 1j * rng.standard_normal((n, n_r))) / np.sqrt(2)
+    for cell, theta in targets:
+        a = gen.atoms([theta], [range_m[cell]])[0, :, 0]
+        s[:, cell] += amp * a[:n]
+        d[:, cell] += amp * a[n:]
+    return s.astype(np.complex64), d.astype(np.complex64), range_m
+
+
+def _angle_crb_deg(pos, beam, p_ref, thetas, range_m, amp, half_deg=8.0, h_deg=1e-4):
+    """Deterministic CRB of the angles of point scatterers sharing one range cell, unit complex noise per
+    sample and channel: (1/2) Re(D^H P_A^perp D)^-1, D = [c_k da/dtheta_k] over the window's pulses."""
+    win = np.flatnonzero(np.abs(beam) <= half_deg)
+    model = _model(pos[win], beam[win], p_ref)
+    th = np.asarray(thetas, dtype=np.float64)
+    a = model.atoms(th, [range_m])[0].astype(np.complex128)
+    d = amp * (model.atoms(th + h_deg, [range_m])[0] - model.atoms(th - h_deg, [range_m])[0]).astype(np.complex128)
+    d /= 2 * h_deg
+    q, _ = np.linalg.qr(a)
+    d_perp = d - q @ (q.conj().T @ d)
+    return np.sqrt(np.diag(np.linalg.inv(2.0 * np.real(d_perp.conj().T @ d_perp))))
+
+
+@pytest.mark.parametrize("accel_mps2", [0.0, 50.0])
+def test_fit_on_decimated_slow_time_matches_the_prf_fit_and_the_crb(accel_mps2):
+    """A mirror pair +-1.1 deg in one range cell, a point on the axis and one at 2.5 deg: fitted on the
+    decimated baseband (Q = 3) and at the PRF, every point within 4 standard deviations of its angle
+    CRB (0.0004-0.012 deg: the point on the axis has only the pattern to place it, its phase history
+    being even in theta) and the two fits within 1 (the filter removes only noise the atoms are
+    orthogonal to); amplitudes within 5 %; no spurious atom in the region."""
+    pos, beam, p_ref = _flight(accel_mps2)
+    truth = [(18, -1.1), (18, 1.1), (20, 0.0), (22, 2.5)]
+    s, d, range_m = _cluster_data(pos, beam, p_ref, truth)
+    crb = {}
+    for cell in {c for c, _ in truth}:
+        angles = [t for c, t in truth if c == cell]
+        crb.update(zip(angles, _angle_crb_deg(pos, beam, p_ref, angles, range_m[cell], 10.0)))
+    profile = np.max(np.abs(s) ** 2, axis=0)
+    kw = dict(scan_angle_deg=beam, position_m=pos, range_m=range_m, profile=profile, level=30.0, axis_deg=0.0,
+              half_width_deg=4.8, dwell_half_width_deg=3.2, angle_step_deg=0.05, fc_hz=FC_HZ, prf_hz=PRF_HZ,
+              slope_per_deg=SLOPE, beta_per_deg2=BETA, position_ref_m=p_ref)
+    fits = []
+    for decimate in (True, False):
+        theta, prof, covered = F.fit_region(s, d, decimate=decimate, **kw)
+        assert covered[[18, 20, 22]].all()
+        assert len(theta) == len(truth)
+        fits.append((theta, prof))
+    for cell, theta_true in truth:
+        got = []
+        for theta, prof in fits:
+            i = int(np.argmin(np.abs(theta - theta_true) + 1e3 * (np.abs(prof[:, cell]) < 1.0)))
+            assert abs(theta[i] - theta_true) <= 4.0 * crb[theta_true]
+            assert abs(abs(prof[i, cell]) - 10.0) <= 0.5
+            got.append(theta[i])
+        assert abs(got[0] - got[1]) <= crb[theta_true]
+
+
+def test_an_extended_cluster_is_left_to_the_dwell_image():
+    """More than MAX_CLUSTER_CELLS contiguous hot range cells: not point-like, not fitted (nothing
+    returned, no cell marked fitted), and at no cost."""
+    pos, beam, p_ref = _flight()
+    n_r = F.MAX_CLUSTER_CELLS + 20
+    s, d, range_m = _cluster_data(pos, beam, p_ref, [], n_r=n_r)
+    profile = np.ones(n_r)
+    profile[5:5 + F.MAX_CLUSTER_CELLS + 5] = 100.0
+    theta, prof, covered = F.fit_region(
+        s, d, scan_angle_deg=beam, position_m=pos, range_m=range_m, profile=profile, level=10.0, axis_deg=0.0,
+        half_width_deg=4.8, dwell_half_width_deg=3.2, angle_step_deg=0.05, fc_hz=FC_HZ, prf_hz=PRF_HZ,
+        slope_per_deg=SLOPE, beta_per_deg2=BETA, position_ref_m=p_ref)
+    assert len(theta) == 0 and prof.shape == (0, n_r) and not covered.any()
+
+
+def test_fit_resolution_flags_follow_the_atoms_correlation():
+    """Mirror twins +-theta share their phase history: only the pattern parts them, so the pair at
+    +-0.3 deg (correlation over 0.9) is unresolved and the pair at +-1.1 deg (about 0.8) resolved; a
+    lone point and a neighbour beyond one range resolution are resolved; a point outside the region is
+    reported outside."""
+    pos, beam, p_ref = _flight()
+    kw = dict(position_m=pos, scan_angle_deg=beam, axis_deg=0.0, half_width_deg=4.8, dwell_half_width_deg=3.2,
+              fc_hz=FC_HZ, slope_per_deg=SLOPE, beta_per_deg2=BETA, position_ref_m=p_ref, range_resolution_m=3.0)
+    rng = [1700.0, 1700.0, 1750.0, 1750.0, 1800.0, 1806.0, 1700.0]
+    az = [-0.3, 0.3, -1.1, 1.1, 2.0, 2.0, 7.0]
+    inside, resolved = F.fit_resolved_flags(rng, az, **kw)
+    assert list(inside) == [True] * 6 + [False]
+    assert list(resolved[:6]) == [False, False, True, True, True, True]
+
+
+def test_the_fit_runs_only_for_the_antenna_it_models(caplog):
+    """The fit's weights are two Gaussian beams: a gaussian2 cube is fitted; sinc2, a table or a cube
+    without /antenna is not (the dwell image alone), and the log says why."""
+    from types import SimpleNamespace
+
+    from fwdlook_cli.forward.dwell import fit_models_antenna
+
+    assert fit_models_antenna(SimpleNamespace(antenna={"pattern": "gaussian2", "beta_per_deg2": 0.05}))
+    for antenna in ({"pattern": "sinc2"}, {"pattern": "table"}, None):
+        assert not fit_models_antenna(SimpleNamespace(antenna=antenna))
+    assert "dwell_fit" in caplog.text and "sinc2" in caplog.text
