@@ -79,21 +79,22 @@ def test_active_set_gram_updates_equal_a_h_a():
     assert np.allclose(act.model(), np.einsum("bnk,bk->bn", a, c), atol=1e-4)
 
 
-def _plan(accel_mps2=50.0):
-    pos, beam, p_ref = _flight(accel_mps2)
+def test_decimation_filter_passes_the_regions_atoms_and_stops_the_rest():
+    """The plan fit_region makes: the band of the region's directions (4.8 deg + BAND_GUARD_DEG, 0 to
+    about -200 Hz relative to the axis at a = 50) decimates by 10.  Its filter is within 2e-4 of 1 over
+    the passband the region's atoms occupy (DECIMATION_PASSBAND of the decimated Nyquist band) and
+    under 1e-3 (-60 dB) from where the next band's images would fold onto it; a direction whose
+    baseband offsets all lie beyond the stop edge (9.6 deg: -390 to -510 Hz) is suppressed by 60 dB
+    over the whole window, so the dictionary need not hold it (the paper's +-11.2 deg dictionary at
+    the PRF's rate would allow only Q = 3)."""
+    pos, beam, p_ref = _flight(50.0)
     win = np.flatnonzero(np.abs(beam) <= 8.0)
     model = _model(pos[win], beam[win], p_ref)
     grid = np.arange(-11.2, 11.25, 0.05)
-    return model, F.decimation_plan(model, grid, 1700.0, 0.0, PRF_HZ)
-
-
-def test_decimation_filter_is_flat_where_the_atoms_live_and_stops_what_aliases_onto_them():
-    """The plan's anti-alias filter: |H| within 2e-4 of 1 over the passband the atoms occupy
-    (DECIMATION_PASSBAND of the decimated Nyquist band) and under 1e-3 (-60 dB) from where the next
-    band's images would fold onto it (2 - DECIMATION_PASSBAND of the cut-off).  The paper geometry
-    (+-11.2 deg dictionary, 0 to -700 Hz relative to the axis) decimates by 3."""
-    model, (q, shift_hz, taps) = _plan()
-    assert q == 3 and -420.0 < shift_hz < -300.0
+    assert F.decimation_plan(model, grid, 1700.0, 0.0, PRF_HZ)[0] == 3
+    band = grid[np.abs(grid) <= 4.8 + F.BAND_GUARD_DEG]
+    q, shift_hz, taps = F.decimation_plan(model, band, 1700.0, 0.0, PRF_HZ)
+    assert q == 10 and -110.0 < shift_hz < -70.0
     cut = PRF_HZ / (2 * q)
     f_pass = np.linspace(0.0, F.DECIMATION_PASSBAND * cut, 400)
     f_stop = np.linspace((2.0 - F.DECIMATION_PASSBAND) * cut, PRF_HZ / 2, 800)
@@ -101,6 +102,10 @@ def test_decimation_filter_is_flat_where_the_atoms_live_and_stops_what_aliases_o
     _, h_stop = freqz(taps, worN=f_stop, fs=PRF_HZ)
     assert np.max(np.abs(np.abs(h_pass) - 1.0)) < 2e-4
     assert np.max(np.abs(h_stop)) < 1e-3
+    lam = C_MPS / FC_HZ
+    f_far = -2.0 / lam * np.diff(model.path([9.6], [1700.0])[0, :, 0] - model.path([0.0], [1700.0])[0, :, 0]) * PRF_HZ
+    _, h_far = freqz(taps, worN=np.abs(f_far - shift_hz), fs=PRF_HZ)
+    assert np.max(np.abs(h_far)) < 1e-3
 
 
 def _cluster_data(pos, beam, p_ref, targets, n_r=40, r0=1650.0, dr=3.0, amp=10.0, seed=0):
@@ -136,7 +141,7 @@ def _angle_crb_deg(pos, beam, p_ref, thetas, range_m, amp, half_deg=8.0, h_deg=1
 @pytest.mark.parametrize("accel_mps2", [0.0, 50.0])
 def test_fit_on_decimated_slow_time_matches_the_prf_fit_and_the_crb(accel_mps2):
     """A mirror pair +-1.1 deg in one range cell, a point on the axis and one at 2.5 deg: fitted on the
-    decimated baseband (Q = 3) and at the PRF, every point within 4 standard deviations of its angle
+    decimated baseband (Q = 10-11) and at the PRF, every point within 4 standard deviations of its angle
     CRB (0.0004-0.012 deg: the point on the axis has only the pattern to place it, its phase history
     being even in theta) and the two fits within 1 (the filter removes only noise the atoms are
     orthogonal to); amplitudes within 5 %; no spurious atom in the region."""

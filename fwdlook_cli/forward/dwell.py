@@ -53,8 +53,8 @@ Cost (``fwdlook bench``, paper cube, idle machine, without step 6): the ``dwell_
 60 plain 2-D FFTs of one channel (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range,
 8.8 k x 280 cells, one interpolated read, the phase, the rotation and one sparse sum over the dwell),
 run over blocks of sub-apertures on the stage thread pool (bounded memory); the whole chain 1.12-1.34 x
-``chain_tracking_s``.  Step 6 (the tracking preset's default) adds 1.2-2.2 s on the paper lattice, the
-whole chain about 4 x ``chain_tracking_s`` (README; ``dwell_fit.py`` says where it goes).
+``chain_tracking_s``.  Step 6 (the tracking preset's default) adds 0.5-0.7 s on the paper lattice, the
+whole chain about 2 x ``chain_tracking_s`` (README; ``dwell_fit.py`` says where it goes).
 """
 from __future__ import annotations
 

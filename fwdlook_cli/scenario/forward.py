@@ -128,7 +128,7 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "dwell_fit": Field(choice("joint", "none"), "none",
                            "imaging: dwell near the flight axis (within 1.5 dwell half-widths, 4.8 deg for the paper): "
                            "joint, a sparse fit of the scatterers of each range cluster over the dwell "
-                           "(forward/dwell_fit.py; about 4 times the chain's cost on the paper lattice; two "
+                           "(forward/dwell_fit.py; about the chain's own cost again on the paper lattice; two "
                            "Gaussian beams only, extended clusters left to the image); none, the per-direction "
                            "dwell image there too (the tracking preset: joint)"),
         "doppler_estimator": Field(choice("fft", "iaa"), "fft",
