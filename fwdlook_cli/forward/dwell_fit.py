@@ -448,8 +448,9 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
         band_grid = grid[np.abs(grid - axis_deg) <= half_width_deg + BAND_GUARD_DEG]
         q, shift_hz, taps = decimation_plan(full, band_grid, r_mid, axis_deg, prf_hz)
         if q > 1:     # the dictionary: every direction the filter lets through (offsets inside its stop edge)
-            f_hz = -2.0 / full.lam * np.diff(full.path(grid, [r_mid])[0] - full.path([axis_deg], [r_mid])[0],
-                                             axis=0) * prf_hz
+            # (the offsets every 8th pulse: they change by under 1 Hz per pulse)
+            path = full.path(grid, [r_mid])[0, ::8] - full.path([axis_deg], [r_mid])[0, ::8]
+            f_hz = -2.0 / full.lam * np.diff(path, axis=0) * prf_hz / 8
             stop_hz = 1.125 * prf_hz / (2.0 * q)
             grid = grid[np.any(np.abs(f_hz - shift_hz) <= stop_hz, axis=0)]
     if q > 1:
