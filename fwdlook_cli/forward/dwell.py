@@ -192,14 +192,17 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
                                       max_offset_deg=dwell_half_width_deg + NEAR_FIELD_MARGIN_DEG,
                                       fft_workers=1 if threads > 1 else -1)
         gj, vj = gi[j].ravel(), valid[j].ravel()
-        acc = scipy.sparse.csr_matrix((vj.astype(np.float32), (gj, np.arange(gj.size))), shape=(n_a, gj.size))
-        return acc @ s_part.reshape(gj.size, n_r), acc @ d_part.reshape(gj.size, n_r)
+        lo = int(gj.min())                    # the block's directions: one band of rows of the image
+        hi = int(gj.max()) + 1
+        acc = scipy.sparse.csr_matrix((vj.astype(np.float32), (gj - lo, np.arange(gj.size))),
+                                      shape=(hi - lo, gj.size))
+        return lo, acc @ s_part.reshape(gj.size, n_r), acc @ d_part.reshape(gj.size, n_r)
 
     starts = range(0, n_sub, step)
     with ThreadPoolExecutor(max_workers=threads) as pool:     # the blocks' sums added in order
-        for s_blk, d_blk in pool.map(block, starts):
-            s_rot += s_blk
-            d_rot += d_blk
+        for lo, s_blk, d_blk in pool.map(block, starts):
+            s_rot[lo:lo + len(s_blk)] += s_blk
+            d_rot[lo:lo + len(d_blk)] += d_blk
     return s_rot.astype(np.complex64), d_rot.astype(np.complex64), gain, pos_dwell, plain_gain
 
 
@@ -230,7 +233,9 @@ def _focus_block(sum_rt, diff_rt, j, *, L, n_fft, chirp, theta, w, pos_c, vel_c,
     vd = np.einsum("ji,ji->j", vel_c[:, :2], dg) - vel_c[:, 2] * pos_c[:, 2]
     vu = np.einsum("jli,ji->jl", u, vel_c[:, :2])
     f_hz = 2.0 * (vd[:, None, None] + rho * vu[:, :, None]) / (lam * r_jr)
-    pos_bin = np.mod(f_hz / prf_hz * n_fft, n_fft)
+    pos_bin = f_hz * (n_fft / prf_hz)                  # mod n_fft by a floor (np.mod is several times slower)
+    pos_bin -= np.floor(pos_bin * (1.0 / n_fft)) * n_fft
+    pos_bin[pos_bin >= n_fft] -= n_fft                 # the floor's last-bit rounding: [0, n_fft) exactly
     i0 = np.floor(pos_bin).astype(np.int64)
     frac = (pos_bin - i0).astype(np.float32)
     base = (np.arange(n_j)[:, None, None] * n_fft) * n_r + np.arange(n_r)[None, None, :]
