@@ -50,7 +50,7 @@ range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
    continuous angles, RELAX) and the fitted scatterers replace those directions' cells in the image.
 
 Cost (``fwdlook bench``, paper cube, idle machine, without step 6): the ``dwell_image`` stage is about
-60 plain 2-D FFTs of one channel (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range,
+40 plain 2-D FFTs of one channel (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range,
 8.8 k x 280 cells, one interpolated read, the phase, the rotation and one sparse sum over the dwell),
 run over blocks of sub-apertures on the stage thread pool (bounded memory); the whole chain 1.12-1.34 x
 ``chain_tracking_s``.  Step 6 (the tracking preset's default) adds 0.5-0.7 s on the paper lattice, the
