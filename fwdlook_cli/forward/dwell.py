@@ -73,10 +73,11 @@ from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
 from .dwell_fit import fit_region
 
+log = logging.getLogger(__name__)
+
 
 SUB_APERTURE_DEG = 0.48          # scan per sub-aperture: its rotation and weight are taken at its centre
 DWELL_HALF_WIDTH_BEAMS = 0.75    # dwell of a direction: offsets within 0.75 two-way widths (3.2 deg, paper)
-log = logging.getLogger(__name__)
 FIT_REGION_BEAMS = 1.5           # dwell_fit: the joint fit owns directions within 1.5 dwell half-widths of the
                                  # flight axis (4.8 deg: the mirror pairs closer than the dwell window and beyond)
 
@@ -443,8 +444,9 @@ def dwell_stages(cube, proc: dict, geo: dict):
     # other they are integrated together (resolved_flags' angle gate)
     geo["resolution_angle_gate_deg"] = 2.0 * DWELL_HALF_WIDTH_BEAMS * two_way_deg
     fit = proc.get("dwell_fit", "none") == "joint" and fit_models_antenna(cube)
+    fit_half_width_deg = FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg if fit else 0.0
     if fit:                                               # the fit's own resolution (dwell_fit.fit_resolved_flags)
-        geo["fit_region"] = {"half_width_deg": FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg,
+        geo["fit_region"] = {"half_width_deg": fit_half_width_deg,
                              "dwell_half_width_deg": DWELL_HALF_WIDTH_BEAMS * two_way_deg,
                              "fc_hz": cube.radar["fc_hz"], "slope_per_deg": float(cal.slope_per_deg),
                              "beta_per_deg2": pattern_beta_per_deg2(cube),
@@ -458,7 +460,7 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
         "position_ref_m": [float(v) for v in geo["p_ref"]],
-        "fit_half_width_deg": FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg if fit else 0.0})]
+        "fit_half_width_deg": fit_half_width_deg})]
 
 
 def fit_models_antenna(cube) -> bool:

@@ -71,6 +71,7 @@ SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's stro
                            # mixing products (or weak scatterers), left to the dwell image
 COARSE_RANGE_M = 100.0     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
 DECIMATION_PASSBAND = 0.87  # the atoms' baseband within 87 % of the decimated Nyquist band (the filter: flat to 1e-4 up to 87.5 %)
+FILTER_STOP_EDGE = 1.125    # the filter's stop edge, in units of its cut-off (its transition: +-1/8 of it)
 REFINE_CELL_DB = 15.0      # an atom's angle is refined on its cells within 15 dB of its strongest one (its main lobe in range)
 RESOLVED_MAX_CORR = 0.9    # two atoms the fit parts: |rho| <= 0.9, each amplitude's CRB <= 1/(1 - rho^2) = 5.3 x a lone one's
 MAX_RELAX_SWEEPS = 6       # RELAX sweeps until no angle moves by RELAX_TOL_DEG (correlated atoms converge slowly)
@@ -150,12 +151,7 @@ class FitModel:
         cycles *= np.float32(-2.0 / self.lam)
         if shifted:
             cycles -= self.shift_cycles()[None, :, None, None]
-        cycles -= np.rint(cycles)
-        cycles *= np.float32(2.0 * np.pi)
-        out = np.empty(cycles.shape, np.complex64)
-        out.real = np.cos(cycles)
-        out.imag = np.sin(cycles)
-        return out
+        return _cis_cycles(cycles, np.complex64, reduce_in=np.float32)
 
     def axis_path(self, range_m):
         """R_b(axis; n) for ranges [M, J]: float32 [M, N, J, 1]."""
@@ -219,7 +215,7 @@ def _atom_cells(cell_power, floor_db=REFINE_CELL_DB):
     return order[:n_m], mask[:n_m]
 
 
-def _refine(model, theta0, step, range_m, resid, cell_power, n_rounds=3):
+def _refine(model, theta0, step, range_m, resid, cell_power, n_rounds):
     """Continuous angles maximising the group statistic near ``theta0`` [J], each against its own
     residual ``resid`` [B, 2N, J] in its own cells (``_atom_cells`` of ``cell_power`` [B, J]: the cells
     where the atom is more than REFINE_CELL_DB under its strongest add mostly the others' residue and noise):
@@ -388,12 +384,12 @@ def noise_sigma(x):
 
 
 def decimation_plan(model, grid_deg, range_m, axis_deg, prf_hz):
-    """Slow-time decimation the dictionary allows: (Q, shift_hz, taps).
+    """Slow-time decimation the directions ``grid_deg`` allow: (Q, shift_hz, taps).
 
     Relative to the axis direction's phase history, the atom at theta has the Doppler
     f(theta; n) = -(2 / lambda) d/dt [R(theta; n) - R(axis; n)] (2 v (cos theta - 1) / lambda for a
-    straight flight: 0 to -600 Hz over the paper's +-11 deg); measured here over the window's pulses
-    and the whole grid, shifted to baseband by -shift_hz and widened by the antenna envelope's own
+    straight flight: 0 to -200 Hz over the paper's region and 1 deg more); measured here over the
+    window's pulses and the grid, shifted to baseband by -shift_hz and widened by the antenna envelope's own
     bandwidth (a Gaussian two-way pattern exp(-2 beta d^2) swept at w deg/s: -60 dB at
     sqrt(27.6 beta) w / pi Hz), it fits in ``DECIMATION_PASSBAND`` of the band of a rate prf / Q.  The
     anti-alias filter is a Kaiser (beta 8) windowed sinc of 40 Q + 1 taps cut at prf / (2 Q): flat to
@@ -451,7 +447,7 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
             # (the offsets every 8th pulse: they change by under 1 Hz per pulse)
             path = full.path(grid, [r_mid])[0, ::8] - full.path([axis_deg], [r_mid])[0, ::8]
             f_hz = -2.0 / full.lam * np.diff(path, axis=0) * prf_hz / 8
-            stop_hz = 1.125 * prf_hz / (2.0 * q)
+            stop_hz = FILTER_STOP_EDGE * prf_hz / (2.0 * q)
             grid = grid[np.any(np.abs(f_hz - shift_hz) <= stop_hz, axis=0)]
     if q > 1:
         half_taps = len(taps) // 2
