@@ -9,7 +9,7 @@ import yaml
 
 from fwdlook_cli.dsp.antenna import MonopulseAntenna
 from fwdlook_cli.forward.chain import chain_geometry
-from fwdlook_cli.forward.dwell import iaa_doppler
+from fwdlook_cli.dsp.iaa import iaa_doppler
 from fwdlook_cli.forward.evaluate import resolved_flags, target_metrics
 from fwdlook_cli.forward.process import process_cube
 from fwdlook_cli.scenario.overlay import resolve_with_config

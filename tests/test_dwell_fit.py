@@ -8,6 +8,7 @@ from scipy.signal import freqz
 
 from fwdlook_cli.dsp.geometry import C_MPS
 from fwdlook_cli.forward import dwell_fit as F
+from fwdlook_cli.forward.dwell_resolution import fit_resolved_flags
 
 FC_HZ, PRF_HZ, SPEED_MPS, HEIGHT_M = 18e9, 2500.0, 240.0, 50.0
 SLOPE, BETA = 0.147, 0.049           # the paper antenna's calibrated slope (1/deg) and pattern beta (1/deg^2)
@@ -29,12 +30,10 @@ def _model(pos, beam, p_ref, **kw):
 
 
 def test_baseband_phases_in_float32_match_the_float64_paths():
-    """exp(-j 4 pi (R(theta) - R(axis)) / lambda - j 2 pi shift t) from the float32 difference formula
-    against the two float64 path lengths subtracted: within 1e-3 rad over +-11 deg, 1700 m."""
+    """exp(-j 4 pi (R(theta) - R(axis)) / lambda) from the float32 difference formula against the two
+    float64 path lengths subtracted: within 1e-3 rad over +-11 deg, 1700 m."""
     pos, beam, p_ref = _flight(accel_mps2=50.0)
-    t = np.arange(len(beam)) / PRF_HZ
-    shift = -350.0
-    base = _model(pos, beam, p_ref, demod=(0.0, shift, t))
+    base = _model(pos, beam, p_ref, axis_relative_deg=0.0)
     plain = _model(pos, beam, p_ref)
     theta = np.array([[-11.2, -1.1, 0.0], [0.4, 1.1, 11.2]])
     ranges = np.array([[1650.0, 1700.0], [1703.0, 1760.0]])
@@ -43,7 +42,7 @@ def test_baseband_phases_in_float32_match_the_float64_paths():
     for m in range(2):
         for j in range(2):
             d_path = plain.path(theta[j], [ranges[m, j]])[0] - plain.path([0.0], [ranges[m, j]])[0]   # [N, P]
-            want = np.exp(-1j * (4 * np.pi * d_path / lam + 2 * np.pi * shift * t[:, None]))
+            want = np.exp(-1j * 4 * np.pi * d_path / lam)
             err = np.angle(got[m, :, j, :] * np.conj(want))
             assert np.max(np.abs(err)) < 1e-3
     # the plain phases keep the slant range r_b: exp(-j 4 pi (R - r_b) / lambda)
@@ -197,7 +196,7 @@ def test_fit_resolution_flags_follow_the_atoms_correlation():
               fc_hz=FC_HZ, slope_per_deg=SLOPE, beta_per_deg2=BETA, position_ref_m=p_ref, range_resolution_m=3.0)
     rng = [1700.0, 1700.0, 1750.0, 1750.0, 1800.0, 1806.0, 1700.0]
     az = [-0.3, 0.3, -1.1, 1.1, 2.0, 2.0, 7.0]
-    inside, resolved = F.fit_resolved_flags(rng, az, **kw)
+    inside, resolved = fit_resolved_flags(rng, az, **kw)
     assert list(inside) == [True] * 6 + [False]
     assert list(resolved[:6]) == [False, False, True, True, True, True]
 
@@ -213,3 +212,34 @@ def test_the_fit_runs_only_for_the_antenna_it_models(caplog):
     for antenna in ({"pattern": "sinc2"}, {"pattern": "table"}, None):
         assert not fit_models_antenna(SimpleNamespace(antenna=antenna))
     assert "dwell_fit" in caplog.text and "sinc2" in caplog.text
+
+
+def test_clusters_on_forked_workers_return_what_one_process_computes():
+    """_map_clusters: the same results, in the jobs' order, on forked processes (a closure over data
+    they inherit), on threads (where a process may not fork) and serially; a worker's exception
+    reaches the caller."""
+    import multiprocessing
+
+    rng = np.random.default_rng(3)
+    data = [rng.standard_normal((40, 64)) + 1j * rng.standard_normal((40, 64)) for _ in range(5)]
+
+    def fit_one(job):                        # a closure: forked workers inherit it, nothing is pickled in
+        return np.linalg.svd(data[job], compute_uv=False), job
+
+    serial = F._map_clusters(fit_one, list(range(5)), 1)
+    forked = F._map_clusters(fit_one, list(range(5)), 3)
+    for (s_a, j_a), (s_b, j_b) in zip(serial, forked):
+        assert j_a == j_b and np.array_equal(s_a, s_b)
+    proc = multiprocessing.current_process()
+    daemon, proc.daemon = proc.daemon, True         # as in a daemonic worker: threads, same results
+    try:
+        threaded = F._map_clusters(fit_one, list(range(5)), 2)
+    finally:
+        proc.daemon = daemon
+    assert all(np.array_equal(a[0], b[0]) for a, b in zip(serial, threaded))
+
+    def fails(job):
+        raise ValueError(f"job {job}")
+
+    with pytest.raises(ValueError, match="job 0"):
+        F._map_clusters(fails, [0, 1], 2)

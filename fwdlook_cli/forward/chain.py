@@ -237,8 +237,8 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     # one small product per CPI and channel, the BLAS on one thread (dsp.blas: no pool stalls)
     z_sum = batched_matmul(e, data["sum"][:m].reshape(n_cpi, cpi, n_r))
     z_diff = batched_matmul(e, data["diff"][:m].reshape(n_cpi, cpi, n_r))
-    if estimator == "iaa":      # processing.doppler_estimator: iaa (dwell.iaa_doppler), same cells and scale
-        from .dwell import iaa_doppler
+    if estimator == "iaa":      # processing.doppler_estimator: iaa (dsp.iaa), same cells and scale
+        from ..dsp.iaa import iaa_doppler
 
         x_sum, x_diff = data["sum"][:m].reshape(n_cpi, cpi, n_r), data["diff"][:m].reshape(n_cpi, cpi, n_r)
         a = _cis(2.0 * np.pi * (t_cpi - t_c[:, None])[:, :, None] * f_z[:, None, :])    # [n_cpi, cpi, K]

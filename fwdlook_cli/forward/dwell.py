@@ -212,6 +212,39 @@ NEAR_FIELD_MARGIN_DEG = 1.0   # a sub-aperture sees P(r, theta) while its offset
 DWELL_BLOCK_CELLS = 1 << 18     # (sub-aperture x (direction + FFT bin) x range) cells per block of dwell_focus
 
 
+ATAN_SERIES_MAX = 0.3        # |x| up to which atan(x) is its odd series to x^9 (error x^11 / 11 < 2e-7 rad)
+
+
+def _k_offset(theta, beam_j, dg, rho32, k, ground):
+    """k times the offset (deg) of P(r, theta) from the beam axis seen from each sub-aperture centre
+    [n_j, n_loc, n_r] (float32): P - p_j = rho u(theta) + dg, whose azimuth is theta + atan(x) with
+    x = (dg_x cos theta - dg_y sin theta) / (rho + dg . u(theta)), the parallax.  For the ranges with
+    a ground point (``ground`` [n_r]) |x| is small (130 m against 1.5 km: 0.09), so atan is its series,
+    a few multiplications instead of an arctan2 per cell; where some |x| exceeds ATAN_SERIES_MAX or P
+    lies behind the antenna (near field) the block takes arctan2 itself."""
+    th = np.radians(theta)
+    sin_t, cos_t = np.sin(th), np.cos(th)
+    cross = (dg[:, None, 0] * cos_t - dg[:, None, 1] * sin_t).astype(np.float32)[:, :, None]
+    along = rho32[None, None, :] + (dg[:, None, 0] * sin_t + dg[:, None, 1] * cos_t).astype(np.float32)[:, :, None]
+    k_deg = np.float32(np.degrees(k))
+    base = (k * (theta - beam_j[:, None])).astype(np.float32)[:, :, None]
+    x = cross / along
+    xg = x[:, :, ground]                    # (the others are not seen: their kd is dropped by the caller)
+    if xg.size and (np.abs(xg).max() > ATAN_SERIES_MAX or along[:, :, ground].min() <= 0):
+        return k_deg * np.arctan2(cross, along) + base
+    np.clip(x, -1.0, 1.0, out=x)           # (no overflow where there is no ground point)
+    x2 = x * x
+    poly = np.float32(1.0 / 9.0) * x2                      # atan x = x (1 - x^2/3 + x^4/5 - x^6/7 + x^8/9)
+    for c in (-1.0 / 7.0, 1.0 / 5.0, -1.0 / 3.0):
+        poly += np.float32(c)
+        poly *= x2
+    poly += np.float32(1.0)
+    poly *= x
+    poly *= k_deg
+    poly += base
+    return poly
+
+
 def _focus_block(sum_rt, diff_rt, j, *, L, n_fft, chirp, theta, w, pos_c, vel_c, beam_j, p_ref, rr, rho, rho32,
                  lam, prf_hz, k, max_offset_deg, fft_workers=-1):
     """Steps 1 and 3 of :func:`dwell_focus` for the sub-apertures ``j`` (a slice): their spectra, each
@@ -250,10 +283,7 @@ def _focus_block(sum_rt, diff_rt, j, *, L, n_fft, chirp, theta, w, pos_c, vel_c,
     del spec, f0, f1, frac
     # rotation by the offset of P(r, theta) itself from the beam axis: parallax makes it range dependent
     # (the antenna is up to 130 m from p_ref when the beam passes a direction)
-    th = np.radians(theta)[:, :, None]
-    kd = np.arctan2(rho32 * np.sin(th).astype(np.float32) + dg[:, None, None, 0].astype(np.float32),
-                    rho32 * np.cos(th).astype(np.float32) + dg[:, None, None, 1].astype(np.float32))
-    kd = (np.float32(np.degrees(k)) * kd - (k * beam_j[:, None, None]).astype(np.float32))   # k delta
+    kd = _k_offset(theta, beam_j, dg, rho32, k, rr > p_ref[2])                     # k delta [n_j, n_loc, n_r]
     # the weights w were taken at the window's middle range; where the offset at this range lies beyond
     # the dwell window (near field: the antenna's motion is not small against the range) or the range
     # has no ground point (r <= height, or a negative range of a recorded window), the sub-aperture does
@@ -445,7 +475,7 @@ def dwell_stages(cube, proc: dict, geo: dict):
     geo["resolution_angle_gate_deg"] = 2.0 * DWELL_HALF_WIDTH_BEAMS * two_way_deg
     fit = proc.get("dwell_fit", "none") == "joint" and fit_models_antenna(cube)
     fit_half_width_deg = FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg if fit else 0.0
-    if fit:                                               # the fit's own resolution (dwell_fit.fit_resolved_flags)
+    if fit:                                               # the fit's own resolution (dwell_resolution.fit_resolved_flags)
         geo["fit_region"] = {"half_width_deg": fit_half_width_deg,
                              "dwell_half_width_deg": DWELL_HALF_WIDTH_BEAMS * two_way_deg,
                              "fc_hz": cube.radar["fc_hz"], "slope_per_deg": float(cal.slope_per_deg),
@@ -483,66 +513,3 @@ def dwell_duration_s(cube) -> float:
     t_scan = cube.n_pulses / cube.radar["prf_hz"]
     two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
     return min(two_way_deg / max(rate_dps, 1e-12), t_scan)
-
-
-# ----------------------------------------------------------------------------------------------
-# IAA Doppler estimator (processing.doppler_estimator: iaa)
-# ----------------------------------------------------------------------------------------------
-def iaa_doppler(y_sum, y_diff, steering, *, t_s=None, prf_hz=None, n_iter=10, noise_power=None,
-                grid_oversample=4, active=None):
-    """Iterative adaptive approach (IAA; Yardibi et al. 2010, single snapshot) per range cell.
-
-    ``y_sum``, ``y_diff``: [n_cpi, L, n_r] slow-time samples of each CPI; ``steering``: [n_cpi, L, K]
-    the output cells' steering vectors a_z(n) = exp(j 2 pi f_z (t_n - t_c)).  IAA runs on a uniform grid
-    of ``grid_oversample`` x L cells over the whole PRF (``t_s`` [n_cpi, L] times from the CPI centre),
-    so every echo in the CPI is modelled: from the periodogram p_g = |a_g^H y|^2 / L^2, each iteration
-    forms R = A diag(p) A^H + sigma^2 I per range cell and sets s_g = a_g^H R^-1 y / (a_g^H R^-1 a_g),
-    p_g = |s_g|^2.  The output cells get the same adaptive filters from the final R; the difference
-    channel too (the sum channel's R), so a single scatterer keeps Re(s_diff / s_sum) = Delta/Sigma.
-    Without ``t_s`` the output cells are the grid.  ``active`` [n_cpi, n_r] (bool) limits IAA to the
-    range cells that hold an echo; the others get the periodogram.  Vectorised over CPIs and range
-    cells (batched L x L solves).  Cost per iteration ~ n_active L^2 (K_grid + L).
-
-    Returns (s_sum, s_diff): [n_cpi, K, n_r] complex64 amplitude estimates (per-sample amplitude; the
-    FFT zoom's value divided by its coherent gain).
-    """
-    n_cpi, L, n_r = y_sum.shape
-    a_out = steering.astype(np.complex64)                                    # [n_cpi, L, K]
-    if t_s is None:
-        a_grid = a_out
-    else:
-        f_g = np.arange(grid_oversample * L) * (prf_hz / (grid_oversample * L))
-        a_grid = np.exp(2j * np.pi * np.asarray(t_s)[:, :, None] * f_g[None, None, :]).astype(np.complex64)
-    ys = np.moveaxis(y_sum, 2, 1).astype(np.complex64)                       # [n_cpi, n_r, L]
-    yd = np.moveaxis(y_diff, 2, 1).astype(np.complex64)
-    if noise_power is None:
-        noise_power = float(np.median(ys.real**2 + ys.imag**2))
-    out_s = np.einsum("clk,crl->crk", np.conj(a_out), ys) / L                # periodogram (FFT zoom / L)
-    out_d = np.einsum("clk,crl->crk", np.conj(a_out), yd) / L
-    if active is None:
-        active = np.ones((n_cpi, n_r), bool)
-    # the neighbours of an active cell are active too: the powers are smoothed over +-1 range cell
-    # (adjacent range cells as extra snapshots), so the adaptive filters vary smoothly with range and
-    # the range profile of each Doppler cell stays a band-limited, interpolable pulse
-    active = active | np.roll(active, 1, axis=1) | np.roll(active, -1, axis=1)
-    ic, ir = np.nonzero(active)
-    if len(ic):
-        ag, ao = a_grid[ic], a_out[ic]                                       # [n_act, L, K]
-        y1, y2 = ys[ic, ir], yd[ic, ir]                                      # [n_act, L]
-        s_all = np.einsum("clk,crl->crk", np.conj(a_grid), ys) / L           # periodogram, every cell
-        eye = np.eye(L, dtype=np.complex64) * np.complex64(noise_power)
-        for it in range(n_iter + 1):
-            p_all = s_all.real**2 + s_all.imag**2
-            p_all = (p_all + np.roll(p_all, 1, axis=1) + np.roll(p_all, -1, axis=1)) / 3.0
-            p = p_all[ic, ir].astype(np.complex64)
-            r_mat = np.matmul(ag * p[:, None, :], np.conj(np.swapaxes(ag, 1, 2))) + eye   # A diag(p) A^H
-            a_use = ag if it < n_iter else ao                                # last pass: output cells
-            rhs = np.concatenate([a_use, y1[:, :, None], y2[:, :, None]], axis=2)
-            sol = np.linalg.solve(r_mat, rhs)
-            den = np.einsum("alk,alk->ak", np.conj(a_use), sol[:, :, :-2]).real
-            s = np.einsum("alk,al->ak", np.conj(a_use), sol[:, :, -2]) / den
-            if it < n_iter:
-                s_all[ic, ir] = s
-        out_s[ic, ir] = s
-        out_d[ic, ir] = np.einsum("alk,al->ak", np.conj(ao), sol[:, :, -1]) / den
-    return np.moveaxis(out_s, 1, 2).astype(np.complex64), np.moveaxis(out_d, 1, 2).astype(np.complex64)

@@ -48,7 +48,8 @@ T_dwell = 0.14 s (0.7 cycle) of phase history besides envelopes 1.1 deg apart.
 from __future__ import annotations
 
 import logging
-from concurrent.futures import ThreadPoolExecutor
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
 import numpy as np
 from scipy.signal import fftconvolve, firwin
@@ -91,7 +92,7 @@ class FitModel:
     moves by D_y sin(theta) d(rho) / rho^2 < 0.01 deg, a gain change under 40 dB below the atom."""
 
     def __init__(self, *, position_m, scan_angle_deg, fc_hz, slope_per_deg, beta_per_deg2, position_ref_m,
-                 boresight_offset_deg=0.0, sigma=(1.0, 1.0), demod=None):
+                 boresight_offset_deg=0.0, sigma=(1.0, 1.0), axis_relative_deg=None):
         pos = np.asarray(position_m, dtype=np.float64)
         self.beam = np.asarray(scan_angle_deg, dtype=np.float64)
         self.lam = C_MPS / fc_hz
@@ -104,9 +105,9 @@ class FitModel:
         self.dy = self.p_ref[1] - pos[:, 1]
         self.e = self.dx**2 + self.dy**2 + pos[:, 2] ** 2                  # |D_n|^2 + z_n^2
         self.n = len(self.beam)
-        # demod = (axis_deg, shift_hz, time_s [N]): atoms times conj(phase history of the axis direction)
-        # times exp(-j 2 pi shift t), the baseband of the slow-time decimated data (decimation_plan)
-        self.demod = demod
+        # axis_relative_deg: atoms times the conjugate phase history of that direction, the frame of the
+        # slow-time decimated data (fit_region; decimation_plan's shift is taken off again after the filter)
+        self.axis_relative_deg = axis_relative_deg
 
     def path(self, theta_deg, range_m):
         """Two-way path halves R_b(theta; n) [B, N, K] (float64)."""
@@ -120,16 +121,17 @@ class FitModel:
         return np.sqrt(np.maximum(r**2 - self.p_ref[2] ** 2, 0.0))
 
     def phases(self, theta_deg, range_m):
-        """exp(-j 4 pi (R_b(theta; n) - r_b) / lambda), complex64 [B, N, K] for angles [K] and ranges [B]."""
+        """exp(-j 4 pi (R_b(theta; n) - r_b) / lambda), complex64 [B, N, K] for angles [K] and ranges [B]
+        (with ``axis_relative_deg``: relative to that direction's, the frame of the decimated fit)."""
         th = np.atleast_1d(np.asarray(theta_deg, dtype=np.float64))
         r = np.atleast_1d(np.asarray(range_m, dtype=np.float64))
         return self.paired_phases(th[None, :], r[:, None])[:, :, 0, :]
 
-    def paired_phases(self, theta_deg, range_m, axis_path=None, shifted=True):
+    def paired_phases(self, theta_deg, range_m, axis_path=None):
         """The phases of ``phases`` for angles ``theta_deg`` [J, P] at ranges ``range_m`` [M, J] (or
-        [M, 1]: the same for every j): complex64 [M, N, J, P].  With ``demod`` relative to the axis
-        direction's R_b(axis; n) (``axis_path`` of the same ranges, when already computed), shifted by
-        -shift_hz unless ``shifted`` is False (the caller applies exp(-j 2 pi shift t_n) itself).
+        [M, 1]: the same for every j): complex64 [M, N, J, P].  With ``axis_relative_deg`` relative to
+        the axis direction's R_b(axis; n) (``axis_path`` of the same ranges, when already computed):
+        exp(-j 4 pi (R_b(theta; n) - R_b(axis; n)) / lambda).
 
         Relative to the axis the path difference needs no float64: with s = R_theta^2 - R_axis^2 =
         2 rho (u_theta - u_axis).D_n (the rho^2 and |D_n|^2 + z^2 terms cancel exactly; the unit-vector
@@ -138,42 +140,38 @@ class FitModel:
         th = np.radians(np.asarray(theta_deg, dtype=np.float64))
         r = np.asarray(range_m, dtype=np.float64)
         rho = self.rho(r)[:, None, :, None]                                             # [M, 1, J, 1]
-        if self.demod is None:
+        if self.axis_relative_deg is None:
             ud = self.dx[:, None, None] * np.sin(th)[None] + self.dy[:, None, None] * np.cos(th)[None]
             rng = np.sqrt(rho * (rho + 2.0 * ud[None]) + self.e[None, :, None, None])
             return _cis_cycles(-2.0 * (rng - r[:, None, :, None]) / self.lam, np.complex64)
-        ax = np.radians(self.demod[0])
+        ax = np.radians(self.axis_relative_deg)
         dud = (self.dx[:, None, None] * (np.sin(th) - np.sin(ax))[None]
                + self.dy[:, None, None] * (np.cos(th) - np.cos(ax))[None]).astype(np.float32)   # [N, J, P]
         r_axis = self.axis_path(range_m) if axis_path is None else axis_path
         s = (2.0 * rho).astype(np.float32) * dud[None]
         cycles = s / (r_axis + np.sqrt(r_axis * r_axis + s))
         cycles *= np.float32(-2.0 / self.lam)
-        if shifted:
-            cycles -= self.shift_cycles()[None, :, None, None]
         return _cis_cycles(cycles, np.complex64, reduce_in=np.float32)
 
     def axis_path(self, range_m):
         """R_b(axis; n) for ranges [M, J]: float32 [M, N, J, 1]."""
         rho = self.rho(np.asarray(range_m, dtype=np.float64))[:, None, :]
-        ax = np.radians(self.demod[0])
+        ax = np.radians(self.axis_relative_deg)
         ud_axis = self.dx * np.sin(ax) + self.dy * np.cos(ax)
         return np.sqrt(rho * (rho + 2.0 * ud_axis[None, :, None]) + self.e[None, :, None]).astype(np.float32)[..., None]
 
-    def shift_cycles(self):
-        """shift_hz t_n [N] (float32; zero without ``demod``)."""
-        if self.demod is None:
-            return np.zeros(self.n, np.float32)
-        return (self.demod[1] * self.demod[2]).astype(np.float32)
-
-    def gains(self, theta_deg, range_m):
-        """Whitened two-way sum and difference gains [N, K] (float32) at the cells' mean horizontal range:
+    def gains(self, theta_deg, range_m, rho_m=None):
+        """Whitened two-way sum and difference gains [N, K] (float32) at the cells' mean horizontal range
+        (``rho_m`` [K]: at these horizontal ranges, one per angle; ``range_m`` unused):
         e^{-2 beta d^2} cosh^2(k d) and e^{-2 beta d^2} cosh(k d) sinh(k d), d the offset (deg)."""
         th = np.radians(np.atleast_1d(np.asarray(theta_deg, dtype=np.float64)))
-        rho = float(np.mean(self.rho(np.atleast_1d(range_m))))
-        d = (np.degrees(np.arctan2(self.dx[:, None] + rho * np.sin(th)[None, :],
-                                   self.dy[:, None] + rho * np.cos(th)[None, :]))
-             - self.beam[:, None] - self.offset).astype(np.float32)
+        rho = (float(np.mean(self.rho(np.atleast_1d(range_m)))) if rho_m is None
+               else np.asarray(rho_m, dtype=np.float64)[None, :])
+        # float32 is enough for the offset: 1e-7 relative of a few hundred metres, a gain error of 1e-6
+        d = np.arctan2((self.dx[:, None] + rho * np.sin(th)[None, :]).astype(np.float32),
+                       (self.dy[:, None] + rho * np.cos(th)[None, :]).astype(np.float32))
+        d *= np.float32(180.0 / np.pi)
+        d -= (self.beam + self.offset).astype(np.float32)[:, None]
         env = np.exp(np.float32(-2.0 * self.beta) * d * d)
         e = np.exp(np.float32(self.k) * d)
         ch, sh = np.float32(0.5) * (e + 1 / e), np.float32(0.5) * (e - 1 / e)
@@ -187,17 +185,18 @@ class FitModel:
         return np.concatenate([ph * g_s[None], ph * g_d[None]], axis=1)
 
 
-def _group_stat(model, theta, cell_range_m, resid_conj, gain_range_m, axis_path=None):
+def _group_stat(model, theta, cell_range_m, resid_conj, gain_rho_m, axis_path=None):
     """sum_m |a_m(theta_jp)^H r_mj|^2 / ||a(theta_jp)||^2 for the angles ``theta`` [J, P], each atom j
     against its own conjugated residuals ``resid_conj`` [M, 2N, J] in its own cells (slant ranges
     ``cell_range_m`` [M, J]; a zero residual row adds nothing): [J, P].  |a^H r| = |sum_n ph (g_s conj
     r_s + g_d conj r_d)|, and ||a||^2 = sum_n g_s^2 + g_d^2 does not depend on the phase (nor on the
-    cell: the patterns at the cluster's range ``gain_range_m``).  With ``demod`` the residuals carry the
-    baseband shift exp(-j 2 pi shift t_n) already, and ``axis_path`` is the axis history of the cells."""
+    cell: the patterns at the horizontal range ``gain_rho_m`` [J] of the atom's cluster).  With
+    ``axis_relative_deg`` the phases are relative to the axis direction's (``fit_region``), and
+    ``axis_path`` is the axis history of the cells."""
     n = model.n
     n_j, n_p = theta.shape
-    ph = model.paired_phases(theta, cell_range_m, axis_path=axis_path, shifted=False)    # [M, N, J, P]
-    g_s, g_d = (g.reshape(n, n_j, n_p) for g in model.gains(theta.ravel(), gain_range_m))
+    ph = model.paired_phases(theta, cell_range_m, axis_path=axis_path)                   # [M, N, J, P]
+    g_s, g_d = (g.reshape(n, n_j, n_p) for g in model.gains(theta.ravel(), None, rho_m=np.repeat(gain_rho_m, n_p)))
     w = resid_conj[:, :n, :, None] * g_s[None] + resid_conj[:, n:, :, None] * g_d[None]    # [M, N, J, P]
     num = np.einsum("mnjp,mnjp->mjp", ph, w)
     norm = np.sum(g_s.astype(np.float64) ** 2 + g_d.astype(np.float64) ** 2, axis=0)
@@ -215,25 +214,27 @@ def _atom_cells(cell_power, floor_db=REFINE_CELL_DB):
     return order[:n_m], mask[:n_m]
 
 
-def _refine(model, theta0, step, range_m, resid, cell_power, n_rounds):
+def _refine(model, theta0, step, range_m, resid, cell_power, n_rounds, axis_cells=None):
     """Continuous angles maximising the group statistic near ``theta0`` [J], each against its own
     residual ``resid`` [B, 2N, J] in its own cells (``_atom_cells`` of ``cell_power`` [B, J]: the cells
     where the atom is more than REFINE_CELL_DB under its strongest add mostly the others' residue and noise):
-    parabolic steps on 3 points, all J at once."""
+    parabolic steps on 3 points, all J at once.  ``axis_cells`` [B, N]: the axis history of the cells
+    (``FitModel.axis_path``, axis-relative models), when the caller holds it."""
     theta, h = np.array(theta0, dtype=np.float64), float(step)
     if len(theta) > REFINE_BLOCK_ATOMS:       # independent per atom: in blocks, for bounded temporaries
         return np.concatenate([_refine(model, theta[i:i + REFINE_BLOCK_ATOMS], step, range_m,
                                        resid[:, :, i:i + REFINE_BLOCK_ATOMS], cell_power[:, i:i + REFINE_BLOCK_ATOMS],
-                                       n_rounds) for i in range(0, len(theta), REFINE_BLOCK_ATOMS)])
+                                       n_rounds, axis_cells) for i in range(0, len(theta), REFINE_BLOCK_ATOMS)])
     idx, mask = _atom_cells(cell_power)
     resid_conj = np.conj(np.take_along_axis(resid, idx[:, None, :], axis=0)) * mask[:, None, :]    # [M, 2N, J]
     cell_range = np.asarray(range_m)[idx]
+    gain_rho = np.full(len(theta), np.mean(model.rho(np.asarray(range_m))))       # the cluster's patterns
     axis_path = None
-    if model.demod is not None:          # the baseband shift and the axis history, once for all rounds
-        resid_conj *= np.tile(_cis_cycles(-model.shift_cycles(), np.complex64), 2)[None, :, None]
-        axis_path = model.axis_path(cell_range)
+    if model.axis_relative_deg is not None:   # the axis history of each atom's cells, once for all rounds
+        axis_path = (model.axis_path(cell_range) if axis_cells is None
+                     else np.swapaxes(axis_cells[idx], 1, 2)[..., None])              # [M, N, J, 1]
     for _ in range(n_rounds):
-        f = _group_stat(model, theta[:, None] + h * np.array([-1.0, 0.0, 1.0]), cell_range, resid_conj, range_m,
+        f = _group_stat(model, theta[:, None] + h * np.array([-1.0, 0.0, 1.0]), cell_range, resid_conj, gain_rho,
                         axis_path)
         den = f[:, 0] - 2.0 * f[:, 1] + f[:, 2]
         vertex = np.clip(0.5 * h * (f[:, 0] - f[:, 2]) / np.where(den < 0, den, -1.0), -2.0 * h, 2.0 * h)
@@ -254,6 +255,7 @@ class _ActiveSet:
         self.max_atoms = int(max_atoms)
         self.k = 0
         self.c = np.zeros((y.shape[0], 0), np.complex128)
+        self.axis_cells = None            # the cells' axis history [B, N] (fit_cluster, axis-relative models)
         self._allocate(min(16, self.max_atoms))
 
     def _allocate(self, capacity):
@@ -305,7 +307,7 @@ class _ActiveSet:
             c = self.c[:, blk]
             others = resid[:, :, None] + np.swapaxes(self.a[:, blk, :], 1, 2) * c[:, None, :].astype(np.complex64)
             new[lo:lo + len(blk)] = _refine(model, old[lo:lo + len(blk)], 0.25 * step, range_m, others,
-                                            c.real**2 + c.imag**2, n_rounds=1)
+                                            c.real**2 + c.imag**2, n_rounds=1, axis_cells=self.axis_cells)
         moved = float(np.max(np.abs(new - old), initial=0.0))
         for i, t in zip(idx, new):
             thetas[i] = float(t)
@@ -333,6 +335,8 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
     noise_stop = float(gammainccinv(n_b, pfa / max(len(grid), 1)))            # Gamma(B) tail, noise units
     thetas, stats = [], []
     act = _ActiveSet(y, max_atoms)
+    if model.axis_relative_deg is not None:    # the axis history of the cluster's cells, once: [B, N]
+        act.axis_cells = model.axis_path(np.asarray(range_m, dtype=np.float64)[:, None])[:, :, 0, 0]
     resid = y
     while len(thetas) < max_atoms:
         corr = resid @ coarse_conj                                           # [B, M]
@@ -343,7 +347,8 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
         if stat[m] < noise_stop or (stats and stat[m] < stats[0] * 10 ** (-dynamic_db / 10)):
             break
         power_m = corr[:, m:m + 1].real ** 2 + corr[:, m:m + 1].imag ** 2
-        theta = float(_refine(model, [grid[m]], step, range_m, resid[:, :, None], power_m, n_rounds=2)[0])
+        theta = float(_refine(model, [grid[m]], step, range_m, resid[:, :, None], power_m, n_rounds=2,
+                              axis_cells=act.axis_cells)[0])
         thetas.append(theta)
         stats.append(float(stat[m]))
         act.set([len(thetas) - 1], model.atoms([theta], range_m))
@@ -410,6 +415,33 @@ def decimation_plan(model, grid_deg, range_m, axis_deg, prf_hz):
     return q, 0.5 * (lo + hi), taps
 
 
+_FORKED: dict = {}     # what the forked workers of _map_clusters inherit: the cluster fit and its jobs
+
+
+def _fit_forked(i):
+    return _FORKED["fit"](_FORKED["jobs"][i])
+
+
+def _map_clusters(fit_one, jobs, workers):
+    """[fit_one(job) for job in jobs], the clusters shared among ``workers`` forked processes where
+    the platform forks (they inherit the data; only the index goes out and the small result comes
+    back), else on threads.  Processes, because a cluster's fit is thousands of numpy calls on a few
+    thousand samples each: on threads they convoy on the GIL (two threads took as long as one on the
+    paper lattice), on processes two cores fit two clusters at once."""
+    if workers <= 1:
+        return [fit_one(job) for job in jobs]
+    # (a daemonic process, e.g. a dask worker's, may not have children: threads there)
+    if "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon:
+        _FORKED.update(fit=fit_one, jobs=jobs)
+        try:
+            with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
+                return list(pool.map(_fit_forked, range(len(jobs))))
+        finally:
+            _FORKED.clear()
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(fit_one, jobs))
+
+
 def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile, level, axis_deg, half_width_deg,
                dwell_half_width_deg, angle_step_deg, fc_hz, prf_hz, slope_per_deg, beta_per_deg2, position_ref_m,
                boresight_offset_deg=0.0, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, decimate=True):
@@ -455,7 +487,7 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
         kept = np.arange(win[0], win[-1] + 1, q)
         gain = float(np.sqrt(np.sum(taps**2)))                         # noise sigma after the filter
         model = FitModel(position_m=pos[kept], scan_angle_deg=beam[kept], sigma=(sig[0] * gain, sig[1] * gain),
-                         demod=(axis_deg, shift_hz, kept / prf_hz), **kw)
+                         axis_relative_deg=axis_deg, **kw)
         ext_model = FitModel(position_m=pos[ext], scan_angle_deg=beam[ext], **kw)
     else:
         model = full
@@ -472,8 +504,11 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
                                          - range_m[cells, None]) / full.lam - shift_hz * ext[None, :] / prf_hz,
                                   np.complex64)                                           # [B, N_ext]
             pick = kept - ext[0]
+            # filtered at baseband, then the shift put back on the kept pulses: the fit's frame is the
+            # axis-relative one, unshifted (its atoms need no shift; the amplitudes are the same)
+            unshift = _cis_cycles(shift_hz * kept / prf_hz, np.complex64) / np.float32(gain)
             chans = [fftconvolve(x[ext[0]:ext[-1] + 1, cells].T * to_base, taps[None, :], mode="same", axes=1)
-                     [:, pick] / np.float32(s_ch * gain) for x, s_ch in ((sum_rt, sig[0]), (diff_rt, sig[1]))]
+                     [:, pick] * (unshift / np.float32(s_ch)) for x, s_ch in ((sum_rt, sig[0]), (diff_rt, sig[1]))]
             y = np.concatenate(chans, axis=1).astype(np.complex64)                       # [B, 2N/Q]
         else:
             y = np.concatenate([x[np.ix_(win, cells)].T / np.float32(s_ch)
@@ -496,15 +531,11 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
         prof[:, cells] = c[:, inside].T
         return theta[inside], prof, cells
 
-    # the clusters are independent: one per worker thread (numpy's loops release the GIL), the BLAS on
-    # one thread meanwhile (its own pool would contend with them for the cores); results in order
-    threads = min(worker_threads(), len(jobs))
+    # the BLAS on one thread (the clusters share the cores: _map_clusters); up to two clusters per core
+    # in flight, so that the OS shares the cores among unequal clusters (3 on 2 cores: 2/3 of the
+    # makespan of two workers taking them in turn)
     with one_blas_thread():
-        if threads > 1:
-            with ThreadPoolExecutor(max_workers=threads) as pool:
-                done = list(pool.map(fit_one, jobs))
-        else:
-            done = [fit_one(job) for job in jobs]
+        done = _map_clusters(fit_one, jobs, min(2 * worker_threads(), len(jobs)) if worker_threads() > 1 else 1)
     thetas, profiles = [t for t, _, _ in done], [p for _, p, _ in done]
     for _, _, cells in done:
         if cells is not None:
@@ -512,35 +543,3 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
     if not thetas:
         return np.zeros(0), np.zeros((0, n_r), np.complex64), covered
     return np.concatenate(thetas), np.concatenate(profiles, axis=0), covered
-
-
-def fit_resolved_flags(range_m, azimuth_deg, *, position_m, scan_angle_deg, axis_deg, half_width_deg,
-                       dwell_half_width_deg, fc_hz, slope_per_deg, beta_per_deg2, position_ref_m, range_resolution_m,
-                       boresight_offset_deg=0.0, max_corr=RESOLVED_MAX_CORR):
-    """What the joint fit resolves, per target at slant range ``range_m`` and azimuth ``azimuth_deg``
-    (both at t_ref): (inside [T], resolved [T]).  ``inside``: the target is in the fit's region.  There
-    it is resolved when its atom and every other target's within one range resolution are parted:
-    their normalised correlation |a_i^H a_j| / (||a_i|| ||a_j||) over the fit window (the module's
-    model at the target's range, full PRF) is at most ``max_corr``.  Mirror twins +-theta correlate
-    through the pattern alone (exp(-(2 beta - k^2) theta^2), module docstring); one target's own
-    twin at theta -> 0 does not exist, so the point on the axis is resolved from its neighbours by
-    the Doppler their phase histories differ by over the window."""
-    r = np.asarray(range_m, dtype=np.float64)
-    az = np.asarray(azimuth_deg, dtype=np.float64)
-    beam = np.asarray(scan_angle_deg, dtype=np.float64)
-    inside = np.abs(az - axis_deg) <= half_width_deg
-    resolved = np.ones(len(r), bool)
-    win = np.flatnonzero(np.abs(beam - axis_deg) <= half_width_deg + dwell_half_width_deg)
-    if not inside.any() or len(win) == 0:
-        return inside, resolved
-    model = FitModel(position_m=np.asarray(position_m)[win], scan_angle_deg=beam[win], fc_hz=fc_hz,
-                     slope_per_deg=slope_per_deg, beta_per_deg2=beta_per_deg2, position_ref_m=position_ref_m,
-                     boresight_offset_deg=boresight_offset_deg)
-    for i in np.flatnonzero(inside):
-        near = np.flatnonzero(np.abs(r - r[i]) < range_resolution_m)          # itself included
-        a = model.atoms(az[near], [r[i]])[0].astype(np.complex128)              # [2N, K]
-        a /= np.maximum(np.linalg.norm(a, axis=0), 1e-300)
-        corr = np.abs(a.conj().T @ a[:, near == i][:, 0])
-        corr[near == i] = 0.0
-        resolved[i] = bool(corr.max(initial=0.0) <= max_corr)
-    return inside, resolved

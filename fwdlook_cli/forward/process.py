@@ -156,7 +156,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                                beamwidth_two_way_deg=geo.get("resolution_angle_gate_deg", two_way_deg),
                                doppler_resolution_hz=geo.get("doppler_resolution_hz"))
         if "fit_region" in geo:          # dwell_fit: joint: inside its region, what the fit parts
-            from .dwell_fit import fit_resolved_flags
+            from .dwell_resolution import fit_resolved_flags
 
             v_ref = np.asarray(geo["v_ref"], dtype=np.float64)
             inside, fit_flags = fit_resolved_flags(
