@@ -382,3 +382,19 @@ def test_one_allocator_arena_on_glibc():
         assert applied is True
     else:
         assert applied is False
+
+
+def test_one_blas_thread_limits_every_blas_and_restores_it():
+    """dsp.blas.one_blas_thread: inside, every BLAS library numpy and scipy loaded runs one thread; after,
+    each is back at its own count (the controller is made once and reused)."""
+    from threadpoolctl import threadpool_info
+
+    from fwdlook_cli.dsp.blas import one_blas_thread
+
+    before = {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+    for _ in range(2):
+        with one_blas_thread():
+            inside = {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+        assert set(inside) == set(before) and set(inside.values()) == {1}
+        after = {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+        assert after == before

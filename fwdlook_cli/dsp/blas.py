@@ -10,21 +10,35 @@ the pool of whichever BLAS numpy loaded (OpenBLAS, MKL, BLIS).
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 
 import numpy as np
 
 try:                                            # a dependency (pyproject.toml); tolerated if absent
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import ThreadpoolController
 except ImportError:                             # pragma: no cover
-    threadpool_limits = None
+    ThreadpoolController = None
+
+_CONTROLLER: list = []      # one ThreadpoolController, made at the first use
+
+
+def _controller():
+    """The process's ThreadpoolController: finding the loaded BLAS libraries costs about 2 ms (a scan
+    of the shared objects), so it is done once; limiting through it costs 20 us.  Made at the first
+    use, after numpy and scipy have loaded their BLAS (a BLAS loaded later is not limited)."""
+    if not _CONTROLLER:
+        _CONTROLLER.append(ThreadpoolController())
+    return _CONTROLLER[0]
 
 
 def one_blas_thread():
     """A context in which the BLAS runs on one thread (the stage's own threads share the cores)."""
-    if threadpool_limits is None:               # pragma: no cover
+    if ThreadpoolController is None:            # pragma: no cover
         return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
+    importlib.import_module("scipy.linalg")       # scipy's own BLAS loaded before the controller looks
+
+    return _controller().limit(limits=1, user_api="blas")
 
 
 def batched_matmul(a, b):

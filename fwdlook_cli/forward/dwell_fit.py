@@ -297,7 +297,8 @@ class _ActiveSet:
 
     def relax(self, model, thetas, idx, range_m, step):
         """RELAX (Li & Stoica 1996), one Jacobi sweep: the angles ``idx`` refined at once, each with the
-        others' fitted contributions removed, then every amplitude re-solved (``thetas`` in place)."""
+        others' fitted contributions removed, then every amplitude re-solved (``thetas`` in place).
+        Returns each angle's move [J] (deg)."""
         idx = np.asarray(idx)
         resid = self.y - self.model()
         old = np.asarray(thetas)[idx]
@@ -308,13 +309,36 @@ class _ActiveSet:
             others = resid[:, :, None] + np.swapaxes(self.a[:, blk, :], 1, 2) * c[:, None, :].astype(np.complex64)
             new[lo:lo + len(blk)] = _refine(model, old[lo:lo + len(blk)], 0.25 * step, range_m, others,
                                             c.real**2 + c.imag**2, n_rounds=1, axis_cells=self.axis_cells)
-        moved = float(np.max(np.abs(new - old), initial=0.0))
+        moved = np.abs(new - old)
         for i, t in zip(idx, new):
             thetas[i] = float(t)
         for lo in range(0, len(idx), REFINE_BLOCK_ATOMS):
             self.set(idx[lo:lo + REFINE_BLOCK_ATOMS], model.atoms(new[lo:lo + REFINE_BLOCK_ATOMS], range_m))
         self.solve()
         return moved
+
+
+def _near(thetas, idx, centres, axis_deg):
+    """The atoms of ``idx`` within RELAX_NEIGHBOUR_DEG of any angle in ``centres`` or of its mirror."""
+    t = np.asarray(thetas)[idx][:, None]
+    c = np.asarray(centres)[None, :]
+    close = np.minimum(np.abs(t - c), np.abs(t + c - 2.0 * axis_deg)) <= RELAX_NEIGHBOUR_DEG
+    return idx[close.any(axis=1)]
+
+
+def _relax_until_settled(act, model, thetas, idx, range_m, step, axis_deg, min_sweeps):
+    """RELAX sweeps over the atoms ``idx`` until none moves by RELAX_TOL_DEG (at most MAX_RELAX_SWEEPS,
+    at least ``min_sweeps`` while any moves): after the first, each sweep refines only the atoms near
+    one that moved in the last (or near its mirror), the ones whose residual changed; an atom that has
+    settled with its neighbours settled is where another sweep would leave it."""
+    idx = np.asarray(idx)
+    todo = idx
+    for sweep in range(MAX_RELAX_SWEEPS):
+        moved = act.relax(model, thetas, todo, range_m, step)
+        movers = todo[moved >= RELAX_TOL_DEG]
+        if len(movers) == 0 and sweep + 1 >= min_sweeps:
+            break
+        todo = _near(thetas, idx, [thetas[i] for i in movers], axis_deg) if len(movers) else todo
 
 
 def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, max_atoms=MAX_ATOMS,
@@ -357,13 +381,11 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
         # greedy pick of one of two correlated atoms is biased by the other)
         near = [i for i, t in enumerate(thetas)
                 if min(abs(t - theta), abs(t + theta - 2.0 * axis_deg)) <= RELAX_NEIGHBOUR_DEG]
-        for sweep in range(MAX_RELAX_SWEEPS if len(near) > 1 else 0):     # alone, it was just refined
-            if act.relax(model, thetas, near, range_m, step) < RELAX_TOL_DEG and sweep + 1 >= relax_sweeps:
-                break
+        if len(near) > 1:                                                    # alone, it was just refined
+            _relax_until_settled(act, model, thetas, near, range_m, step, axis_deg, relax_sweeps)
         resid = y - act.model()
-    for sweep in range(MAX_RELAX_SWEEPS if thetas else 0):                      # RELAX: every angle again
-        if act.relax(model, thetas, np.arange(len(thetas)), range_m, step) < RELAX_TOL_DEG and sweep + 1 >= relax_sweeps:
-            break
+    if thetas:                                                                    # RELAX: every angle again
+        _relax_until_settled(act, model, thetas, np.arange(len(thetas)), range_m, step, axis_deg, relax_sweeps)
     return np.asarray(thetas), act.c.astype(np.complex64), np.asarray(stats)
 
 
@@ -477,7 +499,8 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
         q, shift_hz, taps = decimation_plan(full, band_grid, r_mid, axis_deg, prf_hz)
         if q > 1:     # the dictionary: every direction the filter lets through (offsets inside its stop edge)
             # (the offsets every 8th pulse: they change by under 1 Hz per pulse)
-            path = full.path(grid, [r_mid])[0, ::8] - full.path([axis_deg], [r_mid])[0, ::8]
+            every8 = FitModel(position_m=pos[win[::8]], scan_angle_deg=beam[win[::8]], **kw)
+            path = every8.path(grid, [r_mid])[0] - every8.path([axis_deg], [r_mid])[0]
             f_hz = -2.0 / full.lam * np.diff(path, axis=0) * prf_hz / 8
             stop_hz = FILTER_STOP_EDGE * prf_hz / (2.0 * q)
             grid = grid[np.any(np.abs(f_hz - shift_hz) <= stop_hz, axis=0)]
