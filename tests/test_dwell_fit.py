@@ -215,10 +215,12 @@ def test_the_fit_runs_only_for_the_antenna_it_models(caplog):
 
 
 def test_clusters_on_forked_workers_return_what_one_process_computes():
-    """_map_clusters: the same results, in the jobs' order, on forked processes (a closure over data
+    """dsp.forked.map_jobs: the same results, in the jobs' order, on forked processes (a closure over data
     they inherit), on threads (where a process may not fork) and serially; a worker's exception
     reaches the caller."""
     import multiprocessing
+
+    from fwdlook_cli.dsp.forked import map_jobs
 
     rng = np.random.default_rng(3)
     data = [rng.standard_normal((40, 64)) + 1j * rng.standard_normal((40, 64)) for _ in range(5)]
@@ -226,14 +228,14 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
     def fit_one(job):                        # a closure: forked workers inherit it, nothing is pickled in
         return np.linalg.svd(data[job], compute_uv=False), job
 
-    serial = F._map_clusters(fit_one, list(range(5)), 1)
-    forked = F._map_clusters(fit_one, list(range(5)), 3)
+    serial = map_jobs(fit_one, list(range(5)), 1)
+    forked = map_jobs(fit_one, list(range(5)), 3)
     for (s_a, j_a), (s_b, j_b) in zip(serial, forked):
         assert j_a == j_b and np.array_equal(s_a, s_b)
     proc = multiprocessing.current_process()
     daemon, proc.daemon = proc.daemon, True         # as in a daemonic worker: threads, same results
     try:
-        threaded = F._map_clusters(fit_one, list(range(5)), 2)
+        threaded = map_jobs(fit_one, list(range(5)), 2)
     finally:
         proc.daemon = daemon
     assert all(np.array_equal(a[0], b[0]) for a, b in zip(serial, threaded))
@@ -242,4 +244,4 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
         raise ValueError(f"job {job}")
 
     with pytest.raises(ValueError, match="job 0"):
-        F._map_clusters(fails, [0, 1], 2)
+        map_jobs(fails, [0, 1], 2)

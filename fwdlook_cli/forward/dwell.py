@@ -71,7 +71,7 @@ from ..dsp.blas import worker_threads
 from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
-from .dwell_fit import fit_region
+from .dwell_fit import start_fit_region
 
 log = logging.getLogger(__name__)
 
@@ -329,6 +329,23 @@ def _orthogonalise(w, e, g, n_a, t_s, n_orders=1, max_corr2=0.9):
     return w - sum(coef[gi][..., p] * basis[p] for p in range(n_orders))
 
 
+def _real_beam_image(data, beam, sub_pulses, range_m, angle_deg, angle_step_deg, p_ref):
+    """The real-beam image: incoherent sum power of each sub-aperture at its beam angle (t_ref mapping)."""
+    n_sub = len(beam) // sub_pulses
+    mm = n_sub * sub_pulses
+    x = data["sum"][:mm].reshape(n_sub, sub_pulses, -1)
+    rb_power = np.sum(x.real**2 + x.imag**2, axis=1)
+    beam_j = beam[:mm].reshape(n_sub, sub_pulses).mean(axis=1)
+    pos_j = data["position_m"][:mm].reshape(n_sub, sub_pulses, 3).mean(axis=1)
+    n_r, n_a = len(range_m), len(angle_deg)
+    rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_sub, n_r)),
+                                   np.broadcast_to(beam_j[:, None], (n_sub, n_r)), pos_j[:, None, :], p_ref)
+    rb_idx = np.rint((rb_az - angle_deg[0]) / angle_step_deg)
+    good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
+    rb_flat = np.broadcast_to(np.arange(n_r), (n_sub, n_r))[good] * n_a + rb_idx[good].astype(np.int64)
+    return np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)
+
+
 def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: float, beta_per_deg2: float,
                 beamwidth_deg: float, angle_step_deg: float, range_oversample: int, threshold_db: float,
                 dynamic_range_db: float, position_ref_m: list, sub_pulses: int = 40,
@@ -370,31 +387,38 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     level = max(floor * 10 ** (threshold_db / 10), power.max() * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
     keep = (power > level) & (np.abs(ratio) < max_ratio)
-    if fit_half_width_deg > 0:       # the joint fit owns the directions near the flight axis (dwell_fit.py)
+    finish_fit = None
+    if fit_half_width_deg > 0:       # the joint fit owns the directions near the flight axis (dwell_fit.py):
+        # started here, it runs on other processes while this one projects the dwell image's cells
         in_fit = np.abs(angle_deg[looked] - twin_axis) <= fit_half_width_deg
         p_nat = s_rot[looked][in_fit]
-        fit_theta, fit_prof, fitted = fit_region(
+        finish_fit = start_fit_region(
             data["sum"], diff, scan_angle_deg=beam, position_m=data["position_m"], range_m=range_m,
             profile=np.max(p_nat.real**2 + p_nat.imag**2, axis=0), level=level, axis_deg=twin_axis,
             half_width_deg=fit_half_width_deg, dwell_half_width_deg=dwell_half_width_deg,
             angle_step_deg=angle_step_deg, fc_hz=fc_hz, prf_hz=prf_hz, slope_per_deg=slope_per_deg,
             beta_per_deg2=beta_per_deg2, position_ref_m=p_ref, boresight_offset_deg=boresight_offset_deg)
-        # in the fitted range cells the fit replaces the region's directions (elsewhere the dwell's stay)
+    try:
+        i_dir, i_r = np.nonzero(keep)
+        # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from
+        # the dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
+        p_dw = pos_dwell[looked][i_dir]
+        p_dir = ground_points(range_os[i_r], angle_deg[looked][i_dir], p_ref)
+        az_dw = np.degrees(np.arctan2(p_dir[:, 0] - p_dw[:, 0], p_dir[:, 1] - p_dw[:, 1]))
+        az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio[keep]) / slope_per_deg
+                                    + boresight_offset_deg, p_dw, p_ref)
+        az = np.where(np.isfinite(az), az, angle_deg[looked][i_dir])
+        w = power[keep]
+        real_beam = _real_beam_image(data, beam, sub_pulses, range_m, angle_deg, angle_step_deg, p_ref)
+    finally:                          # the fit waited for (and its workers released) whatever happened
+        fit_done = None if finish_fit is None else finish_fit()
+    if fit_done is not None:
+        fit_theta, fit_prof, fitted = fit_done
+        # in the fitted range cells the fit replaces the region's directions and what lands in the
+        # region (elsewhere the dwell's cells stay)
         fitted_os = np.repeat(fitted, range_oversample)[: keep.shape[1]]
-        keep &= ~(in_fit[:, None] & fitted_os[None, :])
-    i_dir, i_r = np.nonzero(keep)
-    # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from the
-    # dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
-    p_dw = pos_dwell[looked][i_dir]
-    p_dir = ground_points(range_os[i_r], angle_deg[looked][i_dir], p_ref)
-    az_dw = np.degrees(np.arctan2(p_dir[:, 0] - p_dw[:, 0], p_dir[:, 1] - p_dw[:, 1]))
-    az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio[keep]) / slope_per_deg + boresight_offset_deg,
-                               p_dw, p_ref)
-    fin = np.isfinite(az)
-    az = np.where(fin, az, angle_deg[looked][i_dir])
-    w = power[keep]
-    if fit_half_width_deg > 0:
-        out_fit = (np.abs(az - twin_axis) > fit_half_width_deg) | ~fitted_os[i_r]
+        out_fit = (~(in_fit[i_dir] & fitted_os[i_r])
+                   & ((np.abs(az - twin_axis) > fit_half_width_deg) | ~fitted_os[i_r]))
         az, w, i_r = az[out_fit], w[out_fit], i_r[out_fit]
         # fitted amplitudes on the dwell image's scale (a point on the imaged direction: S' = c L gain),
         # the gain before the twin null: the fit has parted the twins, so none of the null's loss (up to
@@ -414,21 +438,6 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     image = np.bincount(i_r[inside] * n_a + a_idx[inside], weights=w[inside],
                         minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
     ground = ground_points(range_os[i_r[inside]], az[inside], p_ref)
-
-    # real-beam image: incoherent sum power of each sub-aperture at its beam angle (t_ref mapping)
-    n_sub = len(beam) // sub_pulses
-    mm = n_sub * sub_pulses
-    x = data["sum"][:mm].reshape(n_sub, sub_pulses, -1)
-    rb_power = np.sum(x.real**2 + x.imag**2, axis=1)
-    beam_j = beam[:mm].reshape(n_sub, sub_pulses).mean(axis=1)
-    pos_j = data["position_m"][:mm].reshape(n_sub, sub_pulses, 3).mean(axis=1)
-    n_r = len(range_m)
-    rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_sub, n_r)),
-                                   np.broadcast_to(beam_j[:, None], (n_sub, n_r)), pos_j[:, None, :], p_ref)
-    rb_idx = np.rint((rb_az - angle_deg[0]) / step)
-    good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
-    rb_flat = np.broadcast_to(np.arange(n_r), (n_sub, n_r))[good] * n_a + rb_idx[good].astype(np.int64)
-    real_beam = np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)
 
     out = StageData(attrs=dict(data.attrs))
     out.add("range_m", range_os, ("range_m",), "m", "slant range from the antenna at t_ref")

@@ -48,14 +48,13 @@ T_dwell = 0.14 s (0.7 cycle) of phase history besides envelopes 1.1 deg apart.
 from __future__ import annotations
 
 import logging
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
 import numpy as np
 from scipy.signal import fftconvolve, firwin
 from scipy.special import gammainccinv
 
-from ..dsp.blas import one_blas_thread, worker_threads
+from ..dsp.blas import worker_threads
+from ..dsp.forked import start_jobs
 from ..dsp.geometry import C_MPS
 from ..dsp.keystone_common import _cis as _cis_cycles
 
@@ -437,37 +436,15 @@ def decimation_plan(model, grid_deg, range_m, axis_deg, prf_hz):
     return q, 0.5 * (lo + hi), taps
 
 
-_FORKED: dict = {}     # what the forked workers of _map_clusters inherit: the cluster fit and its jobs
+def fit_region(*args, **kw):
+    """:func:`start_fit_region`, waited for: (theta [K], profile [K, n_r], covered [n_r])."""
+    return start_fit_region(*args, **kw)()
 
 
-def _fit_forked(i):
-    return _FORKED["fit"](_FORKED["jobs"][i])
-
-
-def _map_clusters(fit_one, jobs, workers):
-    """[fit_one(job) for job in jobs], the clusters shared among ``workers`` forked processes where
-    the platform forks (they inherit the data; only the index goes out and the small result comes
-    back), else on threads.  Processes, because a cluster's fit is thousands of numpy calls on a few
-    thousand samples each: on threads they convoy on the GIL (two threads took as long as one on the
-    paper lattice), on processes two cores fit two clusters at once."""
-    if workers <= 1:
-        return [fit_one(job) for job in jobs]
-    # (a daemonic process, e.g. a dask worker's, may not have children: threads there)
-    if "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon:
-        _FORKED.update(fit=fit_one, jobs=jobs)
-        try:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
-                return list(pool.map(_fit_forked, range(len(jobs))))
-        finally:
-            _FORKED.clear()
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(fit_one, jobs))
-
-
-def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile, level, axis_deg, half_width_deg,
-               dwell_half_width_deg, angle_step_deg, fc_hz, prf_hz, slope_per_deg, beta_per_deg2, position_ref_m,
-               boresight_offset_deg=0.0, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, decimate=True):
-    """Fit every cluster of ``active`` range cells [n_r] for the scatterers within ``half_width_deg`` of
+def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile, level, axis_deg,
+                     half_width_deg, dwell_half_width_deg, angle_step_deg, fc_hz, prf_hz, slope_per_deg, beta_per_deg2,
+                     position_ref_m, boresight_offset_deg=0.0, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, decimate=True):
+    """Start fitting every cluster of ``active`` range cells [n_r] for the scatterers within ``half_width_deg`` of
     the flight axis ``axis_deg`` (azimuth at t_ref).
 
     The window holds the pulses whose beam is within half_width + dwell_half_width of the axis (every
@@ -478,7 +455,8 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
     the window sees are then outside the band; the dictionary holds every direction whose baseband
     offsets reach inside the filter's stop edge, so what leaks through is fitted too, and dropped.
     ``decimate=False``: at the PRF, the dictionary spanning every direction the window illuminates
-    (half_width + 2 dwell_half_width).  Returns (theta [K], profile [K, n_r]
+    (half_width + 2 dwell_half_width).  Returns a function that waits for the fits (the caller may work
+    meanwhile: they run on other processes, ``dsp.forked.start_jobs``) and returns (theta [K], profile [K, n_r]
     complex amplitude per range cell, zero outside the atom's cluster) for the atoms inside the region,
     and the range cells fitted [n_r].
     """
@@ -554,15 +532,18 @@ def fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, profile,
         prof[:, cells] = c[:, inside].T
         return theta[inside], prof, cells
 
-    # the BLAS on one thread (the clusters share the cores: _map_clusters); up to two clusters per core
-    # in flight, so that the OS shares the cores among unequal clusters (3 on 2 cores: 2/3 of the
-    # makespan of two workers taking them in turn)
-    with one_blas_thread():
-        done = _map_clusters(fit_one, jobs, min(2 * worker_threads(), len(jobs)) if worker_threads() > 1 else 1)
-    thetas, profiles = [t for t, _, _ in done], [p for _, p, _ in done]
-    for _, _, cells in done:
-        if cells is not None:
-            covered[cells] = True
-    if not thetas:
-        return np.zeros(0), np.zeros((0, n_r), np.complex64), covered
-    return np.concatenate(thetas), np.concatenate(profiles, axis=0), covered
+    # up to two clusters per core in flight, so that the OS shares the cores among unequal clusters
+    # (3 on 2 cores: 2/3 of the makespan of two workers taking them in turn)
+    pending = start_jobs(fit_one, jobs, min(2 * worker_threads(), len(jobs)) if worker_threads() > 1 else 1)
+
+    def finish():
+        done = pending.result()
+        thetas, profiles = [t for t, _, _ in done], [p for _, p, _ in done]
+        for _, _, cells in done:
+            if cells is not None:
+                covered[cells] = True
+        if not thetas:
+            return np.zeros(0), np.zeros((0, n_r), np.complex64), covered
+        return np.concatenate(thetas), np.concatenate(profiles, axis=0), covered
+
+    return finish

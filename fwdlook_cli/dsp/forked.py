@@ -1,0 +1,71 @@
+"""Independent jobs of a stage on forked worker processes (threads where a process cannot fork).
+
+A job that is thousands of small numpy calls holds the GIL for much of its time, so threads running
+such jobs take turns rather than share the cores; forked processes inherit the job's data without
+copying it (copy on write) and send back only the result.  Used by the joint fit (``forward.dwell_fit``:
+one job per range cluster), started before the caller's own work so both proceed at once.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import threading
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+
+from .blas import one_blas_thread
+
+_FORKED: dict = {}     # what the forked workers of start_jobs inherit: the function and its jobs
+_FORK_LOCK = threading.Lock()
+
+
+def _run_forked(i):
+    return _FORKED["fn"](_FORKED["jobs"][i])
+
+
+class Pending:
+    """Jobs in flight (``start_jobs``): ``result()`` waits for them, returns their results in the jobs'
+    order, and releases the workers and the BLAS limit."""
+
+    def __init__(self, futures=None, pool=None, limit=None, done=None):
+        self.futures, self.pool, self.limit, self.done = futures, pool, limit, done
+
+    def result(self):
+        if self.done is None:
+            try:
+                self.done = [f.result() for f in self.futures]
+            finally:
+                self.pool.shutdown()
+                self.limit.__exit__(None, None, None)
+        return self.done
+
+
+def start_jobs(fn, jobs, workers):
+    """[fn(job) for job in jobs] started, returned as a ``Pending``: the jobs shared among ``workers``
+    forked processes where the platform forks (they inherit ``fn`` and the data it closes over; only
+    the index goes out and the result, pickled, comes back), else threads; the caller is free
+    meanwhile.  Processes, because a job of thousands of numpy calls on a few thousand samples each
+    (a cluster of the joint fit) convoys on the GIL on threads: two threads took as long as one on the
+    paper lattice.  The BLAS on one thread throughout (the workers share the cores)."""
+    limit = one_blas_thread()
+    limit.__enter__()
+    if workers <= 1:
+        try:
+            return Pending(done=[fn(job) for job in jobs])
+        finally:
+            limit.__exit__(None, None, None)
+    # (a daemonic process, e.g. a dask worker's, may not have children: threads there)
+    if "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon:
+        with _FORK_LOCK:                # every worker is forked at the first submit (the fork context
+            _FORKED.update(fn=fn, jobs=jobs)   # forks them all before its manager thread starts)
+            try:
+                pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"))
+                futures = [pool.submit(_run_forked, i) for i in range(len(jobs))]
+            finally:
+                _FORKED.clear()
+        return Pending(futures, pool, limit)
+    pool = ThreadPoolExecutor(max_workers=workers)
+    return Pending([pool.submit(fn, job) for job in jobs], pool, limit)
+
+
+def map_jobs(fn, jobs, workers):
+    """[fn(job) for job in jobs] on ``workers`` (``start_jobs``), waited for."""
+    return start_jobs(fn, jobs, workers).result()
