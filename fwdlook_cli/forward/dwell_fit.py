@@ -75,7 +75,7 @@ FILTER_STOP_EDGE = 1.125    # the filter's stop edge, in units of its cut-off (i
 REFINE_CELL_DB = 15.0      # an atom's angle is refined on its cells within 15 dB of its strongest one (its main lobe in range)
 RESOLVED_MAX_CORR = 0.9    # two atoms the fit parts: |rho| <= 0.9, each amplitude's CRB <= 1/(1 - rho^2) = 5.3 x a lone one's
 MAX_RELAX_SWEEPS = 6       # RELAX sweeps until no angle moves by RELAX_TOL_DEG (correlated atoms converge slowly)
-RELAX_TOL_DEG = 5e-4
+RELAX_TOL_DEG = 1e-3        # 1/50 of the image's 0.05 deg angle step, 1/20 of the fit's 0.02 deg RMS on the paper lattice
 REFINE_BLOCK_ATOMS = 8     # atoms refined together (their phases [cells, pulses, atoms, 3] bound the temporaries)
 BAND_GUARD_DEG = 1.0       # the decimated band holds the region's directions and 1 deg more
 RELAX_NEIGHBOUR_DEG = 0.75  # after each new atom, the atoms this close to it or to its mirror are refined again
@@ -341,7 +341,7 @@ def _relax_until_settled(act, model, thetas, idx, range_m, step, axis_deg, min_s
 
 
 def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, max_atoms=MAX_ATOMS,
-                relax_sweeps=2, coarse=None, axis_deg=0.0):
+                relax_sweeps=1, coarse=None, axis_deg=0.0):
     """Group OMP with continuous angles over one cluster of range cells.
 
     ``y`` [B, 2N] whitened data (sum then difference over the window's pulses), ``range_m`` [B] the
