@@ -42,11 +42,14 @@ def fit_resolved_flags(range_m, azimuth_deg, *, position_m, scan_angle_deg, axis
         ph = model.paired_phases(az[cols], r[blk][None, :])[0]                     # [N, J, W]
         g_s, g_d = (g.reshape(model.n, *cols.shape) for g in
                     model.gains(az[cols].ravel(), None, rho_m=np.repeat(model.rho(r[blk]), width)))
-        a = np.concatenate([ph * g_s, ph * g_d], axis=0)                            # [2N, J, W]
-        a /= np.maximum(np.sqrt(np.sum(a.real.astype(np.float64)**2 + a.imag.astype(np.float64)**2, axis=0)),
-                        1e-300).astype(np.float32)
-        self_col = a[:, np.arange(len(blk)), np.argmax(own, axis=1)]                # [2N, J]
-        corr = np.abs(np.einsum("njw,nj->jw", a.conj(), self_col))
+        # a^H a_self = sum_n conj(ph) ph_self (g_s g_s,self + g_d g_d,self); ||a||^2 = sum_n g_s^2 + g_d^2
+        jj, self_w = np.arange(len(blk)), np.argmax(own, axis=1)
+        q = g_s * g_s[:, jj, self_w][:, :, None]
+        q += g_d * g_d[:, jj, self_w][:, :, None]
+        q = q * np.conj(ph[:, jj, self_w])[:, :, None]                                  # [N, J, W]
+        norm2 = np.sum(g_s.astype(np.float64) ** 2 + g_d.astype(np.float64) ** 2, axis=0)     # [J, W]
+        corr = np.abs(np.einsum("njw,njw->jw", ph, q)) / np.sqrt(
+            np.maximum(norm2 * norm2[jj, self_w][:, None], 1e-300))
         corr[own] = 0.0
         resolved[blk] = corr.max(axis=1) <= max_corr
     return inside, resolved

@@ -27,7 +27,7 @@ def _step(i: int, n: int, what: str) -> None:
     log.info(f"bench [{i}/{n}] {what} ({time.perf_counter() - _T0[0]:.1f} s elapsed)")
 
 
-from .benchtools import median_time as _median_time, time_chain
+from .benchtools import chain_peak_rss, median_time as _median_time, time_chain
 
 FFT2_REPEATS = 21          # the reference: median of at least 20 plain 2-D FFTs, before and after
 
@@ -104,26 +104,40 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
 
     # whole chains, both channels, as `fwdlook process` runs them (medians of chain_repeats runs);
     # dwell: the tracking chain with processing.imaging = dwell and the joint fit near the flight axis
-    # (the tracking preset, forward/dwell.py, dwell_fit.py); dwell_nofit: the same without the fit
+    # (the tracking preset, forward/dwell.py, dwell_fit.py); dwell_nofit: the same without the fit.
+    # The repeats are interleaved (round r runs every chain once), so that a drift of the machine's
+    # speed during the bench falls on every chain alike; the dwell / tracking ratio is also the median
+    # of the rounds' own ratios
     chains = (("decimation", "cpi", "none"), ("tracking", "cpi", "none"), ("dwell", "dwell", "joint"),
               ("dwell_nofit", "dwell", "none"))
-    for step, (method, imaging, fit) in enumerate(chains, 6):
-        _step(step, n, f"whole chain, {method}, as fwdlook process runs it")
+    scenarios = {}
+    for method, imaging, fit in chains:
         proc = dict(paper["processing"], method="tracking" if imaging == "dwell" else method, imaging=imaging,
                     dwell_fit=fit)
-        scn = dict(paper, processing=proc)
-        t = time_chain(cube, scn, repeats=chain_repeats)
+        scenarios[method] = dict(paper, processing=proc)
+    rounds = {method: [] for method in scenarios}
+    _step(6, n, f"whole chains as fwdlook process runs them, {chain_repeats} interleaved rounds")
+    for r in range(max(1, int(chain_repeats))):
+        for method, scn in scenarios.items():
+            rounds[method].append(time_chain(cube, scn, repeats=1, rss=False))
+        log.info(f"  round {r + 1}: " + ", ".join(f"{m} {v[-1]['total_s']:.2f} s" for m, v in rounds.items()))
+    _step(7, n, "peak memory of each chain (a fresh interpreter each)")
+    for method in scenarios:
         key = "chain_s" if method == "decimation" else f"chain_{method}_s"
-        out[key] = t["total_s"]
-        for stage, seconds in t["stages_s"].items():
-            out[f"stage_{method}_{stage}_s"] = seconds
+        out[key] = statistics.median(t["total_s"] for t in rounds[method])
+        for stage in rounds[method][0]["stages_s"]:
+            out[f"stage_{method}_{stage}_s"] = statistics.median(t["stages_s"][stage] for t in rounds[method])
+        t = chain_peak_rss(cube, scenarios[method])
         out[f"chain_{method}_peak_rss_x_cube"] = t["peak_rss_x_cube"]
         out[f"chain_{method}_peak_rss_mib"] = (None if t["peak_rss_above_base_bytes"] is None
                                                else t["peak_rss_above_base_bytes"] / 2**20)
         out["interpreter_base_mib"] = (t.get("interpreter_base_bytes") or 0) / 2**20
+    out["chain_dwell_over_tracking"] = statistics.median(
+        d["total_s"] / t["total_s"] for d, t in zip(rounds["dwell"], rounds["tracking"]))
     # the floor: the transforms and stage-file bytes the chain cannot avoid, timed alone (bench_floor.py)
     from .bench_floor import chain_floor
 
+    _step(8, n, "the floor: the chain's transforms and stage bytes alone")
     for method in ("decimation", "tracking"):
         floor = chain_floor(*cube.sum.shape, method=method, q=paper["processing"]["q"],
                             cpi=paper["processing"]["cpi"], n_doppler=paper["processing"]["n_doppler"],
@@ -131,6 +145,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         for item, seconds in floor.items():
             out[f"floor_{method}_{item}"] = seconds
     # the reference again after the chains (load drifts on a shared machine): median of both sets
+    _step(9, n, "plain 2-D FFT again")
     fft2_after = _times(lambda: scipy.fft.fft2(x, workers=-1), FFT2_REPEATS)
     out["fft2_median_before_after"] = [out["fft2_s"], statistics.median(fft2_after)]
     out["fft2_s"] = statistics.median(fft2_times + fft2_after)
