@@ -245,3 +245,20 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
 
     with pytest.raises(ValueError, match="job 0"):
         map_jobs(fails, [0, 1], 2)
+
+
+def test_the_filter_and_its_convolution_are_scipy_signals():
+    """dsp.fir.kaiser_lowpass is scipy.signal.firwin's Kaiser low-pass and filter_same its fftconvolve
+    (mode "same"), to rounding (scipy.signal is not imported by the chain: over a second)."""
+    from scipy.signal import fftconvolve, firwin
+
+    from fwdlook_cli.dsp.fir import filter_same, kaiser_lowpass
+
+    for n_taps, cut, fs in ((401, 125.0, 2500.0), (81, 300.0, 2000.0)):
+        np.testing.assert_allclose(kaiser_lowpass(n_taps, cut, fs),
+                                   firwin(n_taps, cut, window=("kaiser", 8.0), fs=fs), rtol=0, atol=1e-15)
+    rng = np.random.default_rng(5)
+    x = (rng.standard_normal((3, 700)) + 1j * rng.standard_normal((3, 700))).astype(np.complex64)
+    taps = kaiser_lowpass(401, 125.0, 2500.0)
+    want = fftconvolve(x.astype(np.complex128), taps[None, :], mode="same", axes=1)
+    np.testing.assert_allclose(filter_same(x, taps), want, rtol=0, atol=1e-12 * np.abs(want).max())

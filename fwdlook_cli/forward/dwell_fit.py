@@ -50,10 +50,10 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy.signal import fftconvolve, firwin
 from scipy.special import gammainccinv
 
 from ..dsp.blas import worker_threads
+from ..dsp.fir import filter_same, kaiser_lowpass
 from ..dsp.forked import start_jobs
 from ..dsp.geometry import C_MPS
 from ..dsp.keystone_common import _cis as _cis_cycles
@@ -432,7 +432,7 @@ def decimation_plan(model, grid_deg, range_m, axis_deg, prf_hz):
     q = int(np.floor(DECIMATION_PASSBAND * prf_hz / (2.0 * half)))
     if q < 2:
         return 1, 0.0, None
-    taps = firwin(40 * q + 1, prf_hz / (2.0 * q), window=("kaiser", 8.0), fs=prf_hz)
+    taps = kaiser_lowpass(40 * q + 1, prf_hz / (2.0 * q), prf_hz)
     return q, 0.5 * (lo + hi), taps
 
 
@@ -508,8 +508,7 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
             # filtered at baseband, then the shift put back on the kept pulses: the fit's frame is the
             # axis-relative one, unshifted (its atoms need no shift; the amplitudes are the same)
             unshift = _cis_cycles(shift_hz * kept / prf_hz, np.complex64) / np.float32(gain)
-            chans = [fftconvolve(x[ext[0]:ext[-1] + 1, cells].T * to_base, taps[None, :], mode="same", axes=1)
-                     [:, pick] * (unshift / np.float32(s_ch)) for x, s_ch in ((sum_rt, sig[0]), (diff_rt, sig[1]))]
+            chans = [filter_same(x[ext[0]:ext[-1] + 1, cells].T * to_base, taps)[:, pick] * (unshift / np.float32(s_ch)) for x, s_ch in ((sum_rt, sig[0]), (diff_rt, sig[1]))]
             y = np.concatenate(chans, axis=1).astype(np.complex64)                       # [B, 2N/Q]
         else:
             y = np.concatenate([x[np.ix_(win, cells)].T / np.float32(s_ch)
