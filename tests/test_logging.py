@@ -102,6 +102,11 @@ def test_bench_shows_progress(capsys, monkeypatch):
     monkeypatch.setattr(keystone, "keystone_sinc", lambda *a, **k: None)
     code, out, err = run_cli(["bench", "--json"], capsys)
     assert code == 0
-    assert "fft2_s" in json.loads(out)
+    result = json.loads(out)
+    assert "fft2_s" in result
+    # every chain timed in the same interleaved rounds; the dwell ratio is a median of the rounds' own
+    for key in ("chain_s", "chain_tracking_s", "chain_dwell_s", "chain_dwell_nofit_s"):
+        assert result[key] > 0
+    assert result["chain_dwell_over_tracking"] > 0 and result["chain_repeats"] == 3
     steps = [ln for ln in err.splitlines() if ln.startswith("bench [")]
     assert [s.split("]")[0] for s in steps] == [f"bench [{i}/10" for i in range(1, 11)]
