@@ -27,8 +27,9 @@ the paper; the dictionary holds what the filter passes, +-7.4 deg, the rest of t
 is filtered out instead of fitted),
 the phases relative to the axis in float32 (exact difference formula, ``FitModel.paired_phases``), the
 Gram matrices updated one atom at a time (``_ActiveSet``), each atom refined on its own cells, the
-RELAX steps of all the atoms concerned at once, the clusters on the stage's worker threads: 0.5-0.7 s
-for the paper lattice at a = 50, where the direct form took 45 s.  Clusters wider than
+RELAX sweeps until the angles settle and after the first only near the atoms that moved
+(``_relax_until_settled``), the clusters on forked workers (``dsp.forked``): 0.3-0.4 s for the paper
+lattice at a = 50 on two cores, where the direct form took 45 s.  Clusters wider than
 ``MAX_CLUSTER_CELLS`` (an extended scene) or needing ``MAX_ATOMS`` are left to the dwell image.
 
 Stop: the next atom's group statistic sum_b |a_b^H r_b|^2 / ||a_b||^2 (noise units) under the
