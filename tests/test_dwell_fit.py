@@ -280,3 +280,23 @@ def test_the_fit_on_forked_workers_is_the_fit_in_one_process(monkeypatch):
     (th1, prof1, cov1), (th2, prof2, cov2) = fits
     assert len(F.range_clusters(kw["profile"], kw["level"])) == 2 and len(th1) == len(truth)
     assert np.array_equal(th1, th2) and np.array_equal(prof1, prof2) and np.array_equal(cov1, cov2)
+
+
+def test_cancelled_jobs_release_their_workers():
+    """dsp.forked.start_jobs then cancel (the caller failed meanwhile): the jobs not started are
+    dropped, the workers stop and none is left running; cancelling twice is harmless."""
+    import multiprocessing
+    import time
+
+    from fwdlook_cli.dsp.forked import start_jobs
+
+    def slow(job):
+        time.sleep(0.5)
+        return job
+
+    pending = start_jobs(slow, list(range(8)), 2)
+    t0 = time.perf_counter()
+    pending.cancel()
+    pending.cancel()
+    assert time.perf_counter() - t0 < 8 * 0.5 / 2          # not every job run (3 at most: the queued ones)
+    assert not multiprocessing.active_children()

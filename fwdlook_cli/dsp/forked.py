@@ -28,6 +28,15 @@ class Pending:
     def __init__(self, futures=None, pool=None, limit=None, done=None):
         self.futures, self.pool, self.limit, self.done = futures, pool, limit, done
 
+    def cancel(self):
+        """Drop the jobs not started, wait for the workers to stop, release them (no result)."""
+        if self.done is None:
+            self.done = []
+            try:
+                self.pool.shutdown(wait=True, cancel_futures=True)
+            finally:
+                self.limit.__exit__(None, None, None)
+
     def result(self):
         if self.done is None:
             try:

@@ -411,8 +411,11 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         az = np.where(np.isfinite(az), az, angle_deg[looked][i_dir])
         w = power[keep]
         real_beam = _real_beam_image(data, beam, sub_pulses, range_m, angle_deg, angle_step_deg, p_ref)
-    finally:                          # the fit waited for (and its workers released) whatever happened
-        fit_done = None if finish_fit is None else finish_fit()
+    except BaseException:             # (an interrupt included) the fit's workers released, not waited for
+        if finish_fit is not None:
+            finish_fit.cancel()
+        raise
+    fit_done = None if finish_fit is None else finish_fit()
     if fit_done is not None:
         fit_theta, fit_prof, fitted = fit_done
         # in the fitted range cells the fit replaces the region's directions and what lands in the

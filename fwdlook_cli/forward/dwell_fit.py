@@ -546,4 +546,5 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
             return np.zeros(0), np.zeros((0, n_r), np.complex64), covered
         return np.concatenate(thetas), np.concatenate(profiles, axis=0), covered
 
+    finish.cancel = pending.cancel            # the caller failed meanwhile: the workers released, no result
     return finish
