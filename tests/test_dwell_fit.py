@@ -216,8 +216,8 @@ def test_the_fit_runs_only_for_the_antenna_it_models(caplog):
 
 def test_clusters_on_forked_workers_return_what_one_process_computes():
     """dsp.forked.map_jobs: the same results, in the jobs' order, on forked processes (a closure over data
-    they inherit), on threads (where a process may not fork) and serially; a worker's exception
-    reaches the caller."""
+    they inherit), on threads (where a process may not fork, or the system refuses one) and serially;
+    a worker's exception reaches the caller."""
     import multiprocessing
 
     from fwdlook_cli.dsp.forked import map_jobs
@@ -239,6 +239,18 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
     finally:
         proc.daemon = daemon
     assert all(np.array_equal(a[0], b[0]) for a, b in zip(serial, threaded))
+
+    import fwdlook_cli.dsp.forked as forked
+
+    def refused(*args, **kwargs):              # a system that refuses the processes: threads, same results
+        raise OSError("fork refused")
+
+    real_pool, forked.ProcessPoolExecutor = forked.ProcessPoolExecutor, refused
+    try:
+        fallback = map_jobs(fit_one, list(range(5)), 2)
+    finally:
+        forked.ProcessPoolExecutor = real_pool
+    assert all(np.array_equal(a[0], b[0]) for a, b in zip(serial, fallback))
 
     def fails(job):
         raise ValueError(f"job {job}")

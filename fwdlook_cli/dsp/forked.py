@@ -63,14 +63,17 @@ def start_jobs(fn, jobs, workers):
             limit.__exit__(None, None, None)
     # (a daemonic process, e.g. a dask worker's, may not have children: threads there)
     if "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon:
+        pool = None
         with _FORK_LOCK:                # every worker is forked at the first submit (the fork context
             _FORKED.update(fn=fn, jobs=jobs)   # forks them all before its manager thread starts)
             try:
                 pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"))
-                futures = [pool.submit(_run_forked, i) for i in range(len(jobs))]
+                return Pending([pool.submit(_run_forked, i) for i in range(len(jobs))], pool, limit)
+            except OSError:             # the system refused a process (memory, a process limit): threads
+                if pool is not None:
+                    pool.shutdown(wait=False, cancel_futures=True)
             finally:
                 _FORKED.clear()
-        return Pending(futures, pool, limit)
     pool = ThreadPoolExecutor(max_workers=workers)
     return Pending([pool.submit(fn, job) for job in jobs], pool, limit)
 
