@@ -37,7 +37,6 @@ def one_blas_thread():
     if ThreadpoolController is None:            # pragma: no cover
         return contextlib.nullcontext()
     importlib.import_module("scipy.linalg")       # scipy's own BLAS loaded before the controller looks
-
     return _controller().limit(limits=1, user_api="blas")
 
 

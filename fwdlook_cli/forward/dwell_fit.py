@@ -379,8 +379,7 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
         act.solve()
         # RELAX on the atoms the new one correlates with: its neighbours and its mirror twin's (the
         # greedy pick of one of two correlated atoms is biased by the other)
-        near = [i for i, t in enumerate(thetas)
-                if min(abs(t - theta), abs(t + theta - 2.0 * axis_deg)) <= RELAX_NEIGHBOUR_DEG]
+        near = _near(thetas, np.arange(len(thetas)), [theta], axis_deg)
         if len(near) > 1:                                                    # alone, it was just refined
             _relax_until_settled(act, model, thetas, near, range_m, step, axis_deg, relax_sweeps)
         resid = y - act.model()
