@@ -288,16 +288,20 @@ def test_the_parallax_series_is_the_arctangent():
     (|x| <= 0.3) equals k (atan2 of the exact geometry - beam) to 1e-6 rad x k; a block in the near
     field (the antenna as far from p_ref as the range) takes arctan2 itself and is exact too; ranges
     with no ground point are left to the caller (not seen)."""
-    from fwdlook_cli.forward.dwell import _k_offset
+    from fwdlook_cli.forward.dwell import ATAN_SERIES_MAX, _k_offset
 
     rng = np.random.default_rng(4)
     k = 0.147
     theta = rng.uniform(-12.0, 12.0, (5, 30))
     beam = rng.uniform(-12.0, 12.0, 5)
-    for dg_m, rho in ((130.0, np.linspace(1400.0, 1900.0, 64)), (900.0, np.linspace(300.0, 600.0, 64))):
+    for dg_m, rho, series in ((130.0, np.linspace(1400.0, 1900.0, 64), True),
+                              (900.0, np.linspace(300.0, 600.0, 64), False)):
         dg = rng.uniform(-dg_m, dg_m, (5, 2))
+        th = np.radians(theta)[:, :, None]             # the parallax x of each cell: which path is taken
+        x = ((dg[:, None, None, 0] * np.cos(th) - dg[:, None, None, 1] * np.sin(th))
+             / (rho + dg[:, None, None, 0] * np.sin(th) + dg[:, None, None, 1] * np.cos(th)))
+        assert (np.abs(x).max() <= ATAN_SERIES_MAX) == series
         got = _k_offset(theta, beam, dg, rho.astype(np.float32), k, np.ones(len(rho), bool))
-        th = np.radians(theta)[:, :, None]
         az = np.degrees(np.arctan2(rho * np.sin(th) + dg[:, None, None, 0], rho * np.cos(th) + dg[:, None, None, 1]))
         want = k * (az - beam[:, None, None])
         assert np.max(np.abs(got - want)) < k * np.degrees(2e-6)

@@ -1,7 +1,8 @@
-"""The joint fit's fast path (forward/dwell_fit.py): the baseband phases in float32 against the float64
-paths, the incremental Gram matrices against A^H A, the decimation filter's passband, the fit on
-decimated slow time against the fit at the PRF and the truth, the extended-scene guard and the fit's
-resolution flags."""
+"""The joint fit's fast path (forward/dwell_fit.py): the axis-relative phases in float32 against the
+float64 paths, the incremental Gram matrices against A^H A, the decimation filter's passband and its
+equality with scipy.signal's, the fit on decimated slow time against the fit at the PRF and the truth,
+the extended-scene guard, the fit's resolution flags, and its clusters on forked workers
+(dsp/forked.py: the same results as in one process, the fallbacks, errors and cancel)."""
 import numpy as np
 import pytest
 from scipy.signal import freqz
