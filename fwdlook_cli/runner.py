@@ -93,59 +93,53 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     open_files = []
     if first == 0:
         data = source
-    elif first < len(stages) and stages[first].lazy_input:
-        data, fh = read_stage_lazy(paths[first - 1])
+    elif first < len(stages) and _reads_lazily(stages[first], paths[first - 1]):
+        data, fh = read_stage_lazy(paths[first - 1], min_bytes=min(LAZY_INPUT_MIN_BYTES, 1 << 20))
         open_files.append(fh)
     else:
         data = read_stage(paths[first - 1])
     del source                          # the input cube is freed once stage 1 has consumed it
-    written_prev = first > 0            # the input of stage `first` is on disk
-    known: dict = {}                    # {name: (array, sha256)} of the last file written (no rehash)
-    prev_is_view = None                 # whether the last file written is a view (None: not known)
-    for i, st in enumerate(stages):
-        if i < first:
-            timings[st.name] = 0.0
+    writer = _StageWriter(stages, quiet=quiet)
+    try:
+        for i, st in enumerate(stages):
+            if i < first:
+                timings[st.name] = 0.0
+                if st.name in captured:
+                    captured[st.name] = functools.partial(read_stage_mapped, paths[i])
+                continue
+            t0 = time.perf_counter()
+            out = st.fn(data, **st.params)
+            t_compute = time.perf_counter() - t0
+            for fh in open_files:           # a lazy input is consumed
+                fh.close()
+            open_files = []
+            timings[st.name] = t_compute
+            if i in kept:                   # written on the writer thread while the next stage computes
+                # a re-layout is a view of the previous file when that file exists (this run's, or an
+                # earlier run's when the chain starts here)
+                view_of = paths[i - 1] if st.view and i > 0 and (i - 1 in kept or i == first) else None
+                writer.submit(i, st, out, data if view_of is not None else None, view_of, paths[i], keys[i],
+                              keys[i - 1] if i else source_key, t_compute, timings)
+            else:
+                writer.forget(i, st, t_compute, timings)
             if st.name in captured:
-                captured[st.name] = functools.partial(read_stage_mapped, paths[i])
-            continue
-        t0 = time.perf_counter()
-        out = st.fn(data, **st.params)
-        t_compute = time.perf_counter() - t0
-        is_view = False
-        if i in kept:
-            extra, virtual = {"compute_s": t_compute}, None
-            if st.view and written_prev and not (prev_is_view if prev_is_view is not None
-                                                 else _is_view(paths[i - 1])):
-                virtual = _virtual_layouts(out, data, paths[i - 1], known)
-                if virtual:
-                    extra.update(view_source=paths[i - 1].name, view_source_sha256=keys[i - 1])
-                    is_view = True
-            known = write_stage(paths[i], out, stage=st.name, key=keys[i],
-                                input_key=keys[i - 1] if i else source_key, params=st.params,
-                                extra_attrs=extra, virtual=virtual, known=known)
-        else:
-            known = {}
-        prev_is_view = is_view
-        written_prev = i in kept
-        for fh in open_files:           # a lazy input is consumed
+                captured[st.name] = functools.partial(read_stage_mapped, paths[i]) if i in kept else (lambda out=out: out)
+            if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input and _large(out):
+                del out                     # bounded memory: the next stage reads this file block by block
+                writer.wait()
+                data, fh = read_stage_lazy(paths[i], min_bytes=min(LAZY_INPUT_MIN_BYTES, 1 << 20))
+                open_files.append(fh)
+                if st.name in captured:     # the same file, once: its large arrays as memory maps
+                    captured[st.name] = (lambda mapped=mapped_stage(data, paths[i]): mapped)
+            else:
+                data = out
+                del out
+            log.debug("stage %s: key %s -> %s", st.name, keys[i][:12], paths[i])
+        writer.wait()
+    finally:
+        writer.close()
+        for fh in open_files:
             fh.close()
-        open_files = []
-        if st.name in captured:
-            captured[st.name] = functools.partial(read_stage_mapped, paths[i]) if i in kept else (lambda out=out: out)
-        if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input:
-            del out
-            data, fh = read_stage_lazy(paths[i])
-            open_files.append(fh)
-            if st.name in captured:     # the same file, once: its large arrays as memory maps
-                captured[st.name] = (lambda mapped=mapped_stage(data, paths[i]): mapped)
-        else:
-            data = out
-        timings[st.name] = time.perf_counter() - t0
-        if not quiet:
-            what = ("view" if st.view and i in kept else "write") if i in kept else "not kept"
-            log.info(f"[{i + 1}/{len(stages)}] {st.name:<18s} {t_compute * 1e3:8.1f} ms compute, "
-                     f"{(timings[st.name] - t_compute) * 1e3:6.1f} ms {what}")
-        log.debug("stage %s: key %s -> %s", st.name, keys[i][:12], paths[i])
     for i, path in enumerate(paths):     # what this run's policy does not keep goes
         if i not in kept:
             path.unlink(missing_ok=True)
@@ -155,6 +149,100 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
         log.info(f"reused stages 1-{first} ({', '.join(names[:first])})")
     return data, timings, dict(zip(names, keys))
 
+
+LAZY_INPUT_MIN_BYTES = 1 << 28      # a lazy_input stage reads its input from the file above this size
+
+
+def _large(out: StageData) -> bool:
+    """Whether a stage output is large enough for the next (lazy_input) stage to read it block by block
+    from its file rather than take it from memory (the same numbers either way: bounded memory on big
+    cubes, no wait for the file on small ones)."""
+    return sum(getattr(v.data, "nbytes", 0) for v in out.vars.values()) >= LAZY_INPUT_MIN_BYTES
+
+
+def _reads_lazily(stage: Stage, previous_path: Path) -> bool:
+    if not stage.lazy_input:
+        return False
+    try:
+        return previous_path.stat().st_size >= LAZY_INPUT_MIN_BYTES
+    except OSError:
+        return False
+
+
+class _StageWriter:
+    """Stage files written on one worker thread while the next stages compute, in stage order: a file
+    is renamed into place only when complete (``io.h5.atomic_h5``), so a run killed at any moment
+    resumes after the last file that exists.  A write waits in the queue only while the arrays it holds
+    are the input of the stage computing now (the previous stage's output, and the output before a
+    re-layout view, which shares its arrays): no more stage outputs are held than the chain holds
+    anyway.  A failed write is raised by the next :meth:`submit` or :meth:`wait`.  The digests of the
+    previous file's arrays (``known``) and whether it is a view are the writer's own state: only the
+    writer thread touches them."""
+
+    def __init__(self, stages, quiet: bool):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fwdlook-stage-writer")
+        self.pending: list = []               # (stage index, name, compute s, timings, future), in order
+        self.known: dict = {}
+        self.prev_is_view = None
+        self.views = [st.view for st in stages]
+        self.quiet, self.n = quiet, len(stages)
+
+    def _make_room(self, i):
+        """Before stage i's write is queued, wait for the queued writes that do not hold stage i's output
+        (the next stage's input): all but stage i's own and, where stage i is a view, its source's."""
+        keep = i
+        while keep > 0 and self.views[keep]:     # a view's arrays are its own input's
+            keep -= 1
+        while self.pending and self.pending[0][0] < keep:
+            self._finish(self.pending.pop(0))
+
+    def submit(self, i, st, out, previous, previous_path, path, key, input_key, t_compute, timings):
+        self._make_room(i)
+        self.pending.append((i, st.name, t_compute, timings, self.pool.submit(
+            self._write, st, out, previous, previous_path, path, key, input_key, t_compute)))
+
+    def forget(self, i, st, t_compute, timings):
+        """A stage not kept: the file after it cannot be a view of it, and there are no digests to carry."""
+        self._make_room(i)
+        self.pending.append((i, st.name, t_compute, timings, self.pool.submit(self._reset)))
+
+    def _reset(self):
+        self.known, self.prev_is_view = {}, False
+        return None
+
+    def _write(self, st, out, previous, previous_path, path, key, input_key, t_compute):
+        t0 = time.perf_counter()
+        extra, virtual, is_view = {"compute_s": t_compute}, None, False
+        if previous_path is not None and not (self.prev_is_view if self.prev_is_view is not None
+                                              else _is_view(previous_path)):
+            virtual = _virtual_layouts(out, previous, previous_path, self.known)
+            if virtual:
+                extra.update(view_source=previous_path.name, view_source_sha256=input_key)
+                is_view = True
+        self.known = write_stage(path, out, stage=st.name, key=key, input_key=input_key, params=st.params,
+                                 extra_attrs=extra, virtual=virtual, known=self.known)
+        self.prev_is_view = is_view
+        return ("view" if is_view else "write", time.perf_counter() - t0)
+
+    def _finish(self, job):
+        i, name, t_compute, timings, fut = job
+        t0 = time.perf_counter()
+        done = fut.result()
+        timings[name] += time.perf_counter() - t0        # the wait the chain saw (the write overlapped)
+        if not self.quiet:
+            what, t_write = done if done else ("not kept", 0.0)
+            log.info(f"[{i + 1}/{self.n}] {name:<18s} {t_compute * 1e3:8.1f} ms compute, "
+                     f"{t_write * 1e3:6.1f} ms {what}")
+
+    def wait(self):
+        """Every queued write done (its error raised, if any)."""
+        while self.pending:
+            self._finish(self.pending.pop(0))
+
+    def close(self):
+        self.pool.shutdown(wait=True)
 
 def _first_to_run(paths, keys, recompute_from: int, keep: str, needed: list[int], labels=None) -> int:
     """Index of the first stage to compute (see :func:`run_stages`): a stage file is valid when its key

@@ -175,6 +175,12 @@ def test_cell_geometry_matches_the_general_form():
     slow = azimuth_at_t_ref(rng_m, az, pos, p_ref)
     for a, b in zip(fast, slow):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+    # the grouped form (one position per CPI, cells indexing it): the same numbers
+    groups = pos[:40]
+    index = rng.integers(0, 40, n)
+    grouped = azimuth_at_t_ref_cells(rng_m, az, groups, p_ref, index=index)
+    for a, b in zip(grouped, azimuth_at_t_ref(rng_m, az, groups[index], p_ref)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
 
 
 def test_single_thread_batched_products_equal_matmul():

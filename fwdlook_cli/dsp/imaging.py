@@ -76,7 +76,7 @@ def oversample_rows(x, factor: int, workers: int = -1):
     return scipy.fft.ifft(pad, axis=-1, workers=workers, overwrite_x=True)
 
 
-BLOCK_CELLS = 1 << 18       # oversampled cells per block: temporaries of a few MB, reused from the heap
+BLOCK_CELLS = 1 << 19       # oversampled cells per block: temporaries of a few MB, reused from the heap
 
 
 def kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,
@@ -181,29 +181,43 @@ def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: floa
     return row_cpi[i_row[ok]], i_r[ok], ratio[ok], pk[ok], p0
 
 
-def azimuth_at_t_ref_cells(range_m, azimuth_deg, position_at_measure_m, position_ref_m):
+def azimuth_at_t_ref_cells(range_m, azimuth_deg, position_at_measure_m, position_ref_m, index=None):
     """:func:`dsp.geometry.azimuth_at_t_ref` for 1-D cell arrays, with fewer temporaries: the ground
-    point P = g_c + s u(theta) with |P - p_ref| = R (a quadratic in s); NaN where none."""
+    point P = g_c + s u(theta) with |P - p_ref| = R (a quadratic in s); NaN where none.  ``index``:
+    ``position_at_measure_m`` is then one row per group (CPI) and cell i is measured from row
+    ``index[i]`` (the per-group terms taken once per group).
+
+    The azimuth of e = P - p_ref is theta plus the parallax atan((u_y d_x - u_x d_y) / (e . u)), with
+    e . u = s + b = sqrt(b^2 - c) >= 0: one arctan instead of an arctan2 (the same angle; for a beam
+    within 90 deg of the reference direction, as every forward-looking one is)."""
     az = np.radians(azimuth_deg)
     ux, uy = np.sin(az), np.cos(az)
-    dx = position_at_measure_m[:, 0] - position_ref_m[0]
-    dy = position_at_measure_m[:, 1] - position_ref_m[1]
-    b = dx * ux
-    b += dy * uy
+    pos = np.asarray(position_at_measure_m, dtype=np.float64)
+    dx, dy = pos[:, 0] - position_ref_m[0], pos[:, 1] - position_ref_m[1]
     c = dx * dx
     c += dy * dy
     c += position_ref_m[2] ** 2
+    if index is not None:
+        dx, dy, c = dx[index], dy[index], c[index]
     c -= np.square(range_m)
+    b = dx * ux
+    b += dy * uy
     disc = b * b
     disc -= c
     disc[disc < 0] = np.nan
-    s = np.sqrt(disc)
+    root = np.sqrt(disc)                           # e . u
+    cross = uy * dx
+    cross -= ux * dy
+    cross /= root
+    az_ref = np.degrees(np.arctan(cross))
+    az_ref += azimuth_deg
+    s = root
     s -= b
     ex = s * ux
     ex += dx                                       # gx - p_ref_x
     ey = s * uy
     ey += dy
-    return np.degrees(np.arctan2(ex, ey)), ex + position_ref_m[0], ey + position_ref_m[1]
+    return az_ref, ex + position_ref_m[0], ey + position_ref_m[1]
 
 
 def oversample_profiles(x, factor: int):

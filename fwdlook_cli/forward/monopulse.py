@@ -70,7 +70,7 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
             offset = np.interp(ratio_kept, tab_r, tab_d)          # the monotone ratio table
         offset = offset + boresight_offset_deg
         beam = beam_all[i_cpi]
-        az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam + offset, pos_all[i_cpi], p_ref)
+        az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam + offset, pos_all, p_ref, index=i_cpi)
         w = power_kept.astype(np.float64)
         ok = np.isfinite(az_ref)
         a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)

@@ -73,17 +73,17 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
     views of another file (:mod:`io.stageview`); every other array is written in full, uncompressed and
     contiguous (complex stage data compresses to 90-95 % at 30 times the write time: README, Speed).
     ``known``: {var name: (array, sha256)} digests already computed in this run (the previous stage's
-    file); an array that is the same object keeps its digest.  Returns {name: (array, sha256)} of what
+    file); an array that is the same object (under any name) keeps its digest.  Returns {name: (array, sha256)} of what
     the file declares (``known`` for the next stage).  The digests of large arrays are computed in a
     worker thread while HDF5 writes (io/integrity.py)."""
     virtual = virtual or {}
     known = known or {}
     pending = {}
+    by_id = {id(array): sha for array, sha in known.values()}     # the same object under any name
     for name, var in data.vars.items():
         if name in virtual:
             continue
-        prior = known.get(name)
-        pending[name] = prior[1] if prior is not None and prior[0] is var.data else digest_async(var.data)
+        pending[name] = by_id[id(var.data)] if id(var.data) in by_id else digest_async(var.data)
     with atomic_h5(path) as f:
         carried = {}
         for k, v in {**data.attrs, **(extra_attrs or {})}.items():

@@ -1,0 +1,122 @@
+"""The stage runner's writer thread (``runner._StageWriter``): stage files written while the next stage
+computes, at most one in flight, in stage order; a failed write stops the run with its own error and
+leaves every earlier file complete and nothing half-written.
+
+Runs go through ``fwdlook_cli.cli.main`` in-process on the tiny cube, the stage functions and the
+stage-file writer wrapped to record when each starts and ends.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+import fwdlook_cli.forward.chain as chain
+import fwdlook_cli.runner as runner
+from fwdlook_cli.cli import main
+from fwdlook_cli.errors import BadInput
+from fwdlook_cli.io.stagefile import read_stage
+
+STAGE_FUNCS = ("range_fft", "decimate", "keystone_stage", "regroup", "range_curvature", "doppler_spectra",
+               "monopulse_image")
+
+
+def _run(argv):
+    with pytest.raises(SystemExit) as info:
+        main([str(a) for a in argv])
+    return info.value.code
+
+
+def test_writes_overlap_the_next_stage_one_at_a_time_in_order(tiny_raw, tmp_path, monkeypatch):
+    events, lock = [], threading.Lock()
+
+    def record(*what):
+        with lock:
+            events.append((time.perf_counter(), *what))
+
+    real_write = runner.write_stage
+
+    def write(path, data, **kw):
+        record("write-start", kw["stage"], threading.current_thread().name)
+        time.sleep(0.05)                 # a slow disk: the next stage must not wait for it
+        out = real_write(path, data, **kw)
+        record("write-end", kw["stage"])
+        return out
+
+    monkeypatch.setattr(runner, "write_stage", write)
+    for name in STAGE_FUNCS:
+        real = getattr(chain, name)
+
+        def wrapped(*a, _real=real, _name=name, **k):
+            record("compute-start", _name)
+            out = _real(*a, **k)
+            record("compute-end", _name)
+            return out
+        monkeypatch.setattr(chain, name, wrapped)
+    assert _run(["process", tiny_raw, "-o", tmp_path / "run", "-q"]) == 0
+    writes = [e for e in events if e[1] == "write-start"]
+    assert [w[2] for w in writes] == ["range_fft", "decimate", "keystone", "regroup", "range_curvature",
+                                      "doppler_spectra", "monopulse_image"]
+    assert all(w[3].startswith("fwdlook-stage-writer") for w in writes)     # never the main thread
+    # never two writes at once, and each file complete before the next one starts
+    starts = [e[0] for e in events if e[1] == "write-start"]
+    ends = [e[0] for e in events if e[1] == "write-end"]
+    assert all(end <= nxt for end, nxt in zip(ends, starts[1:]))
+    # the next stages compute while a file is being written (the 50 ms sleep): the keystone during the
+    # range FFT's, the range curvature during the keystone's
+    t = {(e[1], e[2]): e[0] for e in events}
+    assert t[("compute-start", "keystone_stage")] < t[("write-end", "range_fft")]
+    assert t[("compute-start", "range_curvature")] < t[("write-end", "keystone")]
+    # but a write never outlives the stage that reads its arrays: no stage output is held longer than
+    # the chain holds it anyway (a view shares its source's arrays)
+    assert t[("write-end", "range_fft")] <= t[("compute-start", "regroup")]
+    assert t[("write-end", "keystone")] <= t[("compute-start", "doppler_spectra")]
+    assert t[("write-end", "range_curvature")] <= t[("compute-start", "monopulse_image")]
+
+def test_a_failed_write_stops_the_run_and_leaves_earlier_files_complete(tiny_raw, tmp_path, monkeypatch, capsys):
+    real_write = runner.write_stage
+
+    def write(path, data, **kw):
+        if kw["stage"] == "range_curvature":
+            raise BadInput(f"cannot write {path}: No space left on device")
+        return real_write(path, data, **kw)
+
+    monkeypatch.setattr(runner, "write_stage", write)
+    run = tmp_path / "run"
+    assert _run(["process", tiny_raw, "-o", run]) == 2
+    err = capsys.readouterr().err
+    assert "05_range_curvature.h5: No space left on device" in err
+    stages = run / "stages"
+    assert sorted(p.name for p in stages.iterdir()) == ["01_range_fft.h5", "02_decimate.h5", "03_keystone.h5",
+                                                        "04_regroup.h5"]
+    assert not (run / "metrics.json").exists() and not (run / "image.h5").exists()
+    # and the earlier files are sound: a rerun reuses them and finishes with the same image as a fresh run
+    monkeypatch.setattr(runner, "write_stage", real_write)
+    assert _run(["process", tiny_raw, "-o", run, "-q"]) == 0
+    assert _run(["process", tiny_raw, "-o", tmp_path / "fresh", "-q"]) == 0
+    with h5py.File(run / "image.h5") as a, h5py.File(tmp_path / "fresh" / "image.h5") as b:
+        np.testing.assert_array_equal(a["image"][()], b["image"][()])
+
+
+def test_small_outputs_feed_the_lazy_stage_from_memory_large_ones_from_the_file(tiny_raw, tmp_path, monkeypatch):
+    """The image stage reads its input block by block from the Doppler spectra's file only above
+    LAZY_INPUT_MIN_BYTES (bounded memory on big cubes); the two give the same stage output."""
+    seen = []
+    real = chain.monopulse_image
+
+    def spy(data, **kw):
+        seen.append(type(data["sum_z"]).__name__)
+        return real(data, **kw)
+
+    monkeypatch.setattr(chain, "monopulse_image", spy)
+    assert _run(["process", tiny_raw, "-o", tmp_path / "mem", "-q"]) == 0
+    monkeypatch.setattr(runner, "LAZY_INPUT_MIN_BYTES", 1)
+    assert _run(["process", tiny_raw, "-o", tmp_path / "lazy", "-q"]) == 0
+    assert seen == ["ndarray", "Dataset"]
+    a = read_stage(tmp_path / "mem" / "stages" / "07_monopulse_image.h5")
+    b = read_stage(tmp_path / "lazy" / "stages" / "07_monopulse_image.h5")
+    for name in a.vars:
+        np.testing.assert_array_equal(a[name], b[name])
