@@ -56,7 +56,7 @@ def stage_key(name: str, params: dict, previous_key: str) -> str:
 
 def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir: Path, *,
                force: bool = False, from_stage: str | None = None, quiet: bool = False,
-               keep: str = "all", captured: dict | None = None):
+               keep: str = "all", captured: dict | None = None, pending_writes: list | None = None):
     """Run ``stages`` in order over ``source``; returns (last StageData, timings dict, keys dict).
 
     ``keep``: ``all`` writes every stage file (a killed run resumes after the last finished stage);
@@ -66,7 +66,11 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     a function returning each named stage's output (from its file when kept, its large arrays memory
     maps of it, so that the output is neither held in memory meanwhile nor copied whole).  A
     ``lazy_input`` stage after a written stage gets that file's large arrays as open datasets instead
-    of the arrays in memory (bounded memory; the same numbers).
+    of the arrays in memory when they are large (``LAZY_INPUT_MIN_BYTES``: bounded memory; the same
+    numbers).  Stage files are written on a writer thread while the next stages compute
+    (:class:`_StageWriter`); ``pending_writes``: a list to which the function waiting for the last
+    writes is appended instead of waiting here (it returns the seconds it waited; the caller must call
+    it, error or not, before it treats the stage files as written).
     """
     if keep not in KEEP_STAGES:
         raise BadInput(f"--keep-stages {keep}: allowed: {', '.join(KEEP_STAGES)}")
@@ -123,7 +127,8 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
             else:
                 writer.forget(i, st, t_compute, timings)
             if st.name in captured:
-                captured[st.name] = functools.partial(read_stage_mapped, paths[i]) if i in kept else (lambda out=out: out)
+                captured[st.name] = (functools.partial(writer.read_when_written, i, paths[i]) if i in kept
+                                     else (lambda out=out: out))
             if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input and _large(out):
                 del out                     # bounded memory: the next stage reads this file block by block
                 writer.wait()
@@ -135,9 +140,13 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
                 data = out
                 del out
             log.debug("stage %s: key %s -> %s", st.name, keys[i][:12], paths[i])
-        writer.wait()
+        if pending_writes is None:
+            writer.wait()
+        else:                               # the caller waits (its own work overlaps the last write)
+            pending_writes.append(writer.finish)
     finally:
-        writer.close()
+        if pending_writes is None or writer.finish not in pending_writes:
+            writer.close()
         for fh in open_files:
             fh.close()
     for i, path in enumerate(paths):     # what this run's policy does not keep goes
@@ -236,6 +245,12 @@ class _StageWriter:
             log.info(f"[{i + 1}/{self.n}] {name:<18s} {t_compute * 1e3:8.1f} ms compute, "
                      f"{t_write * 1e3:6.1f} ms {what}")
 
+    def read_when_written(self, i, path):
+        """Stage i's file (:func:`io.stageview.read_stage_mapped`) once its write is done."""
+        while self.pending and self.pending[0][0] <= i:
+            self._finish(self.pending.pop(0))
+        return read_stage_mapped(path)
+
     def wait(self):
         """Every queued write done (its error raised, if any)."""
         while self.pending:
@@ -243,6 +258,15 @@ class _StageWriter:
 
     def close(self):
         self.pool.shutdown(wait=True)
+
+    def finish(self) -> float:
+        """Wait for every queued write and release the thread; returns the seconds waited."""
+        t0 = time.perf_counter()
+        try:
+            self.wait()
+        finally:
+            self.close()
+        return time.perf_counter() - t0
 
 def _first_to_run(paths, keys, recompute_from: int, keep: str, needed: list[int], labels=None) -> int:
     """Index of the first stage to compute (see :func:`run_stages`): a stage file is valid when its key

@@ -76,11 +76,17 @@ def test_writes_overlap_the_next_stage_one_at_a_time_in_order(tiny_raw, tmp_path
     assert t[("write-end", "keystone")] <= t[("compute-start", "doppler_spectra")]
     assert t[("write-end", "range_curvature")] <= t[("compute-start", "monopulse_image")]
 
-def test_a_failed_write_stops_the_run_and_leaves_earlier_files_complete(tiny_raw, tmp_path, monkeypatch, capsys):
+FILES = ["01_range_fft.h5", "02_decimate.h5", "03_keystone.h5", "04_regroup.h5", "05_range_curvature.h5",
+         "06_doppler_spectra.h5", "07_monopulse_image.h5"]
+
+
+@pytest.mark.parametrize("failing", [5, 7])      # a middle stage; the last, written beside the outputs
+def test_a_failed_write_stops_the_run_and_leaves_earlier_files_complete(tiny_raw, tmp_path, monkeypatch, capsys,
+                                                                        failing):
     real_write = runner.write_stage
 
     def write(path, data, **kw):
-        if kw["stage"] == "range_curvature":
+        if path.name == FILES[failing - 1]:
             raise BadInput(f"cannot write {path}: No space left on device")
         return real_write(path, data, **kw)
 
@@ -88,11 +94,11 @@ def test_a_failed_write_stops_the_run_and_leaves_earlier_files_complete(tiny_raw
     run = tmp_path / "run"
     assert _run(["process", tiny_raw, "-o", run]) == 2
     err = capsys.readouterr().err
-    assert "05_range_curvature.h5: No space left on device" in err
+    assert f"{FILES[failing - 1]}: No space left on device" in err
     stages = run / "stages"
-    assert sorted(p.name for p in stages.iterdir()) == ["01_range_fft.h5", "02_decimate.h5", "03_keystone.h5",
-                                                        "04_regroup.h5"]
-    assert not (run / "metrics.json").exists() and not (run / "image.h5").exists()
+    assert sorted(p.name for p in stages.iterdir()) == FILES[:failing - 1]
+    for name in ("metrics.json", "image.h5", "scenario.yaml"):     # no output that looks complete
+        assert not (run / name).exists()
     # and the earlier files are sound: a rerun reuses them and finishes with the same image as a fresh run
     monkeypatch.setattr(runner, "write_stage", real_write)
     assert _run(["process", tiny_raw, "-o", run, "-q"]) == 0

@@ -104,7 +104,6 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     (the stage files stay: they carry their own hashes and are reused only where they match).
     """
     from .chain import build_forward_stages
-    from .evaluate import dwell_profile_metrics, summarize, target_metrics
     from ..runner import run_stages
 
     run_dir = Path(run_dir)
@@ -134,9 +133,24 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         # zero-stride stand-ins keep the shapes (n_pulses, n_range) and hold no memory
         cube.sum = np.broadcast_to(np.zeros((), cube.sum.dtype), cube.sum.shape)
         cube.diff = np.broadcast_to(np.zeros((), cube.diff.dtype), cube.diff.shape)
-    final, timings, keys = run_stages(stages, holder.pop(), src_key, run_dir, force=force,
-                                      from_stage=from_stage, quiet=quiet, keep=keep_stages, captured=captured)
+    writes = []            # the last stage files are written while the outputs below are computed
+    final, timings, keys = run_stages(stages, holder.pop(), src_key, run_dir, force=force, from_stage=from_stage,
+                                      quiet=quiet, keep=keep_stages, captured=captured, pending_writes=writes)
     t_out = time.perf_counter()
+    try:
+        metrics, scenario_yaml = _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured,
+                                          writes, t_start, t_out, png)
+    finally:
+        while writes:                    # waited for even when the outputs failed (then re-raised)
+            writes.pop()()
+    atomic_write_text(run_dir / "scenario.yaml", scenario_yaml)
+    return metrics
+
+
+def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured, writes, t_start, t_out, png):
+    """image.h5, metrics.json, image.png of a finished chain; returns (metrics, scenario YAML)."""
+    from .evaluate import dwell_profile_metrics, summarize, target_metrics
+
     ground, gx, gy = ground_image(final["cell_x_m"], final["cell_y_m"], final["cell_power"],
                                   step_m=float(cube.range_spacing_m) / 2)
     packed = {name: GzipChunks(a) for name, a in (("image", final["image"]), ("real_beam", final["real_beam"]),
@@ -179,10 +193,11 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                 row.update(extra)
             del spectra                               # 2x the cube: not held while the PNG is drawn
     scenario_yaml = dump_scenario(scn)
+    waited = sum(writes.pop()() for _ in range(len(writes)))       # every stage file written before these
     write_image_h5(run_dir / "image.h5", final, ground, gx, gy, scenario_yaml=scenario_yaml,
                    t_ref_s=geo["t_ref_s"], method=proc["method"], packed=packed)
     del packed
-    timings["outputs"] = time.perf_counter() - t_out
+    timings["outputs"] = time.perf_counter() - t_out - waited      # (the wait counts to the last stage)
     timing = {k: float(v) for k, v in timings.items()}
     timing["total"] = time.perf_counter() - t_start
     metrics = {
@@ -209,7 +224,6 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
 
         metrics["scene"] = scene_metrics(final["image"], final["range_m"], final["angle_deg"], geo["p_ref"], scn)
     atomic_write_text(run_dir / "metrics.json", json.dumps(metrics, indent=1, allow_nan=False))
-    atomic_write_text(run_dir / "scenario.yaml", scenario_yaml)
     if png:
         from ..io.quicklook import save_image_png
 
@@ -223,4 +237,4 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                        xlabel="azimuth at t_ref (deg)", ylabel="slant range at t_ref (m)",
                        title=f"{scn['name']}: {proc['method']} (q={metrics['params']['q']}, "
                              f"{proc['keystone']}), t_ref = {proc['t_ref']}", markers=markers)
-    return metrics
+    return metrics, scenario_yaml
