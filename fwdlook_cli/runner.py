@@ -63,8 +63,9 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     ``last`` writes only the final stage and the stages named in ``captured``; ``none`` writes none.
     With ``all`` the first missing or stale file decides where the chain starts; otherwise the latest
     valid file does (the earlier ones were never kept).  ``captured``: {stage name: None}, filled with
-    a function returning each named stage's output (from its file when kept, its large arrays memory
-    maps of it, so that the output is neither held in memory meanwhile nor copied whole).  A
+    a function returning each named stage's output (held in memory when it is small; from its file when
+    kept and large, its large arrays memory maps of it, so that it is neither held in memory meanwhile
+    nor copied whole).  A
     ``lazy_input`` stage after a written stage gets that file's large arrays as open datasets instead
     of the arrays in memory when they are large (``LAZY_INPUT_MIN_BYTES``: bounded memory; the same
     numbers).  Stage files are written on a writer thread while the next stages compute
@@ -127,8 +128,10 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
             else:
                 writer.forget(i, st, t_compute, timings)
             if st.name in captured:
-                captured[st.name] = (functools.partial(writer.read_when_written, i, paths[i]) if i in kept
-                                     else (lambda out=out: out))
+                # a small output is held (it is the next stage's input anyway); a large one is read back
+                # from its file as memory maps when asked for
+                captured[st.name] = (functools.partial(writer.read_when_written, i, paths[i])
+                                     if i in kept and _large(out) else (lambda out=out: out))
             if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input and _large(out):
                 del out                     # bounded memory: the next stage reads this file block by block
                 writer.wait()

@@ -308,3 +308,29 @@ def test_profile_metrics_rejects_bad_parameters(kwargs, match):
     profile, _ = sinc_profile(0.0, half_cells=8)
     with pytest.raises(ValueError, match=match):
         profile_metrics(profile, **kwargs)
+
+
+def test_real_profile_fast_path_equals_the_general_path():
+    """``profile_metrics`` of a real float64 profile at ``oversample=1`` (the per-target metrics' call)
+    takes a list-based path; it gives the general path's numbers to the bit (the general path is
+    the one a complex profile with zero imaginary part takes: the same power)."""
+    import dataclasses
+
+    from fwdlook_cli.dsp.profile import _real_profile_metrics
+
+    rng = np.random.default_rng(8)
+    cases = [np.abs(np.sinc(np.linspace(-5, 5, 41) - rng.uniform(-0.5, 0.5))) + rng.uniform(0, 0.05)
+             for _ in range(60)]
+    cases += [rng.random(rng.integers(3, 60)) for _ in range(60)]            # rough, plateaus, edges
+    cases += [np.array([0.0, 1.0, 0.0]), np.array([1.0, 2.0, 3.0]), np.array([3.0, 2.0, 1.0, 2.0, 3.0]),
+              np.array([1.0, 1.0, 2.0, 2.0, 1.0, 1.0])]
+    for x in cases:
+        fast = _real_profile_metrics(x, 0.25)
+        general = profile_metrics(x.astype(np.complex128), spacing=0.25, oversample=1)
+        for f in dataclasses.fields(fast):
+            a, b = getattr(fast, f.name), getattr(general, f.name)
+            assert (a == b) or (np.isnan(a) and np.isnan(b)), (f.name, a, b, x)
+        assert profile_metrics(x, spacing=0.25, oversample=1) == fast     # the dispatch takes it
+    for bad, msg in ((np.zeros(5), "all zero"), (np.ones(5), "constant"), (np.array([1.0, np.nan, 1.0]), "finite")):
+        with pytest.raises(ValueError, match=msg):
+            profile_metrics(bad, spacing=1.0, oversample=1)

@@ -62,8 +62,11 @@ def ground_image(cell_x_m, cell_y_m, cell_power, step_m):
     ix = np.rint((cell_x_m - x0) / step_m).astype(np.int64)
     iy = np.rint((cell_y_m - y0) / step_m).astype(np.int64)
     ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-    img = np.bincount(iy[ok] * nx + ix[ok], weights=cell_power[ok], minlength=nx * ny).reshape(ny, nx)
-    return img.astype(np.float32), x0 + step_m * np.arange(nx), y0 + step_m * np.arange(ny)
+    # accumulated in float32, the image's own precision (np.add.at: no grid-sized float64 temporary,
+    # whose fresh pages cost more than the sums here)
+    img = np.zeros(nx * ny, np.float32)
+    np.add.at(img, iy[ok] * nx + ix[ok], np.asarray(cell_power, np.float32)[ok])
+    return img.reshape(ny, nx), x0 + step_m * np.arange(nx), y0 + step_m * np.arange(ny)
 
 
 def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_ref_s, method, packed=None):

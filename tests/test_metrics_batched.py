@@ -1,0 +1,89 @@
+"""The per-target metrics batched over targets (``forward.evaluate``) against the same metrics taken one
+target at a time (``tests/reference_metrics.py``), and the ground image against a float64 bincount.
+
+Scenes: the paper lattice (63 targets, a = 50: the README's numbers) through the tracking chain with
+CPI imaging, and the tiny scene, whose image edges cut some targets' strips and windows (the batched
+path's per-target fallback)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fwdlook_cli.forward.evaluate import dwell_profile_metrics, target_metrics
+from fwdlook_cli.forward.process import ground_image, process_cube
+from fwdlook_cli.forward.simulate import simulate_scenario
+from fwdlook_cli.io.stagefile import read_stage
+from fwdlook_cli.scenario.loader import load_scenario
+from reference_metrics import dwell_profile_metrics_one_by_one, target_metrics_one_by_one
+
+from fwdlook_cli.testing import tiny_scenario
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module", params=["paper", "tiny"])
+def finished(request, tmp_path_factory):
+    scn = load_scenario(REPO / "scenarios" / "paper_fig6_a50.yaml") if request.param == "paper" else tiny_scenario()
+    scn = dict(scn, processing=dict(scn["processing"], method="tracking", imaging="cpi", dwell_fit="none"))
+    cube, _ = simulate_scenario(scn)
+    run = tmp_path_factory.mktemp(request.param)
+    metrics = process_cube(cube, scn, run, quiet=True, png=False)
+    final = read_stage(run / "stages" / "07_monopulse_image.h5")
+    spectra = read_stage(run / "stages" / "06_doppler_spectra.h5")
+    return cube, final, spectra, metrics
+
+
+def _close(a, b, rtol):
+    assert a.keys() == b.keys()
+    for key in a:
+        x, y = a[key], b[key]
+        if isinstance(x, float) and isinstance(y, float):
+            assert x == pytest.approx(y, rel=rtol, abs=1e-12), (a.get("id"), key, x, y)
+        else:
+            assert x == y, (a.get("id"), key, x, y)
+
+
+@pytest.mark.parametrize("crop", [None, 0.3])
+def test_target_metrics_batched_equal_one_by_one(finished, crop):
+    """``crop``: the image cut to its middle rows and columns, so that the edges run through targets
+    (windows and cuts clipped, some targets outside: the per-target fallback and the missing rows)."""
+    cube, final, _, _ = finished
+    p_ref = np.asarray(json.loads(final.attrs["position_ref_m"]))
+    image, range_m, angle_deg = final["image"], final["range_m"], final["angle_deg"]
+    if crop:
+        r0, r1 = int(crop * len(range_m)), int((1 - crop) * len(range_m))
+        a0, a1 = int(crop * len(angle_deg)), int((1 - crop) * len(angle_deg))
+        image, range_m, angle_deg = image[r0:r1, a0:a1], range_m[r0:r1], angle_deg[a0:a1]
+    args = (image, range_m, angle_deg, cube.truth_xyz_m(), cube.truth["amplitude"], p_ref)
+    batched = target_metrics(*args, bandwidth_hz=cube.radar["bandwidth_hz"])
+    one = target_metrics_one_by_one(*args, bandwidth_hz=cube.radar["bandwidth_hz"])
+    assert len(batched) == len(one) == len(cube.truth["x_m"])
+    assert sum(r["detected"] for r in batched) > 0
+    for a, b in zip(batched, one):
+        _close(a, b, 1e-9)       # float64 sums of the same pixels, perhaps added in another order
+
+
+def test_dwell_profile_metrics_batched_equal_one_by_one(finished):
+    cube, final, spectra, _ = finished
+    p_ref = np.asarray(json.loads(final.attrs["position_ref_m"]))
+    args = (spectra, cube.truth_xyz_m(), cube.truth["amplitude"], float(cube.antenna["monopulse_slope_per_deg"]),
+            float(cube.antenna["beta_per_deg2"]), p_ref)
+    batched, one = dwell_profile_metrics(*args), dwell_profile_metrics_one_by_one(*args)
+    assert any(r["islr_db"] is not None for r in batched)
+    for a, b in zip(batched, one):
+        _close(a, b, 1e-12)
+
+
+def test_ground_image_is_the_float64_bincount_to_float32_rounding(finished):
+    _, final, _, _ = finished
+    x, y, w = final["cell_x_m"], final["cell_y_m"], final["cell_power"]
+    img, gx, gy = ground_image(x, y, w, step_m=0.5)
+    ix, iy = np.rint((x - gx[0]) / 0.5).astype(int), np.rint((y - gy[0]) / 0.5).astype(int)
+    ok = (ix >= 0) & (ix < len(gx)) & (iy >= 0) & (iy < len(gy))
+    ref = np.bincount(iy[ok] * len(gx) + ix[ok], weights=w[ok], minlength=img.size).reshape(img.shape)
+    assert ok.mean() > 0.99                  # the 0.1-99.9 percentile box plus margins holds nearly all cells
+    np.testing.assert_allclose(img, ref, rtol=2e-6, atol=0)
+    assert img.sum(dtype=np.float64) == pytest.approx(float(w[ok].sum(dtype=np.float64)), rel=1e-6)
