@@ -125,16 +125,17 @@ class KeystonePlan:
             base = (a_u / self.n_slow) * (self._c_min * m + 0.5 * m**2)   # [n, n_unique]
             if F.size == 1:
                 # eq. (22) corrected: exp(j 2 pi F tau), tau = alpha m' + (1-alpha) t0: the alpha m'
-                # part per distinct alpha, the constant (1-alpha) t0 part per column
+                # part per distinct alpha, the constant (1-alpha) t0 part and the 1/n per column, each
+                # factor's phase reduced in float64 and taken in the plan's precision
                 f = float(F.reshape(-1)[0])
-                post = _cis(base + np.mod(f * a_u * m, 1.0))[:, inv]
-                if f != 0.0:
-                    post *= _cis(np.mod(f * (1.0 - self.alpha) * self.t0_index, 1.0))[None, :]
+                post = _cis(base + np.mod(f * a_u * m, 1.0), self.dtype)[:, inv]
+                col = (_cis(np.mod(f * (1.0 - self.alpha) * self.t0_index, 1.0)) if f != 0.0
+                       else np.ones(self.n_cols, np.complex128)) / self.n_slow
+                post *= col.astype(self.dtype)[None, :]
             else:
                 tau = self.alpha * m + (1.0 - self.alpha) * self.t0_index
-                post = _cis(base[:, inv] + np.mod(F * tau, 1.0))
-            post *= 1.0 / self.n_slow
-            post = post.astype(self.dtype)
+                post = _cis(base[:, inv] + np.mod(F * tau, 1.0), self.dtype)
+                post *= self.dtype.type(1.0 / self.n_slow)
             if len(self._post_cache) >= self._POST_CACHE_SIZE:
                 self._post_cache.pop(next(iter(self._post_cache)), None)
             self._post_cache[key] = post
