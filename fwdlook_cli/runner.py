@@ -89,7 +89,7 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
         keys.append(key)
         paths.append(stage_dir / f"{i + 1:02d}_{st.name}.h5")
     # the first stage that must run: forced, missing, stale or damaged (every reused stage is read and
-    # checked against its declared datasets, dtypes, shapes and sha256 digests: io/integrity.py)
+    # checked against its declared datasets, dtypes, shapes and digests: io/integrity.py)
     first = _first_to_run(paths, keys, recompute_from, keep, [names.index(n) for n in captured],
                           labels=[f"[{i + 1}/{len(stages)}] {s.name}" for i, s in enumerate(stages)])
     kept = set(range(len(stages))) if keep == "all" else (
@@ -311,7 +311,7 @@ def _is_view(path: Path) -> bool:
 
 
 def _virtual_layouts(out: StageData, previous: StageData, previous_path: Path, known: dict) -> dict:
-    """{name: (virtual layout, sha256)} for the arrays of ``out`` that reshape arrays of the previous
+    """{name: (virtual layout, digest)} for the arrays of ``out`` that reshape arrays of the previous
     (written) stage: the same bytes, so the digest that file declares (``known`` when it was written
     in this run, else read from its declaration, which the reuse check verified)."""
     layouts, digests = {}, None

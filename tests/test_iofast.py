@@ -116,8 +116,8 @@ def test_every_dataset_is_declared_once_on_the_root_with_its_true_digest(tiny_ru
             for name, d in decl.items():
                 data = f[name][()]
                 assert d["dtype"] == data.dtype.str and d["shape"] == list(data.shape)
-                assert d["sha256"] == integrity.digest(data), (path.name, name)
-                assert not {"sha256", "shape", "dtype"} & set(f[name].attrs)   # nothing per dataset
+                assert d[integrity.DIGEST_ATTR] == integrity.digest(data), (path.name, name)
+                assert not {integrity.DIGEST_ATTR, "shape", "dtype"} & set(f[name].attrs)   # nothing per dataset
 
 
 def test_a_view_declares_its_source_digest(tiny_run):
@@ -125,7 +125,7 @@ def test_a_view_declares_its_source_digest(tiny_run):
     for view, source in (("02_decimate.h5", "01_range_fft.h5"), ("04_regroup.h5", "03_keystone.h5")):
         v, s = _declaration(st / view)[0], _declaration(st / source)[0]
         for ch in ("sum_f", "diff_f"):
-            assert v[ch]["sha256"] == s[ch]["sha256"] and v[ch]["shape"] != s[ch]["shape"]
+            assert v[ch][integrity.DIGEST_ATTR] == s[ch][integrity.DIGEST_ATTR] and v[ch]["shape"] != s[ch]["shape"]
 
 
 def test_a_view_over_a_damaged_source_is_not_reused(tiny_run, tiny_raw, tmp_path, capsys):
@@ -139,7 +139,7 @@ def test_a_view_over_a_damaged_source_is_not_reused(tiny_run, tiny_raw, tmp_path
         f["sum_f"][...] = a
     key = json.loads((run_dir / "metrics.json").read_text())["stage_sha256"]["decimate"]
     loaded, damage = load_verified(run_dir / "stages" / "02_decimate.h5", key)
-    assert loaded is None and "sha256" in damage          # the bytes read through the view fail too
+    assert loaded is None and integrity.DIGEST_ATTR in damage   # the bytes read through the view fail too
     capsys.readouterr()
     _run(["process", tiny_raw, "-o", run_dir])
     err = capsys.readouterr().err

@@ -614,9 +614,11 @@ def _drop(f):
 
 
 def _strip_digest(f):
-    """The largest dataset's sha256 removed from the root declaration (io/integrity.py)."""
+    """The largest dataset's digest removed from the root declaration (io/integrity.py)."""
+    from fwdlook_cli.io.integrity import DIGEST_ATTR
+
     decl = json.loads(f.attrs["stage_datasets"])
-    del decl[_largest(f)]["sha256"]
+    del decl[_largest(f)][DIGEST_ATTR]
     f.attrs["stage_datasets"] = json.dumps(decl)
 
 

@@ -11,6 +11,7 @@ import json
 from dataclasses import dataclass, field
 
 import numpy as np
+import xxhash
 
 RADAR_KEYS = ("fc_hz", "bandwidth_hz", "fs_hz", "prf_hz", "beamwidth_3db_deg")
 
@@ -59,13 +60,16 @@ class RawCube:
 
 
 def cube_hash(cube) -> str:
-    """SHA-256 of the cube's arrays (C-ordered bytes, each hashed in place: no copy) and its radar and
-    antenna settings: the key of the first stage (``runner.stage_key``), computed once per run."""
+    """The key of the first stage (``runner.stage_key``), computed once per run: SHA-256 over the
+    XXH3-128 digests of the cube's arrays (``io.integrity``'s digest of their C-ordered bytes, each
+    hashed in place: no copy; 16 GB/s against SHA-256's 1.4 here) and its radar and antenna settings."""
     h = hashlib.sha256()
     for arr in (cube.sum, cube.diff, cube.slow_time_s, cube.range_m, cube.scan_angle_deg, cube.position_m,
                 cube.velocity_mps):
         if arr is not None:
-            h.update(memoryview(np.ascontiguousarray(arr)).cast("B"))
+            a = np.ascontiguousarray(arr)
+            h.update(f"|{a.dtype.str}|{list(a.shape)}|".encode())
+            h.update(xxhash.xxh3_128_digest(memoryview(a.reshape(-1)).cast("B")))
     for settings in (cube.radar, cube.antenna):
         # arrays (the antenna's ratio table) by their bytes: str() of an array is slow (8 ms here for
         # the paper antenna) and elides the middle of one over 1000 elements

@@ -69,11 +69,11 @@ PROVENANCE_KEYS = ("format", "stage", "config_sha256", "input_sha256", "settings
 
 def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key: str, params: dict,
                 extra_attrs: dict | None = None, virtual: dict | None = None, known: dict | None = None) -> dict:
-    """``virtual``: {var name: (h5py.VirtualLayout, sha256 of the bytes it maps)} for arrays stored as
+    """``virtual``: {var name: (h5py.VirtualLayout, digest of the bytes it maps)} for arrays stored as
     views of another file (:mod:`io.stageview`); every other array is written in full, uncompressed and
     contiguous (complex stage data compresses to 90-95 % at 30 times the write time: README, Speed).
-    ``known``: {var name: (array, sha256)} digests already computed in this run (the previous stage's
-    file); an array that is the same object (under any name) keeps its digest.  Returns {name: (array, sha256)} of what
+    ``known``: {var name: (array, digest)} digests already computed in this run (the previous stage's
+    file); an array that is the same object (under any name) keeps its digest.  Returns {name: (array, digest)} of what
     the file declares (``known`` for the next stage).  The digests of large arrays are computed in a
     worker thread while HDF5 writes (io/integrity.py)."""
     virtual = virtual or {}
@@ -157,7 +157,7 @@ def read_stage(path: Path) -> StageData:
 
 
 def declared_digests(path: Path) -> dict:
-    """{dataset: sha256} a stage file declares ({} when it has no readable declaration)."""
+    """{dataset: digest} a stage file declares ({} when it has no readable declaration)."""
     try:
         with h5py.File(path, "r") as f:
             return {k: v[DIGEST_ATTR] for k, v in read_declaration(_text(f.attrs[DATASETS_ATTR])).items()}
@@ -213,14 +213,14 @@ def load_verified(path, key: str):
                 want_dtype, want_shape = want.get("dtype"), want.get("shape")
                 want_digest, dims = want.get(DIGEST_ATTR), want.get("dims")
                 if want_dtype is None or want_shape is None or want_digest is None or dims is None:
-                    return None, f"/{name}: no dtype, shape, dims or sha256 declaration"
+                    return None, f"/{name}: no dtype, shape, dims or {DIGEST_ATTR} declaration"
                 if list(want_shape) != list(ds.shape):
                     return None, f"/{name}: shape {list(ds.shape)}, declared {want_shape}"
                 if np.dtype(want_dtype) != ds.dtype:
                     return None, f"/{name}: dtype {ds.dtype}, declared {np.dtype(want_dtype)}"
                 data = ds[()]
                 if digest(data) != want_digest:
-                    return None, f"/{name}: data does not match its sha256 digest (bit rot or edited)"
+                    return None, f"/{name}: data does not match its {DIGEST_ATTR} digest (bit rot or edited)"
                 if len(dims) != np.ndim(data):
                     return None, f"/{name}: {len(dims)} dimension names for {np.ndim(data)} axes"
                 out.vars[str(name)] = Var(data, tuple(dims), str(_text(ds.attrs.get("units", ""))),

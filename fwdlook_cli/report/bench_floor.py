@@ -15,14 +15,13 @@ What the chain cannot avoid, for the paper cube (both channels, complex64), stag
   FFT of n_r x range_oversample per Doppler row (at 20 dB SNR nearly every row can hold a cell:
   ``dsp.imaging``).
 * stage files: each written stage's bytes copied to the page cache once (``ndarray.tofile``) and
-  hashed once (SHA-256, the integrity digest); the outputs the resume guarantee needs.
+  hashed once (XXH3-128, the integrity digest: ``io.integrity``); the outputs the resume guarantee needs.
 
 Nothing here is a model: each figure is a median of repeated timings of exactly these calls.  The
 ratio ``chain / floor`` says how far the chain is from what its algorithm and its guarantees cost.
 """
 from __future__ import annotations
 
-import hashlib
 import statistics
 import tempfile
 import time
@@ -32,6 +31,7 @@ import numpy as np
 import scipy.fft
 
 from ..dsp.blas import batched_matmul
+from ..io.integrity import digest
 
 
 def _median_s(fn, repeats: int) -> float:
@@ -64,14 +64,14 @@ def _bluestein_s(x, n_alpha, rng, repeats):
 
 
 def _stage_bytes_s(n_bytes: int, repeats: int) -> float:
-    """Write n_bytes to a file in the system temporary directory and SHA-256 them once."""
+    """Write n_bytes to a file in the system temporary directory and digest them once (io.integrity)."""
     buf = np.zeros(n_bytes // 8, np.complex64)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "floor.bin"
 
         def run():
             buf.tofile(path)
-            hashlib.sha256(memoryview(buf).cast("B")).hexdigest()
+            digest(buf)
 
         return _median_s(run, repeats)
 
