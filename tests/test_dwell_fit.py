@@ -1,8 +1,8 @@
 """The joint fit's fast path (forward/dwell_fit.py): the axis-relative phases in float32 against the
 float64 paths, the incremental Gram matrices against A^H A, the decimation filter's passband and its
 equality with scipy.signal's, the fit on decimated slow time against the fit at the PRF and the truth,
-the extended-scene guard, the fit's resolution flags, and its clusters on forked workers
-(dsp/forked.py: the same results as in one process, the fallbacks, errors and cancel)."""
+the extended-scene guard, the fit's resolution flags, and its clusters on worker threads or forked
+processes (dsp/forked.py: the same results as in one process, the fallbacks, errors and cancel)."""
 import numpy as np
 import pytest
 from scipy.signal import freqz
@@ -230,13 +230,15 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
         return np.linalg.svd(data[job], compute_uv=False), job
 
     serial = map_jobs(fit_one, list(range(5)), 1)
-    forked = map_jobs(fit_one, list(range(5)), 3)
+    forked = map_jobs(fit_one, list(range(5)), 3, processes=True)
     for (s_a, j_a), (s_b, j_b) in zip(serial, forked):
         assert j_a == j_b and np.array_equal(s_a, s_b)
+    on_threads = map_jobs(fit_one, list(range(5)), 3)               # the default
+    assert all(a[1] == b[1] and np.array_equal(a[0], b[0]) for a, b in zip(serial, on_threads))
     proc = multiprocessing.current_process()
     daemon, proc.daemon = proc.daemon, True         # as in a daemonic worker: threads, same results
     try:
-        threaded = map_jobs(fit_one, list(range(5)), 2)
+        threaded = map_jobs(fit_one, list(range(5)), 2, processes=True)
     finally:
         proc.daemon = daemon
     assert all(np.array_equal(a[0], b[0]) for a, b in zip(serial, threaded))
@@ -248,7 +250,7 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
 
     real_pool, forked.ProcessPoolExecutor = forked.ProcessPoolExecutor, refused
     try:
-        fallback = map_jobs(fit_one, list(range(5)), 2)
+        fallback = map_jobs(fit_one, list(range(5)), 2, processes=True)
     finally:
         forked.ProcessPoolExecutor = real_pool
     assert all(np.array_equal(a[0], b[0]) for a, b in zip(serial, fallback))
@@ -256,8 +258,9 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
     def fails(job):
         raise ValueError(f"job {job}")
 
-    with pytest.raises(ValueError, match="job 0"):
-        map_jobs(fails, [0, 1], 2)
+    for processes in (False, True):
+        with pytest.raises(ValueError, match="job 0"):
+            map_jobs(fails, [0, 1], 2, processes=processes)
 
 
 def test_the_filter_and_its_convolution_are_scipy_signals():
@@ -278,8 +281,8 @@ def test_the_filter_and_its_convolution_are_scipy_signals():
 
 
 def test_the_fit_on_forked_workers_is_the_fit_in_one_process(monkeypatch):
-    """fit_region with its clusters on forked workers (two clusters, two cores) gives bit for bit the
-    angles and amplitudes it gives in one process: each worker runs the same code on the same data."""
+    """fit_region with its clusters on worker threads (two clusters, two cores) gives bit for bit the
+    angles and amplitudes it gives serially: each worker runs the same code on the same data."""
     pos, beam, p_ref = _flight(50.0)
     truth = [(8, -1.1), (8, 1.1), (30, 0.4), (30, 2.5)]
     s, d, range_m = _cluster_data(pos, beam, p_ref, truth, seed=2)
@@ -307,9 +310,10 @@ def test_cancelled_jobs_release_their_workers():
         time.sleep(0.5)
         return job
 
-    pending = start_jobs(slow, list(range(8)), 2)
-    t0 = time.perf_counter()
-    pending.cancel()
-    pending.cancel()
-    assert time.perf_counter() - t0 < 8 * 0.5 / 2          # not every job run (3 at most: the queued ones)
-    assert not multiprocessing.active_children()
+    for processes in (False, True):
+        pending = start_jobs(slow, list(range(8)), 2, processes=processes)
+        t0 = time.perf_counter()
+        pending.cancel()
+        pending.cancel()
+        assert time.perf_counter() - t0 < 8 * 0.5 / 2      # not every job run (3 at most: the queued ones)
+        assert not multiprocessing.active_children()

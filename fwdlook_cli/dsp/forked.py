@@ -1,9 +1,13 @@
-"""Independent jobs of a stage on forked worker processes (threads where a process cannot fork).
+"""Independent jobs of a stage on worker threads, or on forked worker processes where asked for.
 
 A job that is thousands of small numpy calls holds the GIL for much of its time, so threads running
 such jobs take turns rather than share the cores; forked processes inherit the job's data without
-copying it (copy on write) and send back only the result.  Used by the joint fit (``forward.dwell_fit``:
-one job per range cluster), started before the caller's own work so both proceed at once.
+copying it (copy on write) and send back only the result.  But a fork write-protects every page of
+the parent (a few hundred MB for a chain), and afterwards each first write to one of them costs a page
+fault, about 8 us on this VM: the parent's later stages and the next runs in the same process pay it.
+Measured on the dwell chain (the joint fit's clusters, ``forward.dwell_fit``; medians of 5 runs, x one
+fft2, interleaved): 136 x with the clusters on forked processes, 110 x on threads, 115 x serially.  So
+threads are the default, processes (``processes=True``) for a caller that knows they pay.
 """
 from __future__ import annotations
 
@@ -47,13 +51,12 @@ class Pending:
         return self.done
 
 
-def start_jobs(fn, jobs, workers):
+def start_jobs(fn, jobs, workers, processes: bool = False):
     """[fn(job) for job in jobs] started, returned as a ``Pending``: the jobs shared among ``workers``
-    forked processes where the platform forks (they inherit ``fn`` and the data it closes over; only
-    the index goes out and the result, pickled, comes back), else threads; the caller is free
-    meanwhile.  Processes, because a job of thousands of numpy calls on a few thousand samples each
-    (a cluster of the joint fit) convoys on the GIL on threads: two threads took as long as one on the
-    paper lattice.  The BLAS on one thread throughout (the workers share the cores)."""
+    threads, or with ``processes`` forked processes where the platform forks (they inherit ``fn`` and
+    the data it closes over; only the index goes out and the result, pickled, comes back; threads
+    where it does not); the caller is free meanwhile.  The BLAS on one thread throughout (the workers
+    share the cores).  Module docstring: why threads by default."""
     limit = one_blas_thread()
     limit.__enter__()
     if workers <= 1:
@@ -62,7 +65,8 @@ def start_jobs(fn, jobs, workers):
         finally:
             limit.__exit__(None, None, None)
     # (a daemonic process, e.g. a dask worker's, may not have children: threads there)
-    if "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon:
+    if (processes and "fork" in multiprocessing.get_all_start_methods()
+            and not multiprocessing.current_process().daemon):
         pool = None
         with _FORK_LOCK:                # every worker is forked at the first submit (the fork context
             _FORKED.update(fn=fn, jobs=jobs)   # forks them all before its manager thread starts)
@@ -78,6 +82,6 @@ def start_jobs(fn, jobs, workers):
     return Pending([pool.submit(fn, job) for job in jobs], pool, limit)
 
 
-def map_jobs(fn, jobs, workers):
+def map_jobs(fn, jobs, workers, processes: bool = False):
     """[fn(job) for job in jobs] on ``workers`` (``start_jobs``), waited for."""
-    return start_jobs(fn, jobs, workers).result()
+    return start_jobs(fn, jobs, workers, processes).result()
