@@ -281,8 +281,8 @@ def test_the_filter_and_its_convolution_are_scipy_signals():
 
 
 def test_the_fit_on_forked_workers_is_the_fit_in_one_process(monkeypatch):
-    """fit_region with its clusters on worker threads (two clusters, two cores) gives bit for bit the
-    angles and amplitudes it gives serially: each worker runs the same code on the same data."""
+    """fit_region with its clusters on forked workers (two clusters, two cores) gives bit for bit the
+    angles and amplitudes it gives in one process: each worker runs the same code on the same data."""
     pos, beam, p_ref = _flight(50.0)
     truth = [(8, -1.1), (8, 1.1), (30, 0.4), (30, 2.5)]
     s, d, range_m = _cluster_data(pos, beam, p_ref, truth, seed=2)

@@ -2,12 +2,13 @@
 
 A job that is thousands of small numpy calls holds the GIL for much of its time, so threads running
 such jobs take turns rather than share the cores; forked processes inherit the job's data without
-copying it (copy on write) and send back only the result.  But a fork write-protects every page of
-the parent (a few hundred MB for a chain), and afterwards each first write to one of them costs a page
-fault, about 8 us on this VM: the parent's later stages and the next runs in the same process pay it.
-Measured on the dwell chain (the joint fit's clusters, ``forward.dwell_fit``; medians of 5 runs, x one
-fft2, interleaved): 136 x with the clusters on forked processes, 110 x on threads, 115 x serially.  So
-threads are the default, processes (``processes=True``) for a caller that knows they pay.
+copying it (copy on write) and send back only the result.  A fork has its own cost: it write-protects
+every page of the parent, and afterwards each first write to one of them costs a page fault (about
+8 us on this VM), which the parent's later work pays, in this run and the next ones in the same
+process.  Measured on the paper cube, rounds interleaved in one process (medians of 8): the dwell
+chain with the joint fit's clusters (``forward.dwell_fit``) on forked processes 1.15 s, on threads
+1.28 s; the CPI chain run after it 0.60 s after a forked one, 0.51 s after a threaded one.  The joint
+fit asks for processes (``processes=True``); threads are the default.
 """
 from __future__ import annotations
 

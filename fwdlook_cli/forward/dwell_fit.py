@@ -28,7 +28,7 @@ is filtered out instead of fitted),
 the phases relative to the axis in float32 (exact difference formula, ``FitModel.paired_phases``), the
 Gram matrices updated one atom at a time (``_ActiveSet``), each atom refined on its own cells, the
 RELAX sweeps until the angles settle and after the first only near the atoms that moved
-(``_relax_until_settled``), the clusters on worker threads (``dsp.forked``): 0.3-0.4 s for the paper
+(``_relax_until_settled``), the clusters on forked workers (``dsp.forked``): 0.3-0.4 s for the paper
 lattice at a = 50 on two cores, where the direct form took 45 s.  Clusters wider than
 ``MAX_CLUSTER_CELLS`` (an extended scene) or needing ``MAX_ATOMS`` are left to the dwell image.
 
@@ -532,9 +532,10 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
         return theta[inside], prof, cells
 
     # up to two clusters per core in flight, so that the OS shares the cores among unequal clusters
-    # (3 on 2 cores: 2/3 of the makespan of two workers taking them in turn); threads, not forked
-    # processes: a fork's page faults cost the rest of the chain more than the GIL costs the fit here
-    pending = start_jobs(fit_one, jobs, min(2 * worker_threads(), len(jobs)) if worker_threads() > 1 else 1)
+    # (3 on 2 cores: 2/3 of the makespan of two workers taking them in turn); forked processes, since
+    # on threads the clusters' many small numpy calls take turns on the GIL (dsp.forked)
+    pending = start_jobs(fit_one, jobs, min(2 * worker_threads(), len(jobs)) if worker_threads() > 1 else 1,
+                         processes=True)
 
     def finish():
         done = pending.result()
