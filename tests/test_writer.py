@@ -118,6 +118,7 @@ def test_small_outputs_feed_the_lazy_stage_from_memory_large_ones_from_the_file(
         return real(data, **kw)
 
     monkeypatch.setattr(chain, "monopulse_image", spy)
+    monkeypatch.setattr(runner, "LAZY_INPUT_MIN_BYTES", 1 << 40)
     assert _run(["process", tiny_raw, "-o", tmp_path / "mem", "-q"]) == 0
     monkeypatch.setattr(runner, "LAZY_INPUT_MIN_BYTES", 1)
     assert _run(["process", tiny_raw, "-o", tmp_path / "lazy", "-q"]) == 0

@@ -531,9 +531,8 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
         prof[:, cells] = c[:, inside].T
         return theta[inside], prof, cells
 
-    # up to two clusters per core in flight, so that the OS shares the cores among unequal clusters
-    # (3 on 2 cores: 2/3 of the makespan of two workers taking them in turn); forked processes, since
-    # on threads the clusters' many small numpy calls take turns on the GIL (dsp.forked)
+    # up to two clusters per core in flight (3 on 2 cores: 2/3 of the makespan of two workers taking them
+    # in turn); forked processes: on threads the clusters' small numpy calls take turns on the GIL (dsp.forked)
     pending = start_jobs(fit_one, jobs, min(2 * worker_threads(), len(jobs)) if worker_threads() > 1 else 1,
                          processes=True)
 

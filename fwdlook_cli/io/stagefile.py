@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -72,18 +73,26 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
     """``virtual``: {var name: (h5py.VirtualLayout, digest of the bytes it maps)} for arrays stored as
     views of another file (:mod:`io.stageview`); every other array is written in full, uncompressed and
     contiguous (complex stage data compresses to 90-95 % at 30 times the write time: README, Speed).
-    ``known``: {var name: (array, digest)} digests already computed in this run (the previous stage's
-    file); an array that is the same object (under any name) keeps its digest.  Returns {name: (array, digest)} of what
-    the file declares (``known`` for the next stage).  The digests of large arrays are computed in a
+    ``known``: {var name: (weak reference to the array, digest)} digests already computed in this run
+    (the previous stage's file); an array that is the same object (under any name) keeps its digest.
+    Returns that mapping for what the file declares (``known`` for the next stage): weak references, so
+    that the digests never keep a stage's arrays alive (on the big cube a write held the range FFT's
+    output through the next stages: 0.6 GB of peak RSS).  The digests of large arrays are computed in a
     worker thread while HDF5 writes (io/integrity.py)."""
     virtual = virtual or {}
     known = known or {}
     pending = {}
-    by_id = {id(array): sha for array, sha in known.values()}     # the same object under any name
+    by_id = {}                                   # the same object under any name (alive: id not reused)
+    for ref, sha in known.values():
+        array = ref() if ref is not None else None
+        if array is not None:
+            by_id[id(array)] = (array, sha)
     for name, var in data.vars.items():
         if name in virtual:
             continue
-        pending[name] = by_id[id(var.data)] if id(var.data) in by_id else digest_async(var.data)
+        prior = by_id.get(id(var.data))
+        pending[name] = prior[1] if prior is not None and prior[0] is var.data else digest_async(var.data)
+    del by_id
     with atomic_h5(path) as f:
         carried = {}
         for k, v in {**data.attrs, **(extra_attrs or {})}.items():
@@ -120,11 +129,19 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
             sha = virtual[name][1] if name in virtual else pending[name]
             sha = sha if isinstance(sha, str) else sha.result()
             declared[name] = declaration(var.data, var.dims, sha)
-            out[name] = (var.data, sha)
+            out[name] = (_weak(var.data), sha)
         root[DATASETS_ATTR] = json.dumps(declared)   # integrity.py: what the file declares
         set_attrs(f, root)
     return out
 
+
+
+def _weak(array):
+    """A weak reference to ``array`` (None for an object that has none)."""
+    try:
+        return weakref.ref(array)
+    except TypeError:
+        return None
 
 def declared_dims(f) -> dict:
     """{dataset: dims} from a stage file's declaration ({} for a file without one, e.g. image.h5)."""
