@@ -531,9 +531,9 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
         prof[:, cells] = c[:, inside].T
         return theta[inside], prof, cells
 
-    # up to two clusters per core in flight (3 on 2 cores: 2/3 of the makespan of two workers taking them
-    # in turn); forked processes: on threads the clusters' small numpy calls take turns on the GIL (dsp.forked)
-    pending = start_jobs(fit_one, jobs, min(2 * worker_threads(), len(jobs)) if worker_threads() > 1 else 1,
+    # one worker per core, forked (on threads the clusters' small numpy calls take turns on the GIL);
+    # not two per core: each fork costs the page tables and copy-on-write faults (dsp.forked)
+    pending = start_jobs(fit_one, jobs, min(worker_threads(), len(jobs)) if worker_threads() > 1 else 1,
                          processes=True)
 
     def finish():
