@@ -108,8 +108,8 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
     """One dict per target with the CONTRACT.md section 5 keys and the extra measures.
 
     The search windows' peaks and the marginal cuts through them are taken for every target at once
-    (gathers of the image; the same sums, in the same order, as one target at a time); the peak
-    refinement and the profile measures per target."""
+    (gathers of the image; the cuts summed in float64, so the same as one target at a time to rounding:
+    ``tests/test_metrics_batched.py``); the peak refinement and the profile measures per target."""
     r_true, az_true = truth_at_t_ref(truth_xyz_m, np.asarray(position_ref_m))
     dr = float(range_m[1] - range_m[0])
     da = float(angle_deg[1] - angle_deg[0])
