@@ -63,12 +63,11 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     ``last`` writes only the final stage and the stages named in ``captured``; ``none`` writes none.
     With ``all`` the first missing or stale file decides where the chain starts; otherwise the latest
     valid file does (the earlier ones were never kept).  ``captured``: {stage name: None}, filled with
-    a function returning each named stage's output (held in memory when it is small; from its file when
-    kept and large, its large arrays memory maps of it, so that it is neither held in memory meanwhile
-    nor copied whole).  A
+    a function returning each named stage's output (from its file when kept, its large arrays memory
+    maps of it, so that the output is neither held in memory meanwhile nor copied whole).  A
     ``lazy_input`` stage after a written stage gets that file's large arrays as open datasets instead
-    of the arrays in memory when they are large (``LAZY_INPUT_MIN_BYTES``: bounded memory; the same
-    numbers).  Stage files are written on a writer thread while the next stages compute
+    of the arrays in memory (bounded memory; the same numbers: held in memory instead, the paper cube's
+    Doppler spectra, twice the cube, took the CPI chain's peak RSS from 2.7 to 4.1 times the cube).  Stage files are written on a writer thread while the next stages compute
     (:class:`_StageWriter`); ``pending_writes``: a list to which the function waiting for the last
     writes is appended instead of waiting here (it returns the seconds it waited; the caller must call
     it, error or not, before it treats the stage files as written).
@@ -98,8 +97,8 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     open_files = []
     if first == 0:
         data = source
-    elif first < len(stages) and _reads_lazily(stages[first], paths[first - 1]):
-        data, fh = read_stage_lazy(paths[first - 1], min_bytes=min(LAZY_INPUT_MIN_BYTES, 1 << 20))
+    elif first < len(stages) and stages[first].lazy_input:
+        data, fh = read_stage_lazy(paths[first - 1])
         open_files.append(fh)
     else:
         data = read_stage(paths[first - 1])
@@ -128,14 +127,13 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
             else:
                 writer.forget(i, st, t_compute, timings)
             if st.name in captured:
-                # a small output is held (it is the next stage's input anyway); a large one is read back
-                # from its file as memory maps when asked for
-                captured[st.name] = (functools.partial(writer.read_when_written, i, paths[i])
-                                     if i in kept and _large(out) else (lambda out=out: out))
-            if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input and _large(out):
+                # from its file (as memory maps) once that is written, or the output itself when not kept
+                captured[st.name] = (functools.partial(writer.read_when_written, i, paths[i]) if i in kept
+                                     else (lambda out=out: out))
+            if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input:
                 del out                     # bounded memory: the next stage reads this file block by block
                 writer.wait()
-                data, fh = read_stage_lazy(paths[i], min_bytes=min(LAZY_INPUT_MIN_BYTES, 1 << 20))
+                data, fh = read_stage_lazy(paths[i])
                 open_files.append(fh)
                 if st.name in captured:     # the same file, once: its large arrays as memory maps
                     captured[st.name] = (lambda mapped=mapped_stage(data, paths[i]): mapped)
@@ -160,28 +158,6 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     if first < len(stages) and first > 0 and not quiet:
         log.info(f"reused stages 1-{first} ({', '.join(names[:first])})")
     return data, timings, dict(zip(names, keys))
-
-
-# a lazy_input stage reads its input from the file (block by block: bounded memory) when it is this
-# large: held in memory instead, the paper cube's Doppler spectra (twice the cube) raised the CPI
-# chain's peak RSS from 2.7 to 4.1 times the cube (/usr/bin/time -v), over issue 11's 4
-LAZY_INPUT_MIN_BYTES = 1 << 20
-
-
-def _large(out: StageData) -> bool:
-    """Whether a stage output is large enough for the next (lazy_input) stage to read it block by block
-    from its file rather than take it from memory (the same numbers either way: bounded memory on big
-    cubes, no wait for the file on small ones)."""
-    return sum(getattr(v.data, "nbytes", 0) for v in out.vars.values()) >= LAZY_INPUT_MIN_BYTES
-
-
-def _reads_lazily(stage: Stage, previous_path: Path) -> bool:
-    if not stage.lazy_input:
-        return False
-    try:
-        return previous_path.stat().st_size >= LAZY_INPUT_MIN_BYTES
-    except OSError:
-        return False
 
 
 class _StageWriter:
