@@ -67,13 +67,17 @@ def oversample_rows(x, factor: int, workers: int = -1):
     if factor == 1:
         return np.array(x)
     n = x.shape[-1]
-    spec = scipy.fft.fft(x, axis=-1, workers=workers)
-    pad = np.zeros(spec.shape[:-1] + (n * factor,), dtype=spec.dtype)
+    m = n * factor
+    # X/n forward and an unscaled inverse: ifft_m(factor X) of the zero-padded spectrum, the scale
+    # folded into the transforms (no pass over the padded buffer for it, nor a zeroing of all of it)
+    spec = scipy.fft.fft(x, axis=-1, workers=workers, norm="forward")
+    pad = np.empty(spec.shape[:-1] + (m,), dtype=spec.dtype)
     half = n // 2
-    np.multiply(spec[..., : n - half], factor, out=pad[..., : n - half])
-    np.multiply(spec[..., n - half:], factor, out=pad[..., n * factor - half:])
+    pad[..., : n - half] = spec[..., : n - half]
+    pad[..., n - half: m - half] = 0
+    pad[..., m - half:] = spec[..., n - half:]
     del spec
-    return scipy.fft.ifft(pad, axis=-1, workers=workers, overwrite_x=True)
+    return scipy.fft.ifft(pad, axis=-1, workers=workers, overwrite_x=True, norm="forward")
 
 
 BLOCK_CELLS = 1 << 19       # oversampled cells per block: temporaries of a few MB, reused from the heap

@@ -67,6 +67,75 @@ def cis_rad(phase_rad):
     return _cis(np.asarray(phase_rad) / (2.0 * np.pi), np.complex64)
 
 
+OUTER_GRID_MAX_ERROR_RAD = 1e-7     # the largest phase error the grid factorisation may add
+
+
+def cis_outer(rate, freq, grid="auto"):
+    """``exp(j rate[m] freq[k])`` in complex64, shape [len(rate), len(freq)] (``rate`` in rad per unit
+    of ``freq``): a phase linear in the frequency per row, as every range-frequency compensation is.
+
+    On a grid ``freq = f0 + df u`` (u non-negative integers: ``fftfreq`` in any order, or any part of
+    it), u is split as ``a + K b`` and ``exp(j r (f0 + df K b)) * exp(j r df a)`` is built from two
+    tables of about sqrt(span) phases per row, each reduced modulo one cycle in float64 (:func:`_cis`):
+    one complex64 product per element instead of a cosine and a sine (the product of two unit phasors
+    rounded to complex64: error below 4e-7, -128 dB).  ``grid``: ``(f0, df, K)`` from
+    :func:`outer_grid` of the whole frequency axis, so that every block of its columns gets the same
+    numbers as the whole (each element is the same product); ``"auto"`` takes it from ``freq``; None,
+    or a ``freq`` off any grid, gives the direct :func:`cis_rad` of the outer product."""
+    rate = np.asarray(rate, dtype=np.float64).reshape(-1)
+    freq = np.asarray(freq, dtype=np.float64).reshape(-1)
+    if isinstance(grid, str):
+        grid = outer_grid(freq, float(np.max(np.abs(rate), initial=0.0)))
+    u = None if grid is None else _on_grid(freq, grid, float(np.max(np.abs(rate), initial=0.0)))
+    if u is None:
+        return cis_rad(np.multiply.outer(rate, freq))
+    f0, df, k = grid
+    b_lo, b_hi = int(u.min()) // k, int(u.max()) // k
+    two_pi = 2.0 * np.pi
+    low = _cis(np.multiply.outer(rate * (df / two_pi), np.arange(k, dtype=np.float64)), np.complex64)
+    high = _cis(np.multiply.outer(rate / two_pi, f0 + df * k * np.arange(b_lo, b_hi + 1, dtype=np.float64)),
+                np.complex64)
+    table = np.multiply(high[:, :, None], low[:, None, :]).reshape(len(rate), -1)   # column u - k b_lo
+    u = u - k * b_lo
+    first, n = int(u[0]), u.size
+    if np.array_equal(u, np.arange(first, first + n)):          # one run of the grid: a slice
+        return table[:, first:first + n]
+    shift = n - first                                           # fftfreq order: a rotation, two slices
+    if table.shape[1] >= n and np.array_equal(u, (np.arange(n) + first) % n):
+        out = np.empty((len(rate), n), np.complex64)
+        out[:, :shift] = table[:, first:n]
+        out[:, shift:] = table[:, :first]
+        return out
+    return np.take(table, u, axis=1)
+
+
+def outer_grid(freq, max_rate: float):
+    """(f0, df, K) of :func:`cis_outer` for the frequencies ``freq`` (the whole axis), or None when they
+    are not on a grid ``f0 + df u`` to within a phase error of :data:`OUTER_GRID_MAX_ERROR_RAD` at
+    ``max_rate``, are sparse on it, or too few to gain (16)."""
+    freq = np.asarray(freq, dtype=np.float64).reshape(-1)
+    if freq.size < 16 or not np.all(np.isfinite(freq)):
+        return None
+    steps = np.diff(np.sort(freq))
+    if not np.all(steps > 0):
+        return None
+    f0, df = float(freq.min()), float(steps.min())
+    span = int(np.rint((float(freq.max()) - f0) / df)) + 1
+    if span > 4 * freq.size:                     # sparse: the tables would outgrow the direct phases
+        return None
+    grid = (f0, df, int(np.ceil(np.sqrt(span))))
+    return grid if _on_grid(freq, grid, max_rate) is not None else None
+
+
+def _on_grid(freq, grid, max_rate: float):
+    """The integers u >= 0 with ``freq = f0 + df u`` within the phase tolerance, else None."""
+    f0, df, _ = grid
+    u = np.rint((freq - f0) / df)
+    if u.size == 0 or u.min() < 0 or float(np.max(np.abs(f0 + df * u - freq))) * max_rate > OUTER_GRID_MAX_ERROR_RAD:
+        return None
+    return u.astype(np.intp)
+
+
 def _check_dtype(dtype):
     dtype = np.dtype(dtype)
     if dtype not in (np.dtype(np.complex64), np.dtype(np.complex128)):

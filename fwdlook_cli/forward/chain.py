@@ -26,7 +26,7 @@ import scipy.fft
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both
 from ..dsp.blas import batched_matmul
-from ..dsp.keystone_common import cis_rad as _cis
+from ..dsp.keystone_common import cis_outer, cis_rad as _cis
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, cpi_doppler_band_hz,
                      cpi_means, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector)
 from ..runner import Stage
@@ -122,7 +122,7 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
             delta_r = beam_range_history_m(pos, m0, data["scan_angle_deg"], depression_deg,
                                            reference_range_m)
         # envelope shift of pulse m by the predicted R(t_m) - R(t_ref); carrier phase kept
-        shift = _cis(4.0 * np.pi * delta_r[:, None] * fr_hz[None, :] / C_MPS).reshape(p, q, n_f)
+        shift = cis_outer(4.0 * np.pi * delta_r / C_MPS, fr_hz).reshape(p, q, n_f)
         y_sum, y_diff = x_sum * shift, x_diff * shift
     elif method in ("traditional", "decimation", "tracking"):
         alpha = fc_hz / (fc_hz + fr_hz)                   # eq. (8)
@@ -167,36 +167,33 @@ def range_curvature(data: StageData, *, model: str, radial_accel_mps2: float, t_
     out.vars["range_m"] = data.vars["range_m"]
     t = data["slow_time_s"] - t_ref_s
     fr_hz = data["fr_hz"]
-    if model == "eq12":
-        def phase_rows(b):          # the compensation phase of the pulses in block b (rad)
-            return 2.0 * np.pi * fr_hz[None, :] * radial_accel_mps2 * (t[b] ** 2)[:, None] / C_MPS
+    if model == "eq12":          # the compensation phase is rate(t) * f_r, rate in rad/Hz
+        rate_rad_per_hz = 2.0 * np.pi * radial_accel_mps2 * t ** 2 / C_MPS
     elif model == "beam":
         env_m = keystone_residual_envelope_m(data["slow_time_s"], data["position_m"], data["velocity_mps"],
                                              t_ref_s, prf_hz, data["scan_angle_deg"], depression_deg,
                                              reference_range_m)
-
-        def phase_rows(b):
-            return 4.0 * np.pi * fr_hz[None, :] * env_m[b][:, None] / C_MPS
+        rate_rad_per_hz = 4.0 * np.pi * env_m / C_MPS
     elif model == "off":
-        phase_rows = None
+        rate_rad_per_hz = None
     else:
         raise ValueError(f"curvature model {model!r}; allowed: off, eq12, beam")
-    # h = exp(j phase), x * h, ifft over range: one block of pulses at a time, h shared by both channels
-    y_sum, y_diff = _compensate_rows(data["sum_f"], data["diff_f"], phase_rows)
+    # h = exp(j rate f_r), x * h, ifft over range: one block of pulses at a time, h shared by both channels
+    y_sum, y_diff = _compensate_rows(data["sum_f"], data["diff_f"], rate_rad_per_hz, fr_hz)
     for ch, y in (("sum", y_sum), ("diff", y_diff)):
         out.add(ch, y, ("slow_time_s", "range_m"), "1", f"{ch} channel, motion compensated, range time")
     out.attrs.update(range_curvature=model, radial_accel_mps2=float(radial_accel_mps2))
     return out
 
 
-def _compensate_rows(x_sum, x_diff, phase_rows, block_bytes: int = 1 << 20):
-    """ifft over range of ``x * exp(j phase)`` for both channels, one block of pulses at a time (the
-    phase and h of a block only: no cube-sized temporary)."""
+def _compensate_rows(x_sum, x_diff, rate_rad_per_hz, fr_hz, block_bytes: int = 1 << 20):
+    """ifft over range of ``x * exp(j rate f_r)`` for both channels, one block of pulses at a time (h of
+    a block only: no cube-sized temporary; :func:`dsp.keystone_common.cis_outer`, f_r on its grid)."""
     y_sum, y_diff = np.empty(x_sum.shape, np.complex64), np.empty(x_diff.shape, np.complex64)
     step = max(1, block_bytes // max(1, 8 * x_sum.shape[1]))
     for lo in range(0, x_sum.shape[0], step):
         b = slice(lo, lo + step)
-        h = None if phase_rows is None else _cis(phase_rows(b))
+        h = None if rate_rad_per_hz is None else cis_outer(rate_rad_per_hz[b], fr_hz)
         for x, y in ((x_sum, y_sum), (x_diff, y_diff)):
             y[b] = scipy.fft.ifft(x[b] if h is None else x[b] * h, axis=1, workers=-1)
     return y_sum, y_diff

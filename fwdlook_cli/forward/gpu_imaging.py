@@ -34,12 +34,12 @@ def oversample_range(xp, x, factor: int):
     fx, kw = fft_module(xp), fft_kwargs(xp)
     n = x.shape[-1]
     half = n // 2
-    spec = fx.fft(x, axis=-1, **kw)
+    spec = fx.fft(x, axis=-1, norm="forward", **kw)        # X/n, then an unscaled inverse (as the CPU's)
     pad = xp.zeros(spec.shape[:-1] + (n * factor,), dtype=spec.dtype)
-    pad[..., : n - half] = spec[..., : n - half] * factor
-    pad[..., n * factor - half:] = spec[..., n - half:] * factor
+    pad[..., : n - half] = spec[..., : n - half]
+    pad[..., n * factor - half:] = spec[..., n - half:]
     del spec
-    return fx.ifft(pad, axis=-1, overwrite_x=True, **kw)
+    return fx.ifft(pad, axis=-1, overwrite_x=True, norm="forward", **kw)
 
 
 def kept_cells_xp(xp, sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,

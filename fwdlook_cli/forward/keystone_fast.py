@@ -14,7 +14,7 @@ import numpy as np
 
 from ..dsp.blas import worker_threads
 from ..dsp.keystone import keystone_dft, keystone_sinc
-from ..dsp.keystone_common import _cis
+from ..dsp.keystone_common import _cis, cis_outer, outer_grid
 from ..dsp.keystone_czt import KeystonePlan
 
 
@@ -70,12 +70,17 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
     y_sum = np.empty((p, n_cols), np.complex64)
     y_diff = np.empty((p, n_cols), np.complex64)
 
+    if tracking is not None:             # the history's derivatives and the phasor grid: once, all blocks
+        hist, t, prf_hz, scale = tracking
+        scale = np.broadcast_to(np.asarray(scale, dtype=np.float64), (n_cols,))
+        derivs = history_taylor(hist, t)
+        grid = outer_grid(scale, float(np.max(np.abs(derivs[0]), initial=0.0)))
+
     def block(lo):                       # columns are independent: each block in its own thread
         blk = slice(lo, min(n_cols, lo + step))
         trk = None
         if tracking is not None:
-            hist, t, prf_hz, scale = tracking
-            trk = (hist, t, prf_hz, np.broadcast_to(scale, (n_cols,))[blk])
+            trk = (derivs, grid, prf_hz, scale[blk])
         y_sum[:, blk], y_diff[:, blk] = _keystone_block(
             x_sum[:, blk], x_diff[:, blk], alpha=alpha[blk], t0_index=t0_index[blk],
             implementation=implementation, doppler_ref=doppler_ref, n_taps=n_taps, tracking=trk,
@@ -97,9 +102,8 @@ def _keystone_block(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity
     demod = remod = None
     plan = KeystonePlan(p, alpha, t0_index=t0_index, workers=fft_workers) if implementation == "czt" else None
     if tracking is not None:
-        hist, t, prf_hz, scale = tracking
-        derivs = history_taylor(hist, t)
-        demod = _cis(-np.outer(derivs[0], scale) / (2.0 * np.pi), np.complex64)
+        derivs, grid, prf_hz, scale = tracking
+        demod = cis_outer(-derivs[0], scale, grid)    # the phase is linear in scale = 1 + f_r/f_c
         # tau = alpha (m - t0) + t0 (eq. 8): the shift from pulse m is (alpha - 1)(m - t0) pulses
         dt_s = np.subtract.outer(np.arange(p, dtype=np.float64), t0_index) * ((alpha - 1.0) / prf_hz)
         cycles = history_phase_shifted(derivs, dt_s)
