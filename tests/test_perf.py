@@ -93,6 +93,24 @@ def test_keystone_column_blocks_change_nothing(tracking_case, tracking, threads,
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("block_bytes", [1, 1 << 16, 1 << 30])
+def test_decimated_blocks_by_range_frequency_change_nothing(tracking_case, block_bytes):
+    """The decimated layout (three sub-sequences of 24 range frequencies, each its own time origin)
+    in blocks of range frequencies across the sub-sequences (``period``) gives the column blocks'
+    keystone bit for bit."""
+    c = tracking_case
+    q, n_f = 3, c["fr"].size
+    rng = np.random.default_rng(8)
+    xs, xd = ((rng.standard_normal((170, q * n_f)) + 1j * rng.standard_normal((170, q * n_f))).astype(np.complex64)
+              for _ in range(2))
+    kw = dict(alpha=np.tile(c["alpha"], q), t0_index=np.repeat([40.2, 39.9, 39.5], n_f), implementation="czt",
+              ambiguity=2)
+    plain = keystone_both(xs, xd, block_bytes=block_bytes, **kw)
+    grouped = keystone_both(xs, xd, block_bytes=block_bytes, period=n_f, **kw)
+    for a, b in zip(plain, grouped):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_taylor_history_equals_the_spline_at_the_resampled_times(tracking_case):
     from fwdlook_cli.forward.keystone_fast import history_phase_shifted, history_taylor
 

@@ -8,6 +8,23 @@ import scipy.fft as sfft
 from .keystone_common import _as_2d, _check_dtype, _check_n, _cis, _n_cols, _per_column
 
 
+# --------------------------------------------------------------------------- linear phases
+def _linear_phasors(c0: int, n: int, slope_cycles, dtype):
+    """``exp(j 2 pi (c0 + i) s_k)`` for rows i < n and columns k (``slope_cycles`` s, cycles per row):
+    with i = a + K b, K ~ sqrt(n), the product of exp(j 2 pi (c0 + K b) s) and exp(j 2 pi a s), two
+    tables of about sqrt(n) rows whose phases are reduced in float64, instead of n cosines and sines
+    per column (the same phasors to rounding: two unit phasors of the dtype and one product)."""
+    s = np.asarray(slope_cycles, dtype=np.float64).reshape(1, -1)
+    if n < 16:
+        return _cis((c0 + np.arange(n, dtype=np.float64))[:, None] * s, dtype)
+    k = int(np.ceil(np.sqrt(n)))
+    n_b = -(-n // k)
+    low = _cis(np.arange(k, dtype=np.float64)[:, None] * s, dtype)                   # [K, cols]
+    high = _cis((c0 + k * np.arange(n_b, dtype=np.float64))[:, None] * s, dtype)     # [n_b, cols]
+    table = np.multiply(high[:, None, :], low[None, :, :]).reshape(n_b * k, s.shape[1])
+    return table[:n]                 # leading rows of a C-ordered array: contiguous
+
+
 # --------------------------------------------------------------------------- CZT plan
 class KeystonePlan:
     """Precomputed CZT (Bluestein) keystone for one geometry.
@@ -90,24 +107,29 @@ class KeystonePlan:
         self._c_min = c_min = -(n // 2)
         self._shift = n // 2  # FFT bin p lands at centred position (p + n//2) mod n
 
-        i = np.arange(n, dtype=np.float64)[:, None]  # centred position, c = c_min + i
-        c = c_min + i
-        # input chirp: origin shift exp(j2pi c (1-alpha) t0 / n) times W^(i^2/2) (eq. 21)
-        self._pre = _cis(c * ((1.0 - alpha) * t0 / n) + (alpha / (2.0 * n)) * i**2, self.dtype)
-
-        # filter h_d = W^(-d^2/2), d = -(n-1)..(n-1), wrapped into length L
-        # circular lag d of FFT row j: j up to L/2, j - L above; |d| <= n-1 is all that matters for
-        # L >= 2n-1.  h is even in d, so its phases are taken once per |d| (half the cosines and
-        # sines) and the rows gathered: the same numbers.
-        j = np.arange(L)
-        abs_d = np.minimum(j, L - j)
-        # the filter depends on alpha only: compute it once per distinct alpha (decimated layouts
-        # repeat the same range-frequency alphas for every sub-sequence and channel)
+        # the chirps depend on alpha only, but the origin shift: computed once per distinct alpha
+        # (decimated layouts repeat the same range-frequency alphas for every sub-sequence), gathered
+        # to the columns only where alphas repeat (``inverse`` None: every column its own alpha)
         alpha_u, inverse = np.unique(alpha, return_inverse=True)
+        if alpha_u.size == alpha.size:
+            alpha_u, inverse = alpha, None
+        # h_d = W^(-d^2/2) for |d| = 0..L/2, phases reduced in float64 (eq. 21)
         d_half = np.arange(L // 2 + 1, dtype=np.float64)
-        h = _cis(-(alpha_u / (2.0 * n)) * (d_half**2)[:, None], self.dtype)[abs_d]   # phase reduced in float64
-        self._filt = sfft.fft(h, axis=0, workers=workers, overwrite_x=True)[:, inverse]
-        del h
+        h_half = _cis(-(alpha_u / (2.0 * n)) * (d_half**2)[:, None], self.dtype)
+        # input chirp: origin shift exp(j2pi c (1-alpha) t0 / n), linear in c = c_min + i (two phase
+        # tables, :func:`_linear_phasors`), times W^(i^2/2) = conj(h_i) (i < n <= L/2 + 1)
+        quad = h_half[:n] if inverse is None else h_half[:n, inverse]
+        self._pre = _linear_phasors(c_min, n, (1.0 - alpha) * t0 / n, self.dtype)
+        np.multiply(self._pre, quad.conj(), out=self._pre)
+        del quad
+
+        # filter h_d, d = -(n-1)..(n-1), wrapped into length L: circular lag d of FFT row j is j up to
+        # L/2, j - L above; |d| <= n-1 is all that matters for L >= 2n-1.  h is even in d: the rows
+        # of h_half gathered (the same numbers)
+        j = np.arange(L)
+        filt = sfft.fft(h_half[np.minimum(j, L - j)], axis=0, workers=workers, overwrite_x=True)
+        self._filt = filt if inverse is None else filt[:, inverse]
+        del h_half, filt
 
         # output chirp for F = 0: (1/n) W^(c_min m' + m'^2/2), a function of alpha only
         self._alpha_unique, self._alpha_inverse = alpha_u, inverse
@@ -128,13 +150,14 @@ class KeystonePlan:
                 # part per distinct alpha, the constant (1-alpha) t0 part and the 1/n per column, each
                 # factor's phase reduced in float64 and taken in the plan's precision
                 f = float(F.reshape(-1)[0])
-                post = _cis(base + np.mod(f * a_u * m, 1.0), self.dtype)[:, inv]
+                post = _cis(base + np.mod(f * a_u * m, 1.0), self.dtype)
+                post = post if inv is None else post[:, inv]
                 col = (_cis(np.mod(f * (1.0 - self.alpha) * self.t0_index, 1.0)) if f != 0.0
                        else np.ones(self.n_cols, np.complex128)) / self.n_slow
                 post *= col.astype(self.dtype)[None, :]
             else:
                 tau = self.alpha * m + (1.0 - self.alpha) * self.t0_index
-                post = _cis(base[:, inv] + np.mod(F * tau, 1.0), self.dtype)
+                post = _cis((base if inv is None else base[:, inv]) + np.mod(F * tau, 1.0), self.dtype)
                 post *= self.dtype.type(1.0 / self.n_slow)
             if len(self._post_cache) >= self._POST_CACHE_SIZE:
                 self._post_cache.pop(next(iter(self._post_cache)), None)
@@ -147,7 +170,7 @@ class KeystonePlan:
         remodulation) adds it here and passes ``post=(1/n) exp(j 2 pi (both))`` to the call."""
         m = np.arange(self.n_slow, dtype=np.float64)[:, None]
         base = (self._alpha_unique / self.n_slow) * (self._c_min * m + 0.5 * m**2)
-        return base[:, self._alpha_inverse]
+        return base if self._alpha_inverse is None else base[:, self._alpha_inverse]
 
     def __call__(self, x, *, ambiguity=0, post=None):
         """Keystone `x` (``[n_slow, n_cols]``) with Doppler ambiguity number(s) `ambiguity`.

@@ -141,7 +141,7 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
         y_sum, y_diff = keystone_both(x_sum.reshape(p, q * n_f), x_diff.reshape(p, q * n_f), alpha=alpha_cols,
                                       t0_index=t0_cols, implementation=implementation,
                                       ambiguity=0 if method == "tracking" else ambiguity,
-                                      doppler_ref=ref, n_taps=n_taps, tracking=tracking)
+                                      doppler_ref=ref, n_taps=n_taps, tracking=tracking, period=n_f)
         y_sum, y_diff = y_sum.reshape(p, q, n_f), y_diff.reshape(p, q, n_f)
     else:
         raise ValueError(f"method {method!r}; allowed: none, bulk, beam, traditional, decimation, tracking")

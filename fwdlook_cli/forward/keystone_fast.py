@@ -49,24 +49,30 @@ BLOCK_BYTES = 2 << 20       # CZT work buffer per column block (L x columns x 8 
 
 
 def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, doppler_ref=0.0,
-                  n_taps=16, tracking=None, block_bytes: int = BLOCK_BYTES):
+                  n_taps=16, tracking=None, block_bytes: int = BLOCK_BYTES, period: int | None = None):
     """Keystone of both channels ([n_slow, n_cols] each) sharing one geometry; returns (y_sum, y_diff).
 
     ``tracking``: None, or (hist, slow_time_s, prf_hz, scale) for the tracking keystone: demodulate by
     exp(-j Psi(t) scale), resample with F = 0, remodulate by exp(j Psi(t0 + tau/PRF) scale) with
     scale = (f_c + f_r)/f_c per column.  Columns are independent, so the work runs over blocks of
     range-frequency columns (plan, chirps and buffers of one block at a time: bounded memory, the
-    same numbers).
+    same numbers).  ``period``: the columns are groups of ``period`` (the decimated layout [Q, n_fr]:
+    column q n_fr + k has the alpha of range frequency k); a block then takes range frequencies
+    k0..k1 of every group, so that each alpha's chirps and filter are computed once, not once per
+    block its columns fall in.
     """
     p, n_cols = x_sum.shape
     alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n_cols,))
     t0_index = np.broadcast_to(np.asarray(t0_index, dtype=np.float64), (n_cols,))
     nfft = 2 * p if implementation == "czt" else p
     step = max(1, int(block_bytes) // (8 * nfft))
+    groups = n_cols // period if period and n_cols % period == 0 and n_cols > period else 1
+    width = n_cols // groups                   # a block: columns [k0, k1) of each of the groups
     # a thread pool over the column blocks (FFTs one thread each; the command line shares one
     # allocator arena among the threads, dsp.blas, so the blocks in flight cost what one block did)
-    threads = min(worker_threads(), -(-n_cols // step)) if implementation == "czt" else 1
-    step = max(1, step // threads)       # the blocks in flight hold what one block did
+    per_block = max(1, step // groups)
+    threads = min(worker_threads(), -(-width // per_block)) if implementation == "czt" else 1
+    per_block = max(1, per_block // threads)   # the blocks in flight hold what one block did
     y_sum = np.empty((p, n_cols), np.complex64)
     y_diff = np.empty((p, n_cols), np.complex64)
 
@@ -76,22 +82,34 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
         derivs = history_taylor(hist, t)
         grid = outer_grid(scale, float(np.max(np.abs(derivs[0]), initial=0.0)))
 
+    def cols(a, k):                      # a per-column array's block: columns k of every group
+        return a[k] if groups == 1 else a.reshape(groups, width)[:, k].reshape(-1)
+
     def block(lo):                       # columns are independent: each block in its own thread
-        blk = slice(lo, min(n_cols, lo + step))
+        k = slice(lo, min(width, lo + per_block))
         trk = None
         if tracking is not None:
-            trk = (derivs, grid, prf_hz, scale[blk])
-        y_sum[:, blk], y_diff[:, blk] = _keystone_block(
-            x_sum[:, blk], x_diff[:, blk], alpha=alpha[blk], t0_index=t0_index[blk],
+            trk = (derivs, grid, prf_hz, cols(scale, k))
+        if groups == 1:
+            xs, xd = x_sum[:, k], x_diff[:, k]
+        else:
+            xs, xd = (x.reshape(p, groups, width)[:, :, k].reshape(p, -1) for x in (x_sum, x_diff))
+        ys, yd = _keystone_block(
+            xs, xd, alpha=cols(alpha, k), t0_index=cols(t0_index, k),
             implementation=implementation, doppler_ref=doppler_ref, n_taps=n_taps, tracking=trk,
-            ambiguity=ambiguity if np.ndim(ambiguity) == 0 else np.asarray(ambiguity)[blk],
+            ambiguity=ambiguity if np.ndim(ambiguity) == 0 else cols(np.asarray(ambiguity), k),
             fft_workers=1 if threads > 1 else -1)
+        for y, out in ((ys, y_sum), (yd, y_diff)):
+            if groups == 1:
+                out[:, k] = y
+            else:
+                out.reshape(p, groups, width)[:, :, k] = y.reshape(p, groups, -1)
 
     if threads > 1:
         with ThreadPoolExecutor(max_workers=threads) as pool:
-            list(pool.map(block, range(0, n_cols, step)))
+            list(pool.map(block, range(0, width, per_block)))
     else:
-        for lo in range(0, n_cols, step):
+        for lo in range(0, width, per_block):
             block(lo)
     return y_sum, y_diff
 
