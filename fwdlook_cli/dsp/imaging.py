@@ -80,7 +80,7 @@ def oversample_rows(x, factor: int, workers: int = -1):
     return scipy.fft.ifft(pad, axis=-1, workers=workers, overwrite_x=True, norm="forward")
 
 
-BLOCK_CELLS = 1 << 19       # oversampled cells per block: temporaries of a few MB, reused from the heap
+BLOCK_CELLS = 1 << 20       # oversampled cells per block: temporaries of a few MB, reused from the heap
 
 
 def kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,

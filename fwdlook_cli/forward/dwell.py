@@ -453,9 +453,9 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
             "real-beam image: sum power against beam angle")
     out.add("dwell_gain", gain, ("angle_deg",), "1", "matched-filter gain sum w^2 of each direction's dwell")
-    out.add("cell", np.arange(int(inside.sum())), ("cell",), "1", "projected cell")
-    out.add("cell_x_m", ground[:, 0], ("cell",), "m", "ground x of each projected cell")
-    out.add("cell_y_m", ground[:, 1], ("cell",), "m", "ground y of each projected cell")
+    out.add("cell", np.arange(int(inside.sum()), dtype=np.int32), ("cell",), "1", "projected cell")
+    out.add("cell_x_m", ground[:, 0].astype(np.float32), ("cell",), "m", "ground x of each projected cell")
+    out.add("cell_y_m", ground[:, 1].astype(np.float32), ("cell",), "m", "ground y of each projected cell")
     out.add("cell_power", w[inside].astype(np.float32), ("cell",), "1", "power of each projected cell")
     out.attrs.update(range_oversample=range_oversample, angle_step_deg=angle_step_deg,
                      slope_per_deg=slope_per_deg, position_ref_m=list(map(float, p_ref)), imaging="dwell",

@@ -18,7 +18,7 @@ computation, so the digest must catch damage (bit rot, a truncated or partly rew
 not a forger; a 128-bit digest misses a given change with probability 2^-128, as SHA-256's 2^-256 does
 for every practical purpose.  Measured on this machine: SHA-256 (with the CPU's SHA instructions) at
 1.4 GB/s, XXH3-128 at 16 GB/s: the paper run writes about 70 MB of stage files, 50 ms of SHA-256
-against 4 ms (stage format 3; the SHA-256 files of format 2 are stale, recomputed once).
+against 4 ms (since stage format 3; the SHA-256 files of format 2 are stale, recomputed once).
 Why a stored digest rather than HDF5's fletcher32 filter: the digest covers every layout (contiguous,
 compact, scalar, gzip), it is checked by fwdlook itself rather than by a filter that a dataset
 rewritten without it silently drops, and the declared dtype and shape catch a rewrite that a checksum
@@ -37,7 +37,7 @@ from .h5 import worker_pool
 
 DIGEST_ATTR = "xxh3_128"
 DATASETS_ATTR = "stage_datasets"
-STAGE_FORMAT_VERSION = 3       # 3: XXH3-128 digests; 2: SHA-256 (files of 1 and 2 are stale)
+STAGE_FORMAT_VERSION = 4       # 4: float32 cell positions; 3: XXH3-128 digests; 2: SHA-256 (older: stale)
 THREAD_MIN_BYTES = 1 << 18     # smaller arrays are hashed inline (a thread hand-off costs more)
 
 
