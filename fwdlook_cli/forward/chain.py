@@ -26,7 +26,7 @@ import scipy.fft
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both
 from ..dsp.blas import batched_matmul
-from ..dsp.keystone_common import cis_outer, cis_rad as _cis
+from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, cpi_doppler_band_hz,
                      cpi_means, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector)
 from ..runner import Stage
@@ -191,11 +191,13 @@ def _compensate_rows(x_sum, x_diff, rate_rad_per_hz, fr_hz, block_bytes: int = 1
     a block only: no cube-sized temporary; :func:`dsp.keystone_common.cis_outer`, f_r on its grid)."""
     y_sum, y_diff = np.empty(x_sum.shape, np.complex64), np.empty(x_diff.shape, np.complex64)
     step = max(1, block_bytes // max(1, 8 * x_sum.shape[1]))
+    grid = None if rate_rad_per_hz is None else outer_grid(fr_hz, float(np.max(np.abs(rate_rad_per_hz), initial=0.0)))
     for lo in range(0, x_sum.shape[0], step):
         b = slice(lo, lo + step)
-        h = None if rate_rad_per_hz is None else cis_outer(rate_rad_per_hz[b], fr_hz)
+        h = None if rate_rad_per_hz is None else cis_outer(rate_rad_per_hz[b], fr_hz, grid)
         for x, y in ((x_sum, y_sum), (x_diff, y_diff)):
-            y[b] = scipy.fft.ifft(x[b] if h is None else x[b] * h, axis=1, workers=-1)
+            y[b] = (scipy.fft.ifft(x[b], axis=1, workers=-1) if h is None
+                    else scipy.fft.ifft(x[b] * h, axis=1, workers=-1, overwrite_x=True))
     return y_sum, y_diff
 
 
