@@ -531,9 +531,9 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
         prof[:, cells] = c[:, inside].T
         return theta[inside], prof, cells
 
-    # one worker per core, forked (on threads the clusters' small numpy calls take turns on the GIL);
-    # not two per core: each fork costs the page tables and copy-on-write faults (dsp.forked)
-    pending = start_jobs(fit_one, jobs, min(worker_threads(), len(jobs)) if worker_threads() > 1 else 1,
+    # a forked worker per cluster, at most two per core (threads take turns on the GIL; a fork costs page
+    # tables and copy-on-write faults, dsp.forked): the paper's 3 clusters end together (README, Speed)
+    pending = start_jobs(fit_one, jobs, min(2 * worker_threads(), len(jobs)) if worker_threads() > 1 else 1,
                          processes=True)
 
     def finish():
