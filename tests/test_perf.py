@@ -20,7 +20,7 @@ from fwdlook_cli.cli import main
 from fwdlook_cli.dsp.blas import batched_matmul
 from fwdlook_cli.dsp.imaging import azimuth_at_t_ref_cells, kept_cells, median_floor, power_f32
 from fwdlook_cli.dsp.keystone import keystone_dft
-from fwdlook_cli.dsp.keystone_common import _cis, cis_outer
+from fwdlook_cli.dsp.keystone_common import OuterPhasors, _cis, cis_outer
 from fwdlook_cli.dsp.keystone_czt import KeystonePlan
 from fwdlook_cli.dsp.geometry import azimuth_at_t_ref
 from fwdlook_cli.dsp.peaks import oversample_range
@@ -139,6 +139,21 @@ def test_outer_phasors_equal_the_direct_exponential(order):
     h = cis_outer(rate, fr)
     assert h.dtype == np.complex64 and h.shape == (300, n)
     assert np.max(np.abs(h - np.exp(1j * np.multiply.outer(rate, fr)))) < 4e-7
+
+
+def test_outer_phasor_tables_give_every_column_block_the_same_numbers():
+    """The tables built once for the whole axis: any block of columns (a slice or indices) gathers the
+    whole's phasors bit for bit, each within 4e-7 of the exponential."""
+    rng = np.random.default_rng(12)
+    fr = scipy.fft.fftfreq(300, 1.0 / 20e6)
+    rate = 2.0 * np.pi * rng.uniform(-1e-6, 1e-6, 200)
+    tables = OuterPhasors(rate, fr)
+    whole = tables.columns(slice(None))
+    assert np.max(np.abs(whole - np.exp(1j * np.multiply.outer(rate, fr)))) < 4e-7
+    blocks = np.concatenate([tables.columns(slice(lo, lo + 7)) for lo in range(0, 300, 7)], axis=1)
+    np.testing.assert_array_equal(blocks, whole)
+    picked = rng.permutation(300)[:40]
+    np.testing.assert_array_equal(tables.columns(picked), whole[:, picked])
 
 
 # ----------------------------------------------------------------------------------------------

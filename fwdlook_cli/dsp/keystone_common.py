@@ -109,6 +109,36 @@ def cis_outer(rate, freq, grid="auto"):
     return np.take(table, u, axis=1)
 
 
+class OuterPhasors:
+    """:func:`cis_outer`'s two phase tables for the rows ``rate`` and the whole frequency axis ``freq``,
+    built once, for a caller that works in blocks of columns (the tracking keystone's demodulation):
+    :meth:`columns` gathers each block's phasors from them, one complex64 product per element, the same
+    numbers for any blocking.  The tables hold rows x 2 sqrt(span) phasors (16 MB for 16384 pulses x
+    4096 range bins); off any grid every block takes the direct :func:`cis_rad`."""
+
+    def __init__(self, rate, freq):
+        self.rate = np.asarray(rate, dtype=np.float64).reshape(-1)
+        self.freq = np.asarray(freq, dtype=np.float64).reshape(-1)
+        max_rate = float(np.max(np.abs(self.rate), initial=0.0))
+        grid = outer_grid(self.freq, max_rate)
+        self.u = None if grid is None else _on_grid(self.freq, grid, max_rate)
+        if self.u is not None:
+            f0, df, k = grid
+            two_pi = 2.0 * np.pi
+            self.a, self.b = self.u % k, self.u // k
+            self.low = _cis(np.multiply.outer(self.rate * (df / two_pi), np.arange(k, dtype=np.float64)),
+                            np.complex64)
+            self.high = _cis(np.multiply.outer(self.rate / two_pi,
+                                               f0 + df * k * np.arange(int(self.b.max()) + 1, dtype=np.float64)),
+                             np.complex64)
+
+    def columns(self, sel):
+        """exp(j rate freq[sel]) [rows, columns of ``sel``] (a slice or an index array)."""
+        if self.u is None:
+            return cis_rad(np.multiply.outer(self.rate, self.freq[sel]))
+        return np.take(self.high, self.b[sel], axis=1) * np.take(self.low, self.a[sel], axis=1)
+
+
 def outer_grid(freq, max_rate: float):
     """(f0, df, K) of :func:`cis_outer` for the frequencies ``freq`` (the whole axis), or None when they
     are not on a grid ``f0 + df u`` to within a phase error of :data:`OUTER_GRID_MAX_ERROR_RAD` at

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..dsp.blas import worker_threads
 from ..dsp.keystone import keystone_dft, keystone_sinc
-from ..dsp.keystone_common import _cis, cis_outer, outer_grid
+from ..dsp.keystone_common import OuterPhasors, _cis
 from ..dsp.keystone_czt import KeystonePlan
 
 
@@ -80,7 +80,7 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
         hist, t, prf_hz, scale = tracking
         scale = np.broadcast_to(np.asarray(scale, dtype=np.float64), (n_cols,))
         derivs = history_taylor(hist, t)
-        grid = outer_grid(scale, float(np.max(np.abs(derivs[0]), initial=0.0)))
+        demod = OuterPhasors(-derivs[0], scale)     # the phase is linear in scale = 1 + f_r/f_c
 
     def cols(a, k):                      # a per-column array's block: columns k of every group
         return a[k] if groups == 1 else a.reshape(groups, width)[:, k].reshape(-1)
@@ -89,7 +89,7 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
         k = slice(lo, min(width, lo + per_block))
         trk = None
         if tracking is not None:
-            trk = (derivs, grid, prf_hz, cols(scale, k))
+            trk = (derivs, demod.columns(cols(np.arange(n_cols), k)), prf_hz, cols(scale, k))
         if groups == 1:
             xs, xd = x_sum[:, k], x_diff[:, k]
         else:
@@ -120,8 +120,7 @@ def _keystone_block(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity
     demod = remod = None
     plan = KeystonePlan(p, alpha, t0_index=t0_index, workers=fft_workers) if implementation == "czt" else None
     if tracking is not None:
-        derivs, grid, prf_hz, scale = tracking
-        demod = cis_outer(-derivs[0], scale, grid)    # the phase is linear in scale = 1 + f_r/f_c
+        derivs, demod, prf_hz, scale = tracking
         # tau = alpha (m - t0) + t0 (eq. 8): the shift from pulse m is (alpha - 1)(m - t0) pulses
         dt_s = np.subtract.outer(np.arange(p, dtype=np.float64), t0_index) * ((alpha - 1.0) / prf_hz)
         cycles = history_phase_shifted(derivs, dt_s)
