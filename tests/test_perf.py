@@ -18,7 +18,7 @@ import scipy.fft
 
 from fwdlook_cli.cli import main
 from fwdlook_cli.dsp.blas import batched_matmul
-from fwdlook_cli.dsp.imaging import azimuth_at_t_ref_cells, kept_cells, median_floor, power_f32
+from fwdlook_cli.dsp.imaging import azimuth_at_t_ref_cells, float32_floor, kept_cells, median_floor, power_f32
 from fwdlook_cli.dsp.keystone import keystone_dft
 from fwdlook_cli.dsp.keystone_common import OuterPhasors, _cis, cis_outer
 from fwdlook_cli.dsp.keystone_czt import KeystonePlan
@@ -184,6 +184,18 @@ def spectra():
             z[0, cpi, dop] += echo
             z[1, cpi, dop] += echo * rng.uniform(-0.5, 0.5)
     return z[0].astype(np.complex64), z[1].astype(np.complex64)
+
+
+def test_a_float32_power_against_the_rounded_down_level_is_the_float64_test():
+    """p > L (float64) and p > float32_floor(L) select the same float32 cells, at and around L."""
+    rng = np.random.default_rng(6)
+    level = rng.uniform(0.5, 2.0, 500) * 10.0 ** rng.integers(-5, 6, 500)
+    f = level.astype(np.float32)
+    near = np.concatenate([f, np.nextafter(f, np.float32(np.inf)), np.nextafter(f, np.float32(-np.inf))])
+    p = np.concatenate([near, rng.uniform(0, 4, 3000).astype(np.float32) * f.max()]).astype(np.float32)
+    floor32 = float32_floor(level)
+    assert floor32.dtype == np.float32 and np.all(floor32.astype(np.float64) <= level)
+    np.testing.assert_array_equal(p[None, :] > floor32[:, None], p[None, :] > level[:, None])
 
 
 @pytest.mark.parametrize("block_cells", [1 << 20, 1])

@@ -29,6 +29,14 @@ def power_f32(z):
     return p
 
 
+def float32_floor(x):
+    """The largest float32 <= ``x`` (float64): for float32 ``p``, ``p > x`` exactly when ``p > float32_floor(x)``
+    (a float32 above the rounded-down level is at least the next float32, above ``x``), so the power
+    test runs float32 against float32, with no cast of the cells to float64."""
+    f = np.asarray(x, dtype=np.float64).astype(np.float32)
+    return np.where(f.astype(np.float64) > x, np.nextafter(f, np.float32(-np.inf)), f)
+
+
 MEDIAN_SAMPLE_STRIDE = 16      # the bracket of :func:`median_floor` comes from every 16th cell
 
 
@@ -159,7 +167,7 @@ def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: floa
     # power test first, on the whole selected rows; the difference channel is oversampled only in
     # the rows with a cell that passes it (signal rows), the ratio only on those cells
     n_os = power.shape[1]
-    flat = np.flatnonzero(power > level[row_cpi][:, None])
+    flat = np.flatnonzero(power > float32_floor(level)[row_cpi][:, None])
     i_row, i_r = np.divmod(flat, n_os)
     sk, pk = s.reshape(-1)[flat], power.reshape(-1)[flat]
     del s, power
