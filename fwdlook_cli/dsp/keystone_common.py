@@ -79,30 +79,21 @@ def cis_outer(rate, freq, grid="auto"):
     tables of about sqrt(span) phases per row, each reduced modulo one cycle in float64 (:func:`_cis`):
     one complex64 product per element instead of a cosine and a sine (the product of two unit phasors
     rounded to complex64: error below 4e-7, -128 dB).  ``grid``: ``(f0, df, K)`` from
-    :func:`outer_grid` of the whole frequency axis, so that every block of its columns gets the same
-    numbers as the whole (each element is the same product); ``"auto"`` takes it from ``freq``; None,
-    or a ``freq`` off any grid, gives the direct :func:`cis_rad` of the outer product."""
-    rate = np.asarray(rate, dtype=np.float64).reshape(-1)
-    freq = np.asarray(freq, dtype=np.float64).reshape(-1)
-    if isinstance(grid, str):
-        grid = outer_grid(freq, float(np.max(np.abs(rate), initial=0.0)))
-    u = None if grid is None else _on_grid(freq, grid, float(np.max(np.abs(rate), initial=0.0)))
-    if u is None:
-        return cis_rad(np.multiply.outer(rate, freq))
-    f0, df, k = grid
-    b_lo, b_hi = int(u.min()) // k, int(u.max()) // k
-    two_pi = 2.0 * np.pi
-    low = _cis(np.multiply.outer(rate * (df / two_pi), np.arange(k, dtype=np.float64)), np.complex64)
-    high = _cis(np.multiply.outer(rate / two_pi, f0 + df * k * np.arange(b_lo, b_hi + 1, dtype=np.float64)),
-                np.complex64)
-    table = np.multiply(high[:, :, None], low[:, None, :]).reshape(len(rate), -1)   # column u - k b_lo
-    u = u - k * b_lo
-    first, n = int(u[0]), u.size
+    :func:`outer_grid` of the whole frequency axis (found once by a caller working in blocks of rows);
+    ``"auto"`` takes it from ``freq``; None, or a ``freq`` off any grid, gives the direct
+    :func:`cis_rad` of the outer product.  A caller working in blocks of columns keeps the tables
+    instead (:class:`OuterPhasors`)."""
+    tables = OuterPhasors(rate, freq, grid)
+    if tables.u is None:
+        return tables.columns(slice(None))
+    u, n = tables.u - tables.k * tables.b_lo, tables.u.size
+    table = np.multiply(tables.high[:, :, None], tables.low[:, None, :]).reshape(len(tables.rate), -1)  # u - K b_lo
+    first = int(u[0])
     if np.array_equal(u, np.arange(first, first + n)):          # one run of the grid: a slice
         return table[:, first:first + n]
     shift = n - first                                           # fftfreq order: a rotation, two slices
     if table.shape[1] >= n and np.array_equal(u, (np.arange(n) + first) % n):
-        out = np.empty((len(rate), n), np.complex64)
+        out = np.empty((len(tables.rate), n), np.complex64)
         out[:, :shift] = table[:, first:n]
         out[:, shift:] = table[:, :first]
         return out
@@ -110,27 +101,28 @@ def cis_outer(rate, freq, grid="auto"):
 
 
 class OuterPhasors:
-    """:func:`cis_outer`'s two phase tables for the rows ``rate`` and the whole frequency axis ``freq``,
-    built once, for a caller that works in blocks of columns (the tracking keystone's demodulation):
+    """:func:`cis_outer`'s two phase tables for the rows ``rate`` and the frequencies ``freq``, built
+    once, for a caller that works in blocks of columns (the tracking keystone's demodulation):
     :meth:`columns` gathers each block's phasors from them, one complex64 product per element, the same
     numbers for any blocking.  The tables hold rows x 2 sqrt(span) phasors (16 MB for 16384 pulses x
-    4096 range bins); off any grid every block takes the direct :func:`cis_rad`."""
+    4096 range bins); off any grid (``u`` None) every block takes the direct :func:`cis_rad`."""
 
-    def __init__(self, rate, freq):
+    def __init__(self, rate, freq, grid="auto"):
         self.rate = np.asarray(rate, dtype=np.float64).reshape(-1)
         self.freq = np.asarray(freq, dtype=np.float64).reshape(-1)
         max_rate = float(np.max(np.abs(self.rate), initial=0.0))
-        grid = outer_grid(self.freq, max_rate)
+        if isinstance(grid, str):
+            grid = outer_grid(self.freq, max_rate)
         self.u = None if grid is None else _on_grid(self.freq, grid, max_rate)
         if self.u is not None:
             f0, df, k = grid
             two_pi = 2.0 * np.pi
-            self.a, self.b = self.u % k, self.u // k
+            self.k, self.b_lo = k, int(self.u.min()) // k
+            self.a, self.b = self.u % k, self.u // k - self.b_lo
             self.low = _cis(np.multiply.outer(self.rate * (df / two_pi), np.arange(k, dtype=np.float64)),
                             np.complex64)
-            self.high = _cis(np.multiply.outer(self.rate / two_pi,
-                                               f0 + df * k * np.arange(int(self.b.max()) + 1, dtype=np.float64)),
-                             np.complex64)
+            b_values = np.arange(self.b_lo, self.b_lo + int(self.b.max()) + 1, dtype=np.float64)
+            self.high = _cis(np.multiply.outer(self.rate / two_pi, f0 + df * k * b_values), np.complex64)
 
     def columns(self, sel):
         """exp(j rate freq[sel]) [rows, columns of ``sel``] (a slice or an index array)."""
