@@ -265,24 +265,35 @@ def _focus_block(sum_rt, diff_rt, j, *, L, n_fft, chirp, theta, w, pos_c, vel_c,
     b = np.einsum("jli,ji->jl", u, dg)
     c = np.sum(dg**2, axis=1) + pos_c[:, 2] ** 2
     r_jr = np.sqrt(rho**2 + 2.0 * rho * b[:, :, None] + c[:, None, None])   # [n_j, n_loc, n_r]
-    # Doppler of P at the centre, 2 v.(P - p_j) / (lambda |P - p_j|), as an FFT bin (mod PRF)
-    vd = np.einsum("ji,ji->j", vel_c[:, :2], dg) - vel_c[:, 2] * pos_c[:, 2]
-    vu = np.einsum("jli,ji->jl", u, vel_c[:, :2])
-    f_hz = 2.0 * (vd[:, None, None] + rho * vu[:, :, None]) / (lam * r_jr)
-    pos_bin = f_hz * (n_fft / prf_hz)                  # mod n_fft by a floor (np.mod is several times slower)
-    pos_bin -= np.floor(pos_bin * (1.0 / n_fft)) * n_fft
+    # Doppler of P at the centre, 2 v.(P - p_j) / (lambda |P - p_j|), as an FFT bin (mod PRF): the factor
+    # 2 n_fft / (lambda PRF) taken into the [sub-aperture, direction] terms before they are broadcast
+    to_bin = 2.0 * n_fft / (lam * prf_hz)
+    vd = (np.einsum("ji,ji->j", vel_c[:, :2], dg) - vel_c[:, 2] * pos_c[:, 2]) * to_bin
+    vu = np.einsum("jli,ji->jl", u, vel_c[:, :2]) * to_bin
+    pos_bin = rho * vu[:, :, None]
+    pos_bin += vd[:, None, None]
+    pos_bin /= r_jr
+    # exact phase of P at t_j (minus the t_ref range), with the FFT's origin moved to the centre:
+    # 2 (R - r) / lambda + f (L - 1) / (2 PRF), the second term pos_bin (L - 1) / (2 n_fft) (unwrapped)
+    cycles = r_jr - rr
+    cycles *= 2.0 / lam
+    cycles += pos_bin * (0.5 * (L - 1) / n_fft)
+    del r_jr
+    pos_bin -= np.floor(pos_bin * (1.0 / n_fft)) * n_fft   # mod n_fft by a floor (np.mod: several times slower)
     pos_bin[pos_bin >= n_fft] -= n_fft                 # the floor's last-bit rounding: [0, n_fft) exactly
     i0 = np.floor(pos_bin).astype(np.int64)
     frac = (pos_bin - i0).astype(np.float32)
     base = (np.arange(n_j)[:, None, None] * n_fft) * n_r + np.arange(n_r)[None, None, :]
     f0 = base + i0 * n_r
-    f1 = base + np.mod(i0 + 1, n_fft) * n_r
-    # exact phase of P at t_j (minus the t_ref range), with the FFT's origin moved to the centre
-    focus = _cis_cycles(2.0 * (r_jr - rr) / lam + f_hz * (0.5 * (L - 1) / prf_hz), np.complex64)
-    del r_jr, f_hz, pos_bin, i0, base
-    zs = spec[0][f0] * (1 - frac) + spec[0][f1] * frac                       # linear interpolation in Doppler
-    zd = spec[1][f0] * (1 - frac) + spec[1][f1] * frac
-    del spec, f0, f1, frac
+    i0 += 1                                            # the next bin, i0 in [0, n_fft): wrapped at n_fft
+    i0[i0 == n_fft] = 0
+    f1 = base + i0 * n_r
+    focus = _cis_cycles(cycles, np.complex64)
+    del cycles, pos_bin, i0, base
+    near = 1 - frac
+    zs = spec[0][f0] * near + spec[0][f1] * frac                             # linear interpolation in Doppler
+    zd = spec[1][f0] * near + spec[1][f1] * frac
+    del spec, f0, f1, frac, near
     # rotation by the offset of P(r, theta) itself from the beam axis: parallax makes it range dependent
     # (the antenna is up to 130 m from p_ref when the beam passes a direction)
     kd = _k_offset(theta, beam_j, dg, rho32, k, rr > p_ref[2])                     # k delta [n_j, n_loc, n_r]
