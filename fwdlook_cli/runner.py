@@ -26,8 +26,7 @@ from typing import Callable
 from .errors import BadInput
 from .io.integrity import STAGE_FORMAT_VERSION
 from .io.stagefile import StageData, _canon, declared_digests, load_verified, read_stage, write_stage
-from .io.stageview import (mapped_stage, read_stage_lazy, read_stage_mapped, reshaped_views, view_file_key,
-                             virtual_layout)
+from .io.stageview import read_stage_mapped, reshaped_views, view_file_key, virtual_layout
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +36,6 @@ class Stage:
     fn: Callable[..., StageData]
     params: dict
     view: bool = False        # a re-layout: its file stores virtual datasets onto the previous file
-    lazy_input: bool = False  # reads its input block by block: given the previous file's datasets
 
 
 KEEP_STAGES = ("all", "last", "none")
@@ -64,11 +62,11 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     With ``all`` the first missing or stale file decides where the chain starts; otherwise the latest
     valid file does (the earlier ones were never kept).  ``captured``: {stage name: None}, filled with
     a function returning each named stage's output (from its file when kept, its large arrays memory
-    maps of it, so that the output is neither held in memory meanwhile nor copied whole).  A
-    ``lazy_input`` stage after a written stage gets that file's large arrays as open datasets instead
-    of the arrays in memory (bounded memory; the same numbers: held in memory instead, the paper cube's
-    Doppler spectra, twice the cube, took the CPI chain's peak RSS from 2.7 to 4.1 times the cube).  Stage files are written on a writer thread while the next stages compute
-    (:class:`_StageWriter`); ``pending_writes``: a list to which the function waiting for the last
+    maps of it, so that the output is neither held in memory meanwhile nor copied whole).  Every stage
+    takes its input from memory, also while that input's file is being written (the image stage read
+    the Doppler spectra back from their file, block by block, until issue 11's second round: it waited
+    for the write, and the peak RSS is the Doppler stage's either way).  Stage files are written on a
+    writer thread while the next stages compute (:class:`_StageWriter`); ``pending_writes``: a list to which the function waiting for the last
     writes is appended instead of waiting here (it returns the seconds it waited; the caller must call
     it, error or not, before it treats the stage files as written).
     """
@@ -94,14 +92,7 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     kept = set(range(len(stages))) if keep == "all" else (
         {len(stages) - 1} | {names.index(n) for n in captured} if keep == "last" else set())
     timings: dict[str, float] = {}
-    open_files = []
-    if first == 0:
-        data = source
-    elif first < len(stages) and stages[first].lazy_input:
-        data, fh = read_stage_lazy(paths[first - 1])
-        open_files.append(fh)
-    else:
-        data = read_stage(paths[first - 1])
+    data = source if first == 0 else read_stage(paths[first - 1])
     del source                          # the input cube is freed once stage 1 has consumed it
     writer = _StageWriter(stages, quiet=quiet)
     try:
@@ -114,9 +105,6 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
             t0 = time.perf_counter()
             out = st.fn(data, **st.params)
             t_compute = time.perf_counter() - t0
-            for fh in open_files:           # a lazy input is consumed
-                fh.close()
-            open_files = []
             timings[st.name] = t_compute
             if i in kept:                   # written on the writer thread while the next stage computes
                 # a re-layout is a view of the previous file when that file exists (this run's, or an
@@ -130,16 +118,8 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
                 # from its file (as memory maps) once that is written, or the output itself when not kept
                 captured[st.name] = (functools.partial(writer.read_when_written, i, paths[i]) if i in kept
                                      else (lambda out=out: out))
-            if i in kept and i + 1 < len(stages) and stages[i + 1].lazy_input:
-                del out                     # bounded memory: the next stage reads this file block by block
-                writer.wait()
-                data, fh = read_stage_lazy(paths[i])
-                open_files.append(fh)
-                if st.name in captured:     # the same file, once: its large arrays as memory maps
-                    captured[st.name] = (lambda mapped=mapped_stage(data, paths[i]): mapped)
-            else:
-                data = out
-                del out
+            data = out
+            del out
             log.debug("stage %s: key %s -> %s", st.name, keys[i][:12], paths[i])
         if pending_writes is None:
             writer.wait()
@@ -148,8 +128,6 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     finally:
         if pending_writes is None or writer.finish not in pending_writes:
             writer.close()
-        for fh in open_files:
-            fh.close()
     for i, path in enumerate(paths):     # what this run's policy does not keep goes
         if i not in kept:
             path.unlink(missing_ok=True)

@@ -166,8 +166,7 @@ def _run(argv):
 
 
 def test_whole_run_with_the_gpu_backend_gives_the_cpu_metrics(tmp_path, monkeypatch):
-    """``fwdlook run`` with processing.backend = gpu (forced onto numpy): the metrics' targets of cpu.
-    The image stage reads the spectra from the stage file (the lazy, block-by-block input)."""
+    """``fwdlook run`` with processing.backend = gpu (forced onto numpy): the metrics' targets of cpu."""
     monkeypatch.setenv(ENV_XP, "numpy")
     scenario = SCENARIOS / "tiny.yaml"
     assert _run(["run", scenario, "-o", tmp_path / "cpu", "-q"]) == 0

@@ -310,19 +310,3 @@ def test_worker_pool_works_in_a_forked_child(tmp_path):
         os._exit(0 if ok else 1)
     _, status = os.waitpid(pid, 0)
     assert os.WEXITSTATUS(status) == 0
-
-
-def test_the_runners_mapped_spectra_are_those_of_the_file(tiny_run):
-    from fwdlook_cli.io.stageview import mapped_stage, read_stage_lazy
-
-    path = tiny_run / "stages" / "06_doppler_spectra.h5"
-    plain = read_stage(path)
-    lazy, fh = read_stage_lazy(path, min_bytes=1)
-    mapped = mapped_stage(lazy, path)
-    fh.close()
-    assert plain.attrs == mapped.attrs and sorted(plain.vars) == sorted(mapped.vars)
-    for name, var in plain.vars.items():
-        other = mapped.vars[name]
-        assert (var.dims, var.units, var.long_name) == (other.dims, other.units, other.long_name)
-        assert np.asarray(other.data).tobytes() == var.data.tobytes()
-    assert isinstance(mapped["sum_z"], np.memmap)

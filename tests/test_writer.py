@@ -106,20 +106,24 @@ def test_a_failed_write_stops_the_run_and_leaves_earlier_files_complete(tiny_raw
         np.testing.assert_array_equal(a["image"][()], b["image"][()])
 
 
-def test_the_image_stage_reads_the_spectra_from_their_file(tiny_raw, tmp_path, monkeypatch):
-    """The image stage gets the Doppler spectra as open datasets of their stage file (read block by
-    block: bounded memory), not the arrays in memory, and so only once that file is written."""
-    import fwdlook_cli.io.stageview as stageview
+def test_the_image_stage_takes_the_spectra_from_memory_and_leaves_them_as_written(tiny_raw, tmp_path, monkeypatch):
+    """The image stage gets the Doppler stage's own arrays (no wait for their file, no read back), and
+    leaves them unchanged while the writer thread writes them: the file holds the very spectra the
+    image was made from, and the run's stage files verify."""
+    from fwdlook_cli.io.stagefile import read_stage
 
-    seen = []
+    seen = {}
     real = chain.monopulse_image
 
     def spy(data, **kw):
-        seen.append((type(data["sum_z"]).__name__, (tmp_path / "run" / "stages" / "06_doppler_spectra.h5").exists()))
+        seen.update(kind=type(data["sum_z"]), sum_z=data["sum_z"].copy(), diff_z=data["diff_z"].copy())
         return real(data, **kw)
 
-    real_lazy = stageview.read_stage_lazy       # every large array left on disk (the tiny cube's are small)
-    monkeypatch.setattr(runner, "read_stage_lazy", lambda path: real_lazy(path, min_bytes=1))
     monkeypatch.setattr(chain, "monopulse_image", spy)
     assert _run(["process", tiny_raw, "-o", tmp_path / "run", "-q"]) == 0
-    assert seen == [("Dataset", True)]
+    assert seen["kind"] is np.ndarray
+    written = read_stage(tmp_path / "run" / "stages" / "06_doppler_spectra.h5")
+    for name in ("sum_z", "diff_z"):
+        np.testing.assert_array_equal(written[name], seen[name])
+    monkeypatch.setattr(chain, "monopulse_image", real)
+    assert _run(["process", tiny_raw, "-o", tmp_path / "run", "-q"]) == 0     # every stage reused: sound

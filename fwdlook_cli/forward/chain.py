@@ -355,8 +355,7 @@ def build_forward_stages(cube, proc: dict):
             "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
             "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
             "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
-            "position_ref_m": [float(v) for v in geo["p_ref"]], **geo["calibration"].stage_params()},
-              lazy_input=True),
+            "position_ref_m": [float(v) for v in geo["p_ref"]], **geo["calibration"].stage_params()}),
     ]
     if proc.get("imaging", "cpi") == "dwell":      # whole-dwell imaging replaces stages 6-7 (dwell.py)
         from .dwell import dwell_stages

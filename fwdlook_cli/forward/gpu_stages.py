@@ -65,8 +65,7 @@ def on_backend(stages: list, backend: str) -> list:
     for st in stages:
         why = gpu_path(st.name, st.params) if st.name in fns else "not a GPU stage"
         if st.name in fns and why is None:
-            st = Stage(st.name, fns[st.name], dict(st.params, backend=backend), view=st.view,
-                       lazy_input=st.lazy_input)
+            st = Stage(st.name, fns[st.name], dict(st.params, backend=backend), view=st.view)
         elif st.name in fns:
             log.info(f"processing.backend = gpu: stage {st.name} runs on the CPU ({why})")
         out.append(st)

@@ -59,46 +59,12 @@ def view_file_key(path: Path) -> str | None:
     return key if stage_file_key(Path(path).parent / str(source)) == source_key else None
 
 
-def read_stage_lazy(path: Path, min_bytes: int = 1 << 20):
-    """A stage file as :class:`StageData` whose large arrays (``min_bytes`` or more, not coordinates)
-    stay on disk as open ``h5py.Dataset`` objects, read block by block by a stage that slices them
-    (``monopulse_image`` reads whole CPIs); returns (data, open file) — close the file when done."""
-    from .stagefile import StageData, Var, _text, declared_dims, dims_of
-
-    f = h5py.File(path, "r")
-    out = StageData(attrs=_carried_attrs(f))
-    declared = declared_dims(f)
-    for name, ds in f.items():
-        if not isinstance(ds, h5py.Dataset):
-            continue
-        dims = dims_of(ds, name, declared)
-        lazy = dims != (name,) and ds.size * ds.dtype.itemsize >= min_bytes
-        out.vars[name] = Var(ds if lazy else ds[()], dims, str(_text(ds.attrs.get("units", ""))),
-                             str(_text(ds.attrs.get("long_name", ""))))
-    return out, f
-
-
 def _mapped(ds, path):
     """A read-only memory map of an open, uncompressed, contiguous dataset (None for another layout)."""
     if ds.chunks is not None or ds.is_virtual:
         return None
     offset = ds.id.get_offset()
     return None if offset is None else np.memmap(path, dtype=ds.dtype, mode="r", offset=offset, shape=ds.shape)
-
-
-def mapped_stage(lazy, path: Path):
-    """The :class:`StageData` of :func:`read_stage_lazy` (its file still open) with every open dataset
-    replaced by a memory map of it (or read, for another layout): valid after the file is closed."""
-    from .stagefile import StageData, Var
-
-    out = StageData(attrs=dict(lazy.attrs))
-    for name, var in lazy.vars.items():
-        data = var.data
-        if isinstance(data, h5py.Dataset):
-            mapped = _mapped(data, path)
-            data = mapped if mapped is not None else data[()]
-        out.vars[name] = Var(data, var.dims, var.units, var.long_name)
-    return out
 
 
 def read_stage_mapped(path: Path, min_bytes: int = 1 << 20):
