@@ -66,9 +66,9 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     takes its input from memory, also while that input's file is being written (the image stage read
     the Doppler spectra back from their file, block by block, until issue 11's second round: it waited
     for the write, and the peak RSS is the Doppler stage's either way).  Stage files are written on a
-    writer thread while the next stages compute (:class:`_StageWriter`); ``pending_writes``: a list to which the function waiting for the last
-    writes is appended instead of waiting here (it returns the seconds it waited; the caller must call
-    it, error or not, before it treats the stage files as written).
+    writer thread while the next stages compute (:class:`_StageWriter`); ``pending_writes``: a list to
+    which the function waiting for the last writes is appended instead of waiting here (it returns the
+    seconds it waited; the caller must call it, error or not, before it treats the files as written).
     """
     if keep not in KEEP_STAGES:
         raise BadInput(f"--keep-stages {keep}: allowed: {', '.join(KEEP_STAGES)}")

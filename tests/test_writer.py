@@ -109,8 +109,8 @@ def test_a_failed_write_stops_the_run_and_leaves_earlier_files_complete(tiny_raw
 def test_the_image_stage_takes_the_spectra_from_memory_and_leaves_them_as_written(tiny_raw, tmp_path, monkeypatch):
     """The image stage gets the Doppler stage's own arrays (no wait for their file, no read back), and
     leaves them unchanged while the writer thread writes them: the file holds the very spectra the
-    image was made from, and the run's stage files verify."""
-    from fwdlook_cli.io.stagefile import read_stage
+    image was made from, and its declared digests (taken while the image stage ran) verify."""
+    from fwdlook_cli.io.stagefile import load_verified, read_stage
 
     seen = {}
     real = chain.monopulse_image
@@ -122,8 +122,11 @@ def test_the_image_stage_takes_the_spectra_from_memory_and_leaves_them_as_writte
     monkeypatch.setattr(chain, "monopulse_image", spy)
     assert _run(["process", tiny_raw, "-o", tmp_path / "run", "-q"]) == 0
     assert seen["kind"] is np.ndarray
-    written = read_stage(tmp_path / "run" / "stages" / "06_doppler_spectra.h5")
+    path = tmp_path / "run" / "stages" / "06_doppler_spectra.h5"
+    written = read_stage(path)
     for name in ("sum_z", "diff_z"):
         np.testing.assert_array_equal(written[name], seen[name])
-    monkeypatch.setattr(chain, "monopulse_image", real)
-    assert _run(["process", tiny_raw, "-o", tmp_path / "run", "-q"]) == 0     # every stage reused: sound
+    with h5py.File(path) as f:
+        key = f.attrs["config_sha256"]
+    loaded, damage = load_verified(path, key)
+    assert damage is None and loaded is not None
