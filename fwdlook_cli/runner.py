@@ -61,8 +61,9 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     ``last`` writes only the final stage and the stages named in ``captured``; ``none`` writes none.
     With ``all`` the first missing or stale file decides where the chain starts; otherwise the latest
     valid file does (the earlier ones were never kept).  ``captured``: {stage name: None}, filled with
-    a function returning each named stage's output (from its file when kept, its large arrays memory
-    maps of it, so that the output is neither held in memory meanwhile nor copied whole).  Every stage
+    a function returning each named stage's output: the output itself when this run computed it (no
+    reopening of its file: 14 ms of HDF5 metadata for the Doppler spectra, issue 11's third round; the
+    chain held it anyway, as the next stage's input), else memory maps of its file.  Every stage
     takes its input from memory, also while that input's file is being written (the image stage read
     the Doppler spectra back from their file, block by block, until issue 11's second round: it waited
     for the write, and the peak RSS is the Doppler stage's either way).  Stage files are written on a
@@ -114,10 +115,8 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
                               keys[i - 1] if i else source_key, t_compute, timings)
             else:
                 writer.forget(i, st, t_compute, timings)
-            if st.name in captured:
-                # from its file (as memory maps) once that is written, or the output itself when not kept
-                captured[st.name] = (functools.partial(writer.read_when_written, i, paths[i]) if i in kept
-                                     else (lambda out=out: out))
+            if st.name in captured:         # the output itself, in memory (also while its file is written)
+                captured[st.name] = lambda out=out: out
             data = out
             del out
             log.debug("stage %s: key %s -> %s", st.name, keys[i][:12], paths[i])
@@ -204,12 +203,6 @@ class _StageWriter:
             what, t_write = done if done else ("not kept", 0.0)
             log.info(f"[{i + 1}/{self.n}] {name:<18s} {t_compute * 1e3:8.1f} ms compute, "
                      f"{t_write * 1e3:6.1f} ms {what}")
-
-    def read_when_written(self, i, path):
-        """Stage i's file (:func:`io.stageview.read_stage_mapped`) once its write is done."""
-        while self.pending and self.pending[0][0] <= i:
-            self._finish(self.pending.pop(0))
-        return read_stage_mapped(path)
 
     def wait(self):
         """Every queued write done (its error raised, if any)."""

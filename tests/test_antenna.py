@@ -45,3 +45,18 @@ def test_individual_beams_are_the_squinted_gaussians():
 def test_too_large_squint_is_rejected():
     with pytest.raises(ValueError, match="allowed"):
         MonopulseAntenna(6.0, 2.0)
+
+
+def test_two_way_width_for_is_each_designs_own_found_once():
+    """The cached two-way width is the design's own root (each design its own value, asked in any
+    order), and a cube without a usable squint gets the -3 dB crossover design of its beamwidth."""
+    from fwdlook_cli.dsp.antenna import two_way_width_for
+
+    designs = [(6.0, {"pattern": "gaussian2", "squint_deg": 1.5}), (6.0, {"pattern": "sinc2", "squint_deg": 1.5}),
+               (6.0, {"pattern": "gaussian2", "squint_deg": 1.8}), (4.0, {"pattern": "gaussian2", "squint_deg": 1.0})]
+    direct = [MonopulseAntenna(bw, a["squint_deg"], pattern=a["pattern"]).two_way_3db_width_deg() for bw, a in designs]
+    for _ in range(2):                       # the second pass is served from the cache
+        assert [two_way_width_for(bw, a) for bw, a in designs] == direct
+    assert len(set(direct)) == len(direct)
+    assert two_way_width_for(6.0, None) == MonopulseAntenna(6.0).two_way_3db_width_deg()
+    assert two_way_width_for(6.0, {"pattern": "table"}) == MonopulseAntenna(6.0).two_way_3db_width_deg()

@@ -130,3 +130,29 @@ def test_the_image_stage_takes_the_spectra_from_memory_and_leaves_them_as_writte
         key = f.attrs["config_sha256"]
     loaded, damage = load_verified(path, key)
     assert damage is None and loaded is not None
+
+
+def test_the_dwell_metrics_take_the_spectra_from_memory_and_a_reused_run_from_the_file(tiny_raw, tmp_path,
+                                                                                       monkeypatch):
+    """A run that computed the Doppler spectra gives them to the dwell metrics as they are (the file is
+    not reopened); a rerun that reuses every stage reads them from the file; the metrics are the same
+    numbers either way (the file holds those very arrays)."""
+    import json
+
+    calls = []
+    real = runner.read_stage_mapped
+
+    def spy(path, *a, **kw):
+        calls.append(str(path))
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(runner, "read_stage_mapped", spy)
+    run = tmp_path / "run"
+    assert _run(["process", tiny_raw, "-o", run, "-q"]) == 0
+    assert calls == []
+    fresh = json.loads((run / "metrics.json").read_text())
+    assert all("peak_loss_db" in row for row in fresh["targets"])       # the dwell metrics ran
+    assert _run(["process", tiny_raw, "-o", run, "-q", "--overwrite"]) == 0
+    assert [p.endswith("06_doppler_spectra.h5") for p in calls] == [True]
+    again = json.loads((run / "metrics.json").read_text())
+    assert again["targets"] == fresh["targets"]

@@ -408,8 +408,16 @@ def two_way_width_for(beamwidth_3db_deg: float, attrs: dict | None) -> float:
     a = attrs or {}
     try:
         if a.get("pattern", "gaussian2") in ("gaussian2", "sinc2") and np.isfinite(float(a.get("squint_deg", np.nan))):
-            return MonopulseAntenna(beamwidth_3db_deg, float(a["squint_deg"]),
-                                    pattern=a.get("pattern", "gaussian2")).two_way_3db_width_deg()
+            return _two_way_width(float(beamwidth_3db_deg), float(a["squint_deg"]), str(a.get("pattern", "gaussian2")))
     except (AntennaDesignError, TypeError, ValueError):
         pass
-    return MonopulseAntenna(beamwidth_3db_deg).two_way_3db_width_deg()
+    return _two_way_width(float(beamwidth_3db_deg), None, "gaussian2")
+
+
+@functools.lru_cache(maxsize=64)
+def _two_way_width(beamwidth_3db_deg: float, squint_deg, pattern: str) -> float:
+    """The two-way width of one design, found once (a root search of 4 ms: the chain's outputs and the
+    dwell imaging ask for the same design in every run)."""
+    if squint_deg is None:
+        return MonopulseAntenna(beamwidth_3db_deg).two_way_3db_width_deg()
+    return MonopulseAntenna(beamwidth_3db_deg, squint_deg, pattern=pattern).two_way_3db_width_deg()

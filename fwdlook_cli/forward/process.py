@@ -188,6 +188,7 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
         if (np.isfinite(beta) and cube.antenna.get("pattern", "gaussian2") == "gaussian2"
                 and "doppler_spectra" in names):                  # imaging: cpi (dwell has no CPI spectra)
             spectra = captured["doppler_spectra"]()
+            captured["doppler_spectra"] = None        # the caller's reference: the spectra go with ours
             dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
                                           float(cube.antenna["monopulse_slope_per_deg"]), beta, geo["p_ref"])
             for row, extra in zip(rows, dwell):
