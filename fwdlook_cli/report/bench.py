@@ -48,8 +48,10 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
 
     ``chain_s`` / ``chain_tracking_s`` and every ``stage_<method>_<stage>_s`` are medians over
     ``chain_repeats`` runs of the chain exactly as ``fwdlook process`` runs it (plans built inside the
-    stage, stage files written); ``chain_<method>_peak_rss_x_cube`` is its peak RSS above the RSS before
-    it, as a multiple of the cube (both channels)."""
+    stage, stage files written); ``chain_<method>_keep_none_s`` the same CPI chains with
+    ``--keep-stages none`` (no stage file: their difference is what the files cost);
+    ``chain_<method>_peak_rss_x_cube`` is its peak RSS above the RSS before it, as a multiple of the
+    cube (both channels)."""
     from ..forward.chain import build_forward_stages
     from ..scenario.loader import load_scenario
     from ..dsp.keystone_czt import KeystonePlan
@@ -117,12 +119,19 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
                     dwell_fit=fit)
         scenarios[method] = dict(paper, processing=proc)
     rounds = {method: [] for method in scenarios}
+    # the same CPI chains with --keep-stages none: what writing the stage files costs the chain
+    no_files = {f"{method}_keep_none": scenarios[method] for method in ("decimation", "tracking")}
+    rounds.update({key: [] for key in no_files})
     importlib.import_module("fwdlook_cli.forward.dwell")     # imported before the clock runs: not the chain's
     _step(6, n, f"whole chains as fwdlook process runs them, {chain_repeats} interleaved rounds")
     for r in range(max(1, int(chain_repeats))):
         for method, scn in scenarios.items():
             rounds[method].append(time_chain(cube, scn, repeats=1, rss=False))
+        for key, scn in no_files.items():
+            rounds[key].append(time_chain(cube, scn, repeats=1, rss=False, keep_stages="none"))
         log.info(f"  round {r + 1}: " + ", ".join(f"{m} {v[-1]['total_s']:.2f} s" for m, v in rounds.items()))
+    for key in no_files:
+        out[f"chain_{key}_s"] = statistics.median(t["total_s"] for t in rounds[key])
     _step(7, n, "peak memory of each chain (a fresh interpreter each)")
     for method in scenarios:
         key = "chain_s" if method == "decimation" else f"chain_{method}_s"

@@ -53,9 +53,10 @@ def peak_rss_bytes() -> int | None:
     return None if hwm is None else hwm * 1024
 
 
-def time_chain(cube, scn: dict, repeats: int = 3, rss: bool = True) -> dict:
+def time_chain(cube, scn: dict, repeats: int = 3, rss: bool = True, keep_stages: str = "all") -> dict:
     """Run the whole chain ``repeats`` times as ``fwdlook process`` runs it (every stage recomputed,
     every stage file, image.h5 and metrics.json written; no PNG): medians per stage and in total.
+    ``keep_stages``: as ``--keep-stages`` (``none``: no stage file written, what the files cost).
     With ``rss``, the chain's peak RSS is measured once more in a fresh interpreter
     (:func:`chain_peak_rss`), since a warm process reuses memory it already holds."""
     from ..forward.process import process_cube
@@ -63,7 +64,7 @@ def time_chain(cube, scn: dict, repeats: int = 3, rss: bool = True) -> dict:
     per_stage: dict[str, list[float]] = {}
     for _ in range(max(1, int(repeats))):
         with tempfile.TemporaryDirectory() as tmp:
-            metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False)
+            metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False, keep_stages=keep_stages)
         for stage, seconds in metrics["timing_s"].items():
             per_stage.setdefault(stage, []).append(float(seconds))
     out = {k: statistics.median(v) for k, v in per_stage.items()}
