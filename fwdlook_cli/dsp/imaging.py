@@ -178,8 +178,12 @@ def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: floa
     np.not_equal(i_row[1:], i_row[:-1], out=new_row[1:])
     hit = i_row[new_row]
     d = oversample_rows(diff_z.reshape(-1, n_r)[rows[hit]], range_oversample, workers=fft_workers)
-    dk = d[np.cumsum(new_row) - 1, i_r]
-    del d
+    at = np.cumsum(new_row)                 # each cell's flat index in d: (its hit row) n_os + i_r, one
+    at -= 1                                 # 1-D take (a 2-D fancy index of the two arrays costs
+    at *= n_os                              # about ten times as much here)
+    at += i_r
+    dk = d.reshape(-1).take(at)
+    del d, at
     ratio = np.multiply(dk.real, sk.real)                   # Re(d conj s) / |s|^2, float32
     ratio += dk.imag * sk.imag
     if diff_gain_db or diff_phase_deg:
