@@ -156,3 +156,37 @@ def test_the_dwell_metrics_take_the_spectra_from_memory_and_a_reused_run_from_th
     assert [p.endswith("06_doppler_spectra.h5") for p in calls] == [True]
     again = json.loads((run / "metrics.json").read_text())
     assert again["targets"] == fresh["targets"]
+
+
+@pytest.mark.parametrize("truth", [True, False])
+def test_the_spectra_are_not_held_while_the_png_is_drawn(tiny_raw, tmp_path, monkeypatch, truth):
+    """The Doppler spectra (2 x the cube) that the dwell metrics take from memory are released before
+    the quick-look PNG, also for a cube without truth, whose metrics never read them."""
+    import gc
+    import shutil
+    import weakref
+
+    import fwdlook_cli.io.quicklook as quicklook
+
+    raw = tmp_path / "raw.h5"
+    shutil.copy(tiny_raw, raw)
+    if not truth:
+        with h5py.File(raw, "a") as f:
+            del f["truth"]
+    refs, alive = [], []
+    real_doppler, real_png = chain.doppler_spectra, quicklook.save_image_png
+
+    def doppler_spy(data, **kw):
+        out = real_doppler(data, **kw)
+        refs.append(weakref.ref(out["sum_z"]))
+        return out
+
+    def png_spy(*a, **kw):
+        gc.collect()
+        alive.append(refs[-1]() is not None)
+        return real_png(*a, **kw)
+
+    monkeypatch.setattr(chain, "doppler_spectra", doppler_spy)
+    monkeypatch.setattr(quicklook, "save_image_png", png_spy)
+    assert _run(["process", raw, "-o", tmp_path / "run", "-q"]) == 0
+    assert alive == [False]

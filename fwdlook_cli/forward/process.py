@@ -158,6 +158,9 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                                   step_m=float(cube.range_spacing_m) / 2)
     packed = {name: GzipChunks(a) for name, a in (("image", final["image"]), ("real_beam", final["real_beam"]),
                                                   ("ground_image", ground)) if a.ndim == 2 and a.size}
+    # the Doppler spectra (2 x the cube, in memory when this run computed them): the only reference
+    # left is this one, dropped once the dwell metrics have read them, or unread (no truth)
+    spectra_of = captured.pop("doppler_spectra", None)
     rows = []
     truth = cube.truth_xyz_m()
     if truth is not None:
@@ -187,8 +190,7 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
         beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
         if (np.isfinite(beta) and cube.antenna.get("pattern", "gaussian2") == "gaussian2"
                 and "doppler_spectra" in names):                  # imaging: cpi (dwell has no CPI spectra)
-            spectra = captured["doppler_spectra"]()
-            captured["doppler_spectra"] = None        # the caller's reference: the spectra go with ours
+            spectra, spectra_of = spectra_of(), None
             dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
                                           float(cube.antenna["monopulse_slope_per_deg"]), beta, geo["p_ref"])
             for row, extra in zip(rows, dwell):
@@ -196,6 +198,7 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                 row["image_range_width_3db_m"] = row["range_width_3db_m"]
                 row.update(extra)
             del spectra                               # 2x the cube: not held while the PNG is drawn
+    spectra_of = None
     scenario_yaml = dump_scenario(scn)
     waited = sum(writes.pop()() for _ in range(len(writes)))       # every stage file written before these
     write_image_h5(run_dir / "image.h5", final, ground, gx, gy, scenario_yaml=scenario_yaml,
