@@ -111,6 +111,52 @@ def test_decimated_blocks_by_range_frequency_change_nothing(tracking_case, block
         np.testing.assert_array_equal(a, b)
 
 
+def test_a_plan_told_its_period_is_the_plan_that_finds_the_alphas_itself(tracking_case):
+    """``KeystonePlan(period=...)``: the per-alpha filter and chirp broadcast over the groups instead of
+    gathered to every column give the same output bit for bit (scalar and per-column ambiguity); a
+    period the alphas do not have, or that does not divide the columns, is not taken."""
+    c = tracking_case
+    q, n_f = 4, c["fr"].size
+    rng = np.random.default_rng(9)
+    x = (rng.standard_normal((90, q * n_f)) + 1j * rng.standard_normal((90, q * n_f))).astype(np.complex64)
+    alpha, t0 = np.tile(c["alpha"], q), np.repeat([45.3, 44.8, 44.1, 43.9], n_f)
+    plain = KeystonePlan(90, alpha, t0_index=t0)
+    grouped = KeystonePlan(90, alpha, t0_index=t0, period=n_f)
+    assert grouped._period == n_f and plain._period is None
+    for ambiguity in (0, 3, rng.integers(-2, 3, q * n_f)):
+        np.testing.assert_array_equal(grouped(x, ambiguity=ambiguity), plain(x, ambiguity=ambiguity))
+    bent = alpha.copy()
+    bent[n_f + 1] *= 1 + 1e-12                     # one column off the period: the plan finds the alphas
+    assert KeystonePlan(90, bent, t0_index=t0, period=n_f)._period is None
+    assert KeystonePlan(90, alpha, t0_index=t0, period=n_f + 1)._period is None
+    np.testing.assert_array_equal(KeystonePlan(90, bent, t0_index=t0, period=n_f)(x, ambiguity=3),
+                                  KeystonePlan(90, bent, t0_index=t0)(x, ambiguity=3))
+
+
+def test_a_plan_applied_to_strided_views_writes_what_the_gathered_columns_give(tracking_case):
+    """``KeystonePlan.apply`` on a [p, groups, width] strided view of a wider array, into a strided
+    view of the output, gives the gathered 2-D columns' keystone bit for bit and leaves every other
+    column of the output untouched."""
+    c = tracking_case
+    q, n_f = 3, c["fr"].size
+    rng = np.random.default_rng(10)
+    wide = (rng.standard_normal((64, q, n_f)) + 1j * rng.standard_normal((64, q, n_f))).astype(np.complex64)
+    k = slice(5, 17)
+    view = wide[:, :, k]
+    gathered = np.ascontiguousarray(view).reshape(64, -1)
+    alpha = np.tile(c["alpha"][k], q)
+    t0 = np.repeat([30.2, 29.9, 29.5], k.stop - k.start)
+    plan = KeystonePlan(64, alpha, t0_index=t0, period=k.stop - k.start)
+    out = np.full(wide.shape, 7 + 7j, np.complex64)
+    assert plan.apply(view, ambiguity=2, out=out[:, :, k]) is not None
+    np.testing.assert_array_equal(out[:, :, k].reshape(64, -1), plan(gathered, ambiguity=2))
+    untouched = np.ones(n_f, bool)
+    untouched[k] = False
+    assert np.all(out[:, :, untouched] == 7 + 7j)
+    with pytest.raises(ValueError, match="out has shape"):
+        plan.apply(view, ambiguity=2, out=out)
+
+
 def test_taylor_history_equals_the_spline_at_the_resampled_times(tracking_case):
     from fwdlook_cli.forward.keystone_fast import history_phase_shifted, history_taylor
 

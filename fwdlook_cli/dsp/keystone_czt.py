@@ -39,6 +39,11 @@ class KeystonePlan:
         Keystone time origin in samples (may be fractional).  Default 0.
     dtype : {complex64, complex128}, optional
         Precision of the chirps, the FFTs and the result.  Default complex64.
+    period : int, optional
+        The columns are groups of ``period`` with the same alphas (column ``c`` has the alpha of
+        column ``c % period``: the decimated layout, one group per sub-sequence).  Checked; the
+        filter spectrum is then stored per alpha (``L x period``) and broadcast over the groups.
+        Default: distinct alphas are found by ``np.unique`` and gathered to the columns.
 
     Notes
     -----
@@ -91,7 +96,7 @@ class KeystonePlan:
 
     _POST_CACHE_SIZE = 4
 
-    def __init__(self, n_slow, alpha, *, t0_index=0.0, dtype=np.complex64, workers=-1):
+    def __init__(self, n_slow, alpha, *, t0_index=0.0, dtype=np.complex64, workers=-1, period=None):
         n = _check_n(n_slow)
         self.workers = workers          # scipy.fft workers of every transform of the plan
         self.dtype = _check_dtype(dtype)
@@ -109,18 +114,32 @@ class KeystonePlan:
 
         # the chirps depend on alpha only, but the origin shift: computed once per distinct alpha
         # (decimated layouts repeat the same range-frequency alphas for every sub-sequence), gathered
-        # to the columns only where alphas repeat (``inverse`` None: every column its own alpha)
-        alpha_u, inverse = np.unique(alpha, return_inverse=True)
-        if alpha_u.size == alpha.size:
-            alpha_u, inverse = alpha, None
+        # to the columns only where alphas repeat (``inverse`` None: every column its own alpha).
+        # ``period``: the caller's word that column c has the alpha of column c % period (the
+        # decimated layout's groups); then the per-alpha filter and chirp are broadcast over the
+        # groups instead of gathered to every column (the same numbers, less memory traffic)
+        self._period = None
+        if (period is not None and 1 <= int(period) < self.n_cols and self.n_cols % int(period) == 0
+                and np.array_equal(alpha.reshape(-1, int(period)), np.broadcast_to(
+                    alpha[:int(period)], (self.n_cols // int(period), int(period))))):
+            self._period = int(period)
+            alpha_u, inverse = alpha[: self._period], None
+        else:
+            alpha_u, inverse = np.unique(alpha, return_inverse=True)
+            if alpha_u.size == alpha.size:
+                alpha_u, inverse = alpha, None
         # h_d = W^(-d^2/2) for |d| = 0..L/2, phases reduced in float64 (eq. 21)
         d_half = np.arange(L // 2 + 1, dtype=np.float64)
         h_half = _cis(-(alpha_u / (2.0 * n)) * (d_half**2)[:, None], self.dtype)
         # input chirp: origin shift exp(j2pi c (1-alpha) t0 / n), linear in c = c_min + i (two phase
         # tables, :func:`_linear_phasors`), times W^(i^2/2) = conj(h_i) (i < n <= L/2 + 1)
         quad = h_half[:n] if inverse is None else h_half[:n, inverse]
-        self._pre = _linear_phasors(c_min, n, (1.0 - alpha) * t0 / n, self.dtype)
-        np.multiply(self._pre, quad.conj(), out=self._pre)
+        self._pre = np.ascontiguousarray(_linear_phasors(c_min, n, (1.0 - alpha) * t0 / n, self.dtype))
+        if self._period is None:
+            np.multiply(self._pre, quad.conj(), out=self._pre)
+        else:                                          # [n, groups, period] x [n, 1, period]
+            grouped = self._pre.reshape(n, -1, self._period)
+            np.multiply(grouped, quad.conj()[:, None, :], out=grouped)
         del quad
 
         # filter h_d, d = -(n-1)..(n-1), wrapped into length L: circular lag d of FFT row j is j up to
@@ -133,6 +152,8 @@ class KeystonePlan:
 
         # output chirp for F = 0: (1/n) W^(c_min m' + m'^2/2), a function of alpha only
         self._alpha_unique, self._alpha_inverse = alpha_u, inverse
+        if self._period is not None:            # the columns' index into alpha_u, where one is asked for
+            self._alpha_inverse = np.tile(np.arange(self._period), self.n_cols // self._period)
         self._post_cache = {}  # ambiguity -> output chirp, a few most recent
 
     # ----------------------------------------------------------------------------
@@ -189,11 +210,39 @@ class KeystonePlan:
         -------
         y : ndarray, shape (n_slow, n_cols), plan dtype
         """
-        x = _as_2d(x)
+        return self.apply(_as_2d(x), ambiguity=ambiguity, post=post)
+
+    def apply(self, x, *, ambiguity=0, post=None, out=None):
+        """:meth:`__call__` for ``x`` of shape (n_slow, n_cols) or (n_slow, groups, width), into ``out``.
+
+        Parameters
+        ----------
+        x : array_like, shape (n_slow, n_cols) or (n_slow, groups, width)
+            Slow time along axis 0.  Cast to the plan's dtype if needed.  A 3-D ``x`` holds the
+            columns ``g * width + w`` in C order (a strided view of a wider array is read where it
+            lies, not gathered first).
+        ambiguity : int or array_like of int, shape (n_cols,), optional
+            Doppler ambiguity number ``F`` (eq. 15-17), scalar or per column.
+        post : ndarray, shape (n_slow, n_cols), optional
+            The output chirp to use instead of the plan's (see :meth:`post_cycles_f0`); then
+            ``ambiguity`` is ignored.
+        out : ndarray, optional
+            Where to write the result (the plan's dtype, ``n_slow`` rows and ``n_cols`` columns in the
+            layout of ``x``; it may be a strided view of a wider array).
+
+        Returns
+        -------
+        y : ndarray, shape of ``x``, plan dtype (``out`` where given)
+        """
+        x = np.asarray(x)
+        if x.ndim != 3:
+            x = _as_2d(x)
         n, L, s = self.n_slow, self.nfft, self._shift
         if x.shape[0] != n:
             raise ValueError(f"x has {x.shape[0]} slow-time samples, the plan expects {n}")
-        nc = x.shape[1]
+        nc = int(np.prod(x.shape[1:]))
+        if out is not None and (out.shape != x.shape or out.dtype != self.dtype):
+            raise ValueError(f"out has shape {out.shape} and dtype {out.dtype}; expected {x.shape}, {self.dtype}")
         if self.n_cols not in (1, nc):
             raise ValueError(f"x has {nc} columns, the plan expects {self.n_cols}")
         if post is None:
@@ -203,7 +252,7 @@ class KeystonePlan:
         if x.dtype != self.dtype:
             x = x.astype(self.dtype)
 
-        X = sfft.fft(x, axis=0, workers=self.workers)  # slow-time spectrum, FFT order
+        X = sfft.fft(x, axis=0, workers=self.workers).reshape(n, nc)   # slow-time spectrum, FFT order
         buf = np.empty((L, nc), dtype=self.dtype)
         pre = self._pre
         # centre the Doppler index while applying the input chirp (no fftshift pass)
@@ -212,7 +261,15 @@ class KeystonePlan:
         del X
         buf[n:] = 0
         buf = sfft.fft(buf, axis=0, workers=self.workers, overwrite_x=True)
-        buf *= self._filt  # eq. (21): convolution with h = W^(-m^2/2)
+        if self._period is None:                  # eq. (21): convolution with h = W^(-m^2/2)
+            buf *= self._filt
+        else:                                     # the same, the per-alpha filter over the groups
+            grouped = buf.reshape(L, -1, self._period)
+            grouped *= self._filt[:, None, :]
         buf = sfft.ifft(buf, axis=0, workers=self.workers, overwrite_x=True)
         # output chirp W^(m'^2/2 + c_min m') / n and ambiguity correction exp(j2pi F tau)
-        return np.multiply(buf[:n], post)
+        if out is None and x.ndim == 2:
+            return np.multiply(buf[:n], post)
+        shape = x.shape
+        post = post.reshape(shape if post.shape[1] == nc else (n,) + (1,) * (len(shape) - 1))
+        return np.multiply(buf[:n].reshape(shape), post, out=out)

@@ -90,20 +90,17 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
         trk = None
         if tracking is not None:
             trk = (derivs, demod.columns(cols(np.arange(n_cols), k)), prf_hz, cols(scale, k))
+        # the block's columns read and written where they lie (views: [p, cols] or [p, groups, cols])
         if groups == 1:
-            xs, xd = x_sum[:, k], x_diff[:, k]
+            views = [a[:, k] for a in (x_sum, x_diff, y_sum, y_diff)]
         else:
-            xs, xd = (x.reshape(p, groups, width)[:, :, k].reshape(p, -1) for x in (x_sum, x_diff))
-        ys, yd = _keystone_block(
-            xs, xd, alpha=cols(alpha, k), t0_index=cols(t0_index, k),
+            views = [a.reshape(p, groups, width)[:, :, k] for a in (x_sum, x_diff, y_sum, y_diff)]
+        _keystone_block(
+            views[0], views[1], alpha=cols(alpha, k), t0_index=cols(t0_index, k),
             implementation=implementation, doppler_ref=doppler_ref, n_taps=n_taps, tracking=trk,
             ambiguity=ambiguity if np.ndim(ambiguity) == 0 else cols(np.asarray(ambiguity), k),
-            fft_workers=1 if threads > 1 else -1)
-        for y, out in ((ys, y_sum), (yd, y_diff)):
-            if groups == 1:
-                out[:, k] = y
-            else:
-                out.reshape(p, groups, width)[:, :, k] = y.reshape(p, groups, -1)
+            fft_workers=1 if threads > 1 else -1, period=k.stop - k.start if groups > 1 else None,
+            out=(views[2], views[3]))
 
     if threads > 1:
         with ThreadPoolExecutor(max_workers=threads) as pool:
@@ -115,10 +112,14 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
 
 
 def _keystone_block(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, doppler_ref, n_taps,
-                    tracking, fft_workers=-1):
+                    tracking, fft_workers=-1, period=None, out=None):
+    """The keystone of one block of columns of both channels ([p, cols] or [p, groups, cols] each, the
+    columns in C order); written into ``out`` = (sum, diff) of the same shapes where given (strided
+    views of the whole output), else returned."""
     p = x_sum.shape[0]
     demod = remod = None
-    plan = KeystonePlan(p, alpha, t0_index=t0_index, workers=fft_workers) if implementation == "czt" else None
+    plan = (KeystonePlan(p, alpha, t0_index=t0_index, workers=fft_workers, period=period)
+            if implementation == "czt" else None)
     if tracking is not None:
         derivs, demod, prf_hz, scale = tracking
         # tau = alpha (m - t0) + t0 (eq. 8): the shift from pulse m is (alpha - 1)(m - t0) pulses
@@ -135,23 +136,33 @@ def _keystone_block(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity
         del cycles
     if implementation == "czt":
         if tracking is not None:
-            run = lambda x: plan(x, post=post)                                  # noqa: E731
+            run = lambda x, o: plan.apply(x, post=post, out=o)                  # noqa: E731
         else:
-            run = lambda x: plan(x, ambiguity=ambiguity)                        # noqa: E731
+            run = lambda x, o: plan.apply(x, ambiguity=ambiguity, out=o)        # noqa: E731
     elif implementation == "dft":
-        run = lambda x: keystone_dft(x, alpha, t0_index=t0_index,                # noqa: E731
-                                     ambiguity=ambiguity).astype(np.complex64)
+        direct = lambda x: keystone_dft(x, alpha, t0_index=t0_index,             # noqa: E731
+                                        ambiguity=ambiguity).astype(np.complex64)
     elif implementation == "sinc":
-        run = lambda x: keystone_sinc(x, alpha, t0_index=t0_index, doppler_ref=doppler_ref,  # noqa: E731
-                                      n_taps=n_taps).astype(np.complex64)
+        direct = lambda x: keystone_sinc(x, alpha, t0_index=t0_index, doppler_ref=doppler_ref,  # noqa: E731
+                                         n_taps=n_taps).astype(np.complex64)
     else:
         raise ValueError(f"keystone implementation {implementation!r}; allowed: czt, dft, sinc")
-    out = []
-    for x in (x_sum, x_diff):
+    if implementation != "czt":          # 2-D in, 2-D out: into ``o`` in the block's layout
+        run = lambda x, o: _put(direct(x.reshape(p, -1)).reshape(x.shape), o)   # noqa: E731
+    results = []
+    for x, o in zip((x_sum, x_diff), out or (None, None)):
         if demod is not None:
-            x = x * demod
-        y = run(x)
+            x = x * demod.reshape(x.shape)
+        y = run(x, o)
         if remod is not None:
-            y *= remod
-        out.append(y)
-    return out[0], out[1]
+            y *= remod.reshape(y.shape)
+        results.append(y)
+    return results[0], results[1]
+
+
+def _put(y, out):
+    """``y`` written into ``out`` (returned), or ``y`` itself where there is no ``out``."""
+    if out is None:
+        return y
+    out[...] = y
+    return out

@@ -1,7 +1,6 @@
 """Driving a run: settings, the stage runner, image.h5, image.png, metrics.json (I/O at the edge)."""
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -10,7 +9,7 @@ import numpy as np
 from .. import __version__
 from ..scenario.loader import dump_scenario, scenario_hash
 from ..errors import BadInput
-from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, put_scale, put_sparse_gzip, set_attrs
+from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, json_text, put_scale, put_sparse_gzip, set_attrs
 from ..io.cube import cube_hash
 
 
@@ -230,7 +229,7 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
         from .scene_metrics import scene_metrics
 
         metrics["scene"] = scene_metrics(final["image"], final["range_m"], final["angle_deg"], geo["p_ref"], scn)
-    atomic_write_text(run_dir / "metrics.json", json.dumps(metrics, indent=1, allow_nan=False))
+    atomic_write_text(run_dir / "metrics.json", json_text(metrics))
     if png:
         from ..io.quicklook import save_image_png
 

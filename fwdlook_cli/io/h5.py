@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import functools
+import json
 import os
 from pathlib import Path
 
@@ -110,6 +112,25 @@ def atomic_write_text(path: str | Path, text: str) -> None:
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise write_error(path, exc) from None
+
+
+def json_text(obj: dict, allow_nan: bool = False) -> str:
+    """JSON of a dict laid out for reading: one top-level key per line, a dict value's keys one per
+    line and a list of records one record per line (``metrics.json``: a target per line).  Every piece
+    goes through ``json.dumps`` without ``indent``, i.e. the C encoder: ``indent=1`` takes the pure-Python
+    encoder, 3.4 against about 1.3 ms for the paper run's metrics.  ``json.loads`` gives the same object."""
+    enc = functools.partial(json.dumps, allow_nan=allow_nan)
+
+    def value(v, pad):
+        if isinstance(v, dict) and v:
+            return "{\n" + ",\n".join(f"{pad}  {enc(str(k))}: {enc(x)}" for k, x in v.items()) + f"\n{pad}}}"
+        if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            return "[\n" + ",\n".join(f"{pad}  {enc(x)}" for x in v) + f"\n{pad}]"
+        return enc(v)
+
+    if not isinstance(obj, dict):
+        return enc(obj)
+    return "{\n" + ",\n".join(f" {enc(str(k))}: {value(v, ' ')}" for k, v in obj.items()) + "\n}\n"
 
 
 def put(group: h5py.Group, name: str, data, units: str, long_name: str, *, dims=(), **kw):

@@ -1,7 +1,6 @@
 """ISAR run directory: stages, image.h5, image.png, metrics.json (I/O at the edge)."""
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -19,7 +18,7 @@ def process_isar_cube(cube, scn: dict, run_dir, *, force=False, from_stage=None,
                       png=True) -> dict:
     """Run the ISAR chain with its stage files, write image.h5, image.png and metrics.json."""
     from ..scenario.loader import dump_scenario, scenario_hash
-    from ..io.h5 import atomic_h5, atomic_write_text, put, put_scale
+    from ..io.h5 import atomic_h5, atomic_write_text, json_text, put, put_scale
     from ..runner import run_stages
     from ..io.cube import cube_hash
 
@@ -54,7 +53,7 @@ def process_isar_cube(cube, scn: dict, run_dir, *, force=False, from_stage=None,
     timing["total"] = time.perf_counter() - t_start
     metrics.update(scenario=scn["name"], scenario_sha256=scenario_hash(scn), stage_sha256=keys,
                    timing_s=timing)
-    atomic_write_text(run_dir / "metrics.json", json.dumps(metrics, indent=1, allow_nan=False))
+    atomic_write_text(run_dir / "metrics.json", json_text(metrics))
     atomic_write_text(run_dir / "scenario.yaml", dump_scenario(scn))   # last: the run is complete
     return metrics
 
