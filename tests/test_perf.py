@@ -148,7 +148,7 @@ def test_a_plan_applied_to_strided_views_writes_what_the_gathered_columns_give(t
     t0 = np.repeat([30.2, 29.9, 29.5], k.stop - k.start)
     plan = KeystonePlan(64, alpha, t0_index=t0, period=k.stop - k.start)
     out = np.full(wide.shape, 7 + 7j, np.complex64)
-    assert plan.apply(view, ambiguity=2, out=out[:, :, k]) is not None
+    assert np.shares_memory(plan.apply(view, ambiguity=2, out=out[:, :, k]), out)     # written in place
     np.testing.assert_array_equal(out[:, :, k].reshape(64, -1), plan(gathered, ambiguity=2))
     untouched = np.ones(n_f, bool)
     untouched[k] = False
