@@ -128,8 +128,6 @@ def json_text(obj: dict, allow_nan: bool = False) -> str:
             return "[\n" + ",\n".join(f"{pad}  {enc(x)}" for x in v) + f"\n{pad}]"
         return enc(v)
 
-    if not isinstance(obj, dict):
-        return enc(obj)
     return "{\n" + ",\n".join(f" {enc(str(k))}: {value(v, ' ')}" for k, v in obj.items()) + "\n}\n"
 
 
