@@ -3,6 +3,8 @@ float64 paths, the incremental Gram matrices against A^H A, the decimation filte
 equality with scipy.signal's, the fit on decimated slow time against the fit at the PRF and the truth,
 the extended-scene guard, the fit's resolution flags, and its clusters on worker threads or forked
 processes (dsp/forked.py: the same results as in one process, the fallbacks, errors and cancel)."""
+import os
+
 import numpy as np
 import pytest
 from scipy.signal import freqz
@@ -248,12 +250,29 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
     def refused(*args, **kwargs):              # a system that refuses the processes: threads, same results
         raise OSError("fork refused")
 
-    real_pool, forked.ProcessPoolExecutor = forked.ProcessPoolExecutor, refused
+    real_fork, forked._fork = forked._fork, refused
     try:
         fallback = map_jobs(fit_one, list(range(5)), 2, processes=True)
     finally:
-        forked.ProcessPoolExecutor = real_pool
+        forked._fork = real_fork
     assert all(np.array_equal(a[0], b[0]) for a, b in zip(serial, fallback))
+
+    calls = []
+
+    def second_refused():                     # the second fork refused: the first child killed, threads
+        calls.append(1)
+        if len(calls) > 1:
+            raise OSError("fork refused")
+        return real_fork()
+
+    forked._fork = second_refused
+    try:
+        fallback = map_jobs(fit_one, list(range(5)), 3, processes=True)
+    finally:
+        forked._fork = real_fork
+    assert len(calls) == 2 and all(np.array_equal(a[0], b[0]) for a, b in zip(serial, fallback))
+    with pytest.raises(ChildProcessError):    # and reaped: no child of this process is left
+        os.waitpid(-1, os.WNOHANG)
 
     def fails(job):
         raise ValueError(f"job {job}")
@@ -261,6 +280,16 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
     for processes in (False, True):
         with pytest.raises(ValueError, match="job 0"):
             map_jobs(fails, [0, 1], 2, processes=processes)
+
+    def dies(job):                             # a worker killed (the OOM killer, a signal): an error, not a hang
+        if job == 1:
+            os._exit(3)
+        return job
+
+    with pytest.raises(RuntimeError, match="without a result"):
+        map_jobs(dies, [0, 1, 2], 3, processes=True)
+    many = map_jobs(lambda job: job * job, list(range(40)), 3, processes=True)   # more jobs than workers
+    assert many == [j * j for j in range(40)]
 
 
 def test_the_filter_and_its_convolution_are_scipy_signals():
@@ -317,3 +346,6 @@ def test_cancelled_jobs_release_their_workers():
         pending.cancel()
         assert time.perf_counter() - t0 < 8 * 0.5 / 2      # not every job run (3 at most: the queued ones)
         assert not multiprocessing.active_children()
+        if processes:                                       # the forked children killed and reaped
+            with pytest.raises(ChildProcessError):
+                os.waitpid(-1, os.WNOHANG)

@@ -9,21 +9,30 @@ process.  Measured on the paper cube, rounds interleaved in one process (medians
 chain with the joint fit's clusters (``forward.dwell_fit``) on forked processes 1.15 s, on threads
 1.28 s; the CPI chain run after it 0.60 s after a forked one, 0.51 s after a threaded one.  The joint
 fit asks for processes (``processes=True``); threads are the default.
+
+The processes are plain ``os.fork`` children, not a ``ProcessPoolExecutor``: the executor's start
+(its manager thread, queues and one ``multiprocessing.Process`` per worker) and its shutdown cost the
+stage's main thread about 40 and 30 ms per dwell run on the paper cube (cProfile), where three forks
+cost about 3 ms each.  The jobs' indices wait in a pipe, 4 bytes each, written before the forks; every
+child takes the next one (a read of 4 bytes from a pipe is atomic), so a free child takes the next
+job as a pool's worker would, and sends back its results, pickled, on a pipe of its own when the
+queue is empty; it leaves by ``os._exit`` (no handler or buffer of the parent runs in it).
 """
 from __future__ import annotations
 
 import multiprocessing
+import os
+import pickle
+import signal
+import struct
 import threading
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 
 from .blas import one_blas_thread
 
-_FORKED: dict = {}     # what the forked workers of start_jobs inherit: the function and its jobs
+_fork = os.fork if hasattr(os, "fork") else None     # (a hook: the tests refuse it)
 _FORK_LOCK = threading.Lock()
-
-
-def _run_forked(i):
-    return _FORKED["fn"](_FORKED["jobs"][i])
+MAX_FORKED_JOBS = 1 << 14       # their indices fit the pipe's 64 KiB buffer, written before the forks
 
 
 class Pending:
@@ -52,12 +61,159 @@ class Pending:
         return self.done
 
 
+def _child(fn, jobs, task_fd: int, out_fd: int):
+    """A forked worker: the next job index from ``task_fd`` until none is left, then (True, [(index,
+    result), ...]) or (False, the exception) pickled to ``out_fd``; never returns."""
+    code = 0
+    try:
+        try:
+            done = []
+            while True:
+                raw = os.read(task_fd, 4)
+                if len(raw) < 4:
+                    break
+                i = struct.unpack("<i", raw)[0]
+                done.append((i, fn(jobs[i])))
+            payload = pickle.dumps((True, done), protocol=pickle.HIGHEST_PROTOCOL)
+        except BaseException as exc:  # noqa: BLE001 (every failure goes to the parent, which raises it)
+            try:
+                payload = pickle.dumps((False, exc), protocol=pickle.HIGHEST_PROTOCOL)
+            except Exception:  # noqa: BLE001 (an exception that does not pickle: its text)
+                payload = pickle.dumps((False, RuntimeError(f"{type(exc).__name__}: {exc}")))
+        view = memoryview(payload)
+        while view:
+            view = view[os.write(out_fd, view):]
+    except BaseException:  # noqa: BLE001 (the parent sees a worker without a result)
+        code = 1
+    finally:
+        os._exit(code)
+
+
+def _read_all(fd: int) -> bytes:
+    parts = []
+    while True:
+        chunk = os.read(fd, 1 << 20)
+        if not chunk:
+            return b"".join(parts)
+        parts.append(chunk)
+
+
+class ForkedPending:
+    """Jobs on forked children (``start_jobs(processes=True)``): ``result()`` reads every child's
+    results, reaps the children and returns the results in the jobs' order (a child's exception is
+    raised here, after every child is reaped); ``cancel()`` kills and reaps them."""
+
+    def __init__(self, children, n_jobs: int, limit):
+        self.children, self.n_jobs, self.limit, self.done = children, n_jobs, limit, None
+
+    @property
+    def pids(self):
+        return [pid for pid, _ in self.children]
+
+    def _reap(self, kill: bool):
+        for pid, fd in self.children:
+            if kill:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        statuses = []
+        for pid, _ in self.children:
+            try:
+                statuses.append(os.waitpid(pid, 0)[1])
+            except ChildProcessError:
+                statuses.append(0)
+        self.children = []
+        return statuses
+
+    def cancel(self):
+        """Kill the children (the jobs not finished are dropped), reap them, release the BLAS limit."""
+        if self.done is None:
+            self.done = []
+            try:
+                self._reap(kill=True)
+            finally:
+                self.limit.__exit__(None, None, None)
+
+    def result(self):
+        if self.done is None:
+            try:
+                payloads = [_read_all(fd) for _, fd in self.children]
+            except BaseException:          # an interrupt while waiting: the children killed, not waited for
+                self.cancel()
+                raise
+            try:
+                statuses = self._reap(kill=False)
+            finally:
+                self.limit.__exit__(None, None, None)
+            out, error = [None] * self.n_jobs, None
+            seen = 0
+            for payload, status in zip(payloads, statuses):
+                if not payload:
+                    error = error or RuntimeError(f"a forked worker ended without a result (wait status {status})")
+                    continue
+                ok, value = pickle.loads(payload)
+                if not ok:
+                    error = error or value
+                    continue
+                for i, res in value:
+                    out[i] = res
+                    seen += 1
+            if error is None and seen != self.n_jobs:
+                error = RuntimeError(f"forked workers returned {seen} of {self.n_jobs} results")
+            self.done = []
+            if error is not None:
+                raise error
+            self.done = out
+        return self.done
+
+
+def _start_forked(fn, jobs, workers: int, limit):
+    """The jobs on ``workers`` forked children (module docstring), or None where a fork is refused (the
+    children already started killed)."""
+    task_r, task_w = os.pipe()
+    children = []
+    try:
+        os.write(task_w, struct.pack(f"<{len(jobs)}i", *range(len(jobs))))
+        os.close(task_w)
+        task_w = None
+        with _FORK_LOCK:
+            for _ in range(workers):
+                out_r, out_w = os.pipe()
+                try:
+                    pid = _fork()
+                except BaseException:
+                    os.close(out_r)
+                    os.close(out_w)
+                    raise
+                if pid == 0:                                   # the child
+                    os.close(out_r)
+                    _child(fn, jobs, task_r, out_w)
+                os.close(out_w)
+                children.append((pid, out_r))
+    except OSError:                      # the system refused a process (memory, a process limit)
+        ForkedPending(children, len(jobs), limit)._reap(kill=True)
+        return None
+    except BaseException:
+        ForkedPending(children, len(jobs), limit)._reap(kill=True)
+        raise
+    finally:
+        os.close(task_r)
+        if task_w is not None:
+            os.close(task_w)
+    return ForkedPending(children, len(jobs), limit)
+
+
 def start_jobs(fn, jobs, workers, processes: bool = False):
     """[fn(job) for job in jobs] started, returned as a ``Pending``: the jobs shared among ``workers``
     threads, or with ``processes`` forked processes where the platform forks (they inherit ``fn`` and
     the data it closes over; only the index goes out and the result, pickled, comes back; threads
     where it does not); the caller is free meanwhile.  The BLAS on one thread throughout (the workers
-    share the cores).  Module docstring: why threads by default."""
+    share the cores).  Module docstring: why threads by default, and how the processes are run."""
     limit = one_blas_thread()
     limit.__enter__()
     if workers <= 1:
@@ -66,19 +222,11 @@ def start_jobs(fn, jobs, workers, processes: bool = False):
         finally:
             limit.__exit__(None, None, None)
     # (a daemonic process, e.g. a dask worker's, may not have children: threads there)
-    if (processes and "fork" in multiprocessing.get_all_start_methods()
+    if (processes and _fork is not None and len(jobs) <= MAX_FORKED_JOBS
             and not multiprocessing.current_process().daemon):
-        pool = None
-        with _FORK_LOCK:                # every worker is forked at the first submit (the fork context
-            _FORKED.update(fn=fn, jobs=jobs)   # forks them all before its manager thread starts)
-            try:
-                pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"))
-                return Pending([pool.submit(_run_forked, i) for i in range(len(jobs))], pool, limit)
-            except OSError:             # the system refused a process (memory, a process limit): threads
-                if pool is not None:
-                    pool.shutdown(wait=False, cancel_futures=True)
-            finally:
-                _FORKED.clear()
+        pending = _start_forked(fn, jobs, min(int(workers), len(jobs)), limit)
+        if pending is not None:
+            return pending
     pool = ThreadPoolExecutor(max_workers=workers)
     return Pending([pool.submit(fn, job) for job in jobs], pool, limit)
 
