@@ -291,6 +291,22 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
     many = map_jobs(lambda job: job * job, list(range(40)), 3, processes=True)   # more jobs than workers
     assert many == [j * j for j in range(40)]
 
+    def forks_again(job):                      # a job that forks jobs of its own (the parent's lock is not held)
+        return sum(map_jobs(lambda k: k + 1, list(range(job + 2)), 2, processes=True))
+
+    import signal
+
+    def hung(*args):
+        raise TimeoutError("a job's own forks hung")
+
+    previous = signal.signal(signal.SIGALRM, hung)   # a child stuck on the parent's lock: fail, not hang
+    signal.alarm(60)
+    try:
+        assert map_jobs(forks_again, list(range(4)), 2, processes=True) == [3, 6, 10, 15]
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
 
 def test_the_filter_and_its_convolution_are_scipy_signals():
     """dsp.fir.kaiser_lowpass is scipy.signal.firwin's Kaiser low-pass and filter_same its fftconvolve

@@ -174,14 +174,17 @@ class ForkedPending:
 
 def _start_forked(fn, jobs, workers: int, limit):
     """The jobs on ``workers`` forked children (module docstring), or None where a fork is refused (the
-    children already started killed)."""
-    task_r, task_w = os.pipe()
+    children already started killed).  Under one lock, so that the children of a call made meanwhile
+    from another thread inherit none of this call's pipe ends (a write end held by another process
+    would keep a reader from ever seeing the end of its pipe)."""
+    global _FORK_LOCK
     children = []
-    try:
-        os.write(task_w, struct.pack(f"<{len(jobs)}i", *range(len(jobs))))
-        os.close(task_w)
-        task_w = None
-        with _FORK_LOCK:
+    with _FORK_LOCK:
+        task_r, task_w = os.pipe()
+        try:
+            os.write(task_w, struct.pack(f"<{len(jobs)}i", *range(len(jobs))))
+            os.close(task_w)
+            task_w = None
             for _ in range(workers):
                 out_r, out_w = os.pipe()
                 try:
@@ -191,20 +194,21 @@ def _start_forked(fn, jobs, workers: int, limit):
                     os.close(out_w)
                     raise
                 if pid == 0:                                   # the child
+                    _FORK_LOCK = threading.Lock()              # (the parent's is held: a fresh one)
                     os.close(out_r)
                     _child(fn, jobs, task_r, out_w)
                 os.close(out_w)
                 children.append((pid, out_r))
-    except OSError:                      # the system refused a process (memory, a process limit)
-        ForkedPending(children, len(jobs), limit)._reap(kill=True)
-        return None
-    except BaseException:
-        ForkedPending(children, len(jobs), limit)._reap(kill=True)
-        raise
-    finally:
-        os.close(task_r)
-        if task_w is not None:
-            os.close(task_w)
+        except OSError:                      # the system refused a process (memory, a process limit)
+            ForkedPending(children, len(jobs), limit)._reap(kill=True)
+            return None
+        except BaseException:
+            ForkedPending(children, len(jobs), limit)._reap(kill=True)
+            raise
+        finally:
+            os.close(task_r)
+            if task_w is not None:
+                os.close(task_w)
     return ForkedPending(children, len(jobs), limit)
 
 
