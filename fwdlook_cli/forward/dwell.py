@@ -69,6 +69,7 @@ import scipy.sparse
 from ..dsp.antenna import two_way_width_for
 from ..dsp.geometry import C_MPS, azimuth_at_t_ref
 from ..dsp.blas import worker_threads
+from ..dsp.imaging import float32_floor, median_floor
 from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
@@ -394,12 +395,23 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     dz = oversample_range(d_rot[looked], range_oversample)
     dr = (range_m[1] - range_m[0]) / range_oversample
     range_os = range_m[0] + dr * np.arange(s.shape[1])
-    power = (s.real**2 + s.imag**2).astype(np.float64)
-    ratio = (dz.real * s.real + dz.imag * s.imag) / np.maximum(power, 1e-30)
-    floor = float(np.median(power))
-    level = max(floor * 10 ** (threshold_db / 10), power.max() * 10 ** (-dynamic_range_db / 10))
+    # the power in float32 (its own precision), its exact median (dsp.imaging.median_floor: np.median's
+    # number); the ratio only at the cells over the level, as float32 numerator over the float64 power
+    # (the numbers of the whole-image float64 arrays, three of them 8 bytes a cell, no longer made)
+    power32 = s.real**2 + s.imag**2
+    floor = float(median_floor(power32.reshape(1, -1), power32.size)[0])
+    level = max(floor * 10 ** (threshold_db / 10), float(power32.max()) * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
-    keep = (power > level) & (np.abs(ratio) < max_ratio)
+    over = np.flatnonzero(power32 > float32_floor(level))              # power > level, exactly
+    n_os = s.shape[1]
+    s_c, dz_c = s.reshape(-1)[over], dz.reshape(-1)[over]
+    power_c = power32.reshape(-1)[over].astype(np.float64)
+    ratio_c = (dz_c.real * s_c.real + dz_c.imag * s_c.imag) / np.maximum(power_c, 1e-30)
+    del s_c, dz_c, power32, s, dz          # (not held through the fit and the projection)
+    ok = np.abs(ratio_c) < max_ratio
+    i_dir, i_r = np.divmod(over[ok], n_os)                             # np.nonzero's order
+    ratio_kept, w = ratio_c[ok], power_c[ok]
+    del over, ok, ratio_c, power_c
     finish_fit = None
     if fit_half_width_deg > 0:       # the joint fit owns the directions near the flight axis (dwell_fit.py):
         # started here, it runs on other processes while this one projects the dwell image's cells
@@ -412,16 +424,14 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
             angle_step_deg=angle_step_deg, fc_hz=fc_hz, prf_hz=prf_hz, slope_per_deg=slope_per_deg,
             beta_per_deg2=beta_per_deg2, position_ref_m=p_ref, boresight_offset_deg=boresight_offset_deg)
     try:
-        i_dir, i_r = np.nonzero(keep)
         # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from
         # the dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
         p_dw = pos_dwell[looked][i_dir]
         p_dir = ground_points(range_os[i_r], angle_deg[looked][i_dir], p_ref)
         az_dw = np.degrees(np.arctan2(p_dir[:, 0] - p_dw[:, 0], p_dir[:, 1] - p_dw[:, 1]))
-        az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio[keep]) / slope_per_deg
+        az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio_kept) / slope_per_deg
                                     + boresight_offset_deg, p_dw, p_ref)
         az = np.where(np.isfinite(az), az, angle_deg[looked][i_dir])
-        w = power[keep]
         real_beam = _real_beam_image(data, beam, sub_pulses, range_m, angle_deg, angle_step_deg, p_ref)
     except BaseException:             # (an interrupt included) the fit's workers released, not waited for
         if finish_fit is not None:
@@ -432,7 +442,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         fit_theta, fit_prof, fitted = fit_done
         # in the fitted range cells the fit replaces the region's directions and what lands in the
         # region (elsewhere the dwell's cells stay)
-        fitted_os = np.repeat(fitted, range_oversample)[: keep.shape[1]]
+        fitted_os = np.repeat(fitted, range_oversample)[:n_os]
         out_fit = (~(in_fit[i_dir] & fitted_os[i_r])
                    & ((np.abs(az - twin_axis) > fit_half_width_deg) | ~fitted_os[i_r]))
         az, w, i_r = az[out_fit], w[out_fit], i_r[out_fit]
