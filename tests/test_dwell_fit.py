@@ -271,6 +271,17 @@ def test_clusters_on_forked_workers_return_what_one_process_computes():
     finally:
         forked._fork = real_fork
     assert len(calls) == 2 and all(np.array_equal(a[0], b[0]) for a, b in zip(serial, fallback))
+
+    def no_fork():
+        raise AssertionError("forked although the jobs' indices would not fit the pipe's buffer")
+
+    real_max, forked._fork, forked.MAX_FORKED_JOBS = forked.MAX_FORKED_JOBS, no_fork, 3
+    try:                                      # more jobs than the task pipe holds: threads, same results
+        over = map_jobs(fit_one, list(range(5)), 2, processes=True)
+    finally:
+        forked._fork, forked.MAX_FORKED_JOBS = real_fork, real_max
+    assert all(np.array_equal(a[0], b[0]) for a, b in zip(serial, over))
+    assert forked.MAX_FORKED_JOBS * 4 <= 4096  # a page: the smallest buffer a pipe has
     with pytest.raises(ChildProcessError):    # and reaped: no child of this process is left
         os.waitpid(-1, os.WNOHANG)
 

@@ -13,7 +13,8 @@ fit asks for processes (``processes=True``); threads are the default.
 The processes are plain ``os.fork`` children, not a ``ProcessPoolExecutor``: the executor's start
 (its manager thread, queues and one ``multiprocessing.Process`` per worker) and its shutdown cost the
 stage's main thread about 40 and 30 ms per dwell run on the paper cube (cProfile), where three forks
-cost about 3 ms each.  The jobs' indices wait in a pipe, 4 bytes each, written before the forks; every
+cost about 3 ms each.  The jobs' indices wait in a pipe, 4 bytes each, written before the forks (at most
+``MAX_FORKED_JOBS``, which any pipe's buffer holds; more jobs go to threads); every
 child takes the next one (a read of 4 bytes from a pipe is atomic), so a free child takes the next
 job as a pool's worker would, and sends back its results, pickled, on a pipe of its own when the
 queue is empty; it leaves by ``os._exit`` (no handler or buffer of the parent runs in it).
@@ -32,7 +33,7 @@ from .blas import one_blas_thread
 
 _fork = os.fork if hasattr(os, "fork") else None     # (a hook: the tests refuse it)
 _FORK_LOCK = threading.Lock()
-MAX_FORKED_JOBS = 1 << 14       # their indices fit the pipe's 64 KiB buffer, written before the forks
+MAX_FORKED_JOBS = 1024          # their indices (4 KiB) fit any pipe's buffer (a page at least): written before the forks
 
 
 class Pending:
