@@ -289,10 +289,13 @@ def test_tail_percentiles_are_numpys_bit_for_bit(kind):
             x[n // 50:] = 1700.0
         elif kind in ("nan", "inf"):
             x[int(rng.integers(n))] = np.nan if kind == "nan" else -np.inf
+        x32 = x.astype(np.float32)          # float32 (the cells' positions): its float64 values' percentiles
         for q in ((0.1, 99.9), (0.0, 100.0), (2.5, 97.5)):
             with np.errstate(invalid="ignore"):           # numpy's own lerp of -inf
                 want, got = np.percentile(x, list(q)), tail_percentiles(x, *q)
+                want32, got32 = np.percentile(x32.astype(np.float64), list(q)), tail_percentiles(x32, *q)
             assert got.tobytes() == want.tobytes(), (kind, n, q)
+            assert got32.dtype == np.float64 and got32.tobytes() == want32.tobytes(), (kind, n, q, "float32")
 
 
 def test_worker_pool_works_in_a_forked_child(tmp_path):

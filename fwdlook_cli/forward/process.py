@@ -19,11 +19,13 @@ def tail_percentiles(x, q_lo: float, q_hi: float):
     few values under (over) a threshold read off a strided sample, then interpolated as numpy does
     (``_lerp``).  Bit-identical to ``np.percentile`` (tested); it falls back to it when the sample's
     threshold does not hold enough values, or on non-finite data."""
-    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    x = np.asarray(x).reshape(-1)
+    if x.dtype != np.float32:            # float32 (the cells' positions) is read as it is: its order
+        x = x.astype(np.float64, copy=False)   # statistics are its float64 values' (no copy of the array)
     n = x.size
     qs = np.true_divide(np.array([q_lo, q_hi], dtype=np.float64), 100)
     if n < 4096 or not (0.0 <= qs[0] <= 0.05 and 0.95 <= qs[1] <= 1.0):
-        return np.percentile(x, [q_lo, q_hi])
+        return np.percentile(x.astype(np.float64, copy=False), [q_lo, q_hi])
     v = (n - 1) * qs
     prev = np.floor(v)
     gamma = v - prev
@@ -31,22 +33,30 @@ def tail_percentiles(x, q_lo: float, q_hi: float):
     nxt = np.minimum(prev + 1, n - 1)
     sample = np.sort(x[:: max(1, n // 4096)])
     m = sample.size
-    t_lo = sample[min(m - 1, int(np.ceil((qs[0] * 2 + 2e-3) * m)) + 2)]
+    t_lo = sample[min(m - 1, int(np.ceil((qs[0] * 2 + 2e-3) * m)) + 2)]     # values of x: exact in its dtype
     t_hi = sample[max(0, int(np.floor((1 - (1 - qs[1]) * 2 - 2e-3) * m)) - 3)]
     low, high = x[x <= t_lo], x[x >= t_hi]
     need_lo, need_hi = int(nxt[0]) + 1, n - int(prev[1])
     if (not (np.isfinite(t_lo) and np.isfinite(t_hi)) or low.size < need_lo or high.size < need_hi
             or not (np.isfinite(low).all() and np.isfinite(high).all()) or np.isnan(x).any()):
-        return np.percentile(x, [q_lo, q_hi])
+        return np.percentile(x.astype(np.float64, copy=False), [q_lo, q_hi])
     low = np.partition(low, [int(prev[0]), int(nxt[0])])
     off = n - high.size                                # high[j] is order statistic off + j
     high = np.partition(high, [int(prev[1]) - off, int(nxt[1]) - off])
-    a = np.array([low[prev[0]], high[prev[1] - off]])
-    b = np.array([low[nxt[0]], high[nxt[1] - off]])
+    a = np.array([low[prev[0]], high[prev[1] - off]], dtype=np.float64)
+    b = np.array([low[nxt[0]], high[nxt[1] - off]], dtype=np.float64)
     diff_b_a = b - a                                  # numpy's _lerp, exactly
     out = np.add(a, diff_b_a * gamma)
     np.subtract(b, diff_b_a * (1 - gamma), out=out, where=gamma >= 0.5)
     return out
+
+
+def _grid_index(coord_m, origin_m, step_m):
+    """``np.rint((coord_m - origin_m) / step_m).astype(np.int64)`` in float64, in one buffer."""
+    t = np.subtract(coord_m, origin_m, dtype=np.float64)
+    t /= step_m
+    np.rint(t, out=t)
+    return t.astype(np.int64)
 
 
 def ground_image(cell_x_m, cell_y_m, cell_power, step_m):
@@ -58,13 +68,15 @@ def ground_image(cell_x_m, cell_y_m, cell_power, step_m):
     x0, y0 = np.floor(x0 / step_m) * step_m - 5 * step_m, np.floor(y0 / step_m) * step_m - 5 * step_m
     nx = int(np.ceil((x1 - x0) / step_m)) + 10
     ny = int(np.ceil((y1 - y0) / step_m)) + 10
-    ix = np.rint((cell_x_m - x0) / step_m).astype(np.int64)
-    iy = np.rint((cell_y_m - y0) / step_m).astype(np.int64)
+    ix, iy = _grid_index(cell_x_m, x0, step_m), _grid_index(cell_y_m, y0, step_m)
     ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    iy *= nx
+    iy += ix                                           # the flat bin
+    del ix
     # accumulated in float32, the image's own precision (np.add.at: no grid-sized float64 temporary,
     # whose fresh pages cost more than the sums here)
     img = np.zeros(nx * ny, np.float32)
-    np.add.at(img, iy[ok] * nx + ix[ok], np.asarray(cell_power, np.float32)[ok])
+    np.add.at(img, iy[ok], np.asarray(cell_power, np.float32)[ok])
     return img.reshape(ny, nx), x0 + step_m * np.arange(nx), y0 + step_m * np.arange(ny)
 
 
