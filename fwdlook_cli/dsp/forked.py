@@ -107,10 +107,6 @@ class ForkedPending:
     def __init__(self, children, n_jobs: int, limit):
         self.children, self.n_jobs, self.limit, self.done = children, n_jobs, limit, None
 
-    @property
-    def pids(self):
-        return [pid for pid, _ in self.children]
-
     def _reap(self, kill: bool):
         for pid, fd in self.children:
             if kill:
