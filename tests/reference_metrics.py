@@ -5,13 +5,45 @@ from __future__ import annotations
 
 import numpy as np
 
-from fwdlook_cli.dsp.imaging import best_ratio_index, oversample_profiles
+from fwdlook_cli.dsp.imaging import oversample_profiles
 from fwdlook_cli.dsp.peaks import interpolate_peak
 from fwdlook_cli.dsp.profile import profile_metrics
-from fwdlook_cli.forward.evaluate import (ANGLE_CENTROID_DEG, ANGLE_WINDOW_DEG, DETECT_DB, RANGE_WINDOW_M, _centroid,
-                                          _missing, _width, truth_at_t_ref)
+from fwdlook_cli.forward.evaluate import (ANGLE_CENTROID_DEG, ANGLE_WINDOW_DEG, DETECT_DB, RANGE_WINDOW_M, _missing,
+                                          truth_at_t_ref)
 
 C_MPS = 299_792_458.0
+
+
+def _centroid(power, index, half_width):
+    """Power-weighted centroid of ``power[index-half_width : index+half_width+1]`` (fractional index)."""
+    lo, hi = max(0, index - half_width), min(len(power), index + half_width + 1)
+    w = power[lo:hi]
+    return float(np.sum(w * np.arange(lo, hi)) / np.sum(w)) if np.sum(w) > 0 else float(index)
+
+
+def _width(profile_power, index, spacing):
+    """3 dB width of a power cut around ``index`` by linear interpolation (NaN if not closed)."""
+    p = profile_power / profile_power[index]
+    left = index
+    while left > 0 and p[left] > 0.5:
+        left -= 1
+    right = index
+    while right < len(p) - 1 and p[right] > 0.5:
+        right += 1
+    if p[left] > 0.5 or p[right] > 0.5:
+        return float("nan")
+    xl = left + (0.5 - p[left]) / (p[left + 1] - p[left])
+    xr = right - (0.5 - p[right]) / (p[right - 1] - p[right])
+    return float((xr - xl) * spacing)
+
+
+def best_ratio_index(meas, ideal) -> int:
+    """The sequential rule ``if meas/ideal > best or best_meas == 0: take it``: the first maximum of
+    meas/ideal when it is positive, else the last index."""
+    ratio = np.asarray(meas, float) / np.asarray(ideal, float)
+    if not np.any(ratio > 0):
+        return len(ratio) - 1
+    return int(np.argmax(ratio))
 
 
 def _f(x):

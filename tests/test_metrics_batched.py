@@ -87,3 +87,25 @@ def test_ground_image_is_the_float64_bincount_to_float32_rounding(finished):
     assert ok.mean() > 0.99                  # the 0.1-99.9 percentile box plus margins holds nearly all cells
     np.testing.assert_allclose(img, ref, rtol=2e-6, atol=0)
     assert img.sum(dtype=np.float64) == pytest.approx(float(w[ok].sum(dtype=np.float64)), rel=1e-6)
+
+
+def test_best_ratio_rows_is_the_sequential_rule_per_segment():
+    """The peak loss's CPI choice for every dwell at once against the one-dwell rule, on segments of
+    ratios with ties, with no positive ratio (the rule then takes the last CPI) and of one element."""
+    from fwdlook_cli.forward.evaluate import _best_ratio_rows
+    from reference_metrics import best_ratio_index
+
+    rng = np.random.default_rng(7)
+    lengths = rng.integers(1, 9, 300)
+    segments = []
+    for n in lengths:
+        kind = rng.integers(0, 3)
+        meas = (np.round(3 * rng.random(n)) if kind == 0 else np.zeros(n) if kind == 1 else rng.random(n))
+        segments.append(meas)
+    meas = np.concatenate(segments)
+    ideal = rng.uniform(0.5, 2.0, meas.size).round(1)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    got = _best_ratio_rows(meas / ideal, starts)
+    want = [s + best_ratio_index(meas[s:s + n], ideal[s:s + n]) for s, n in zip(starts, lengths)]
+    assert got.tolist() == want
+    assert any(not np.any(meas[s:s + n] > 0) for s, n in zip(starts, lengths))      # the no-positive case ran

@@ -258,14 +258,3 @@ def oversample_profiles(x, factor: int):
         padded[..., half] += 0.5 * spec[..., half]
         padded[..., m - half] += 0.5 * spec[..., half]
     return np.fft.ifft(padded, axis=-1) * factor
-
-
-def best_ratio_index(meas, ideal) -> int:
-    """Index the sequential rule ``if meas/ideal > best or best_meas == 0: take it`` ends on: the
-    first maximum of meas/ideal when it is positive, else the last index."""
-    ratio = np.asarray(meas, float) / np.asarray(ideal, float)
-    if len(ratio) == 0:
-        raise ValueError("empty dwell")
-    if not np.any(ratio > 0):
-        return len(ratio) - 1
-    return int(np.argmax(ratio))

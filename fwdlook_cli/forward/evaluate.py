@@ -23,20 +23,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..dsp.geometry import C_MPS
-from ..dsp.peaks import interpolate_peak
-from ..dsp.profile import profile_metrics
+from ..dsp.profile_rows import half_power_width_rows, peak3_rows, power_metrics_rows
 
 RANGE_WINDOW_M = 15.0
 ANGLE_WINDOW_DEG = 0.5
 DETECT_DB = 10.0
 ANGLE_CENTROID_DEG = 0.2
-
-
-def _centroid(power, index, half_width):
-    """Power-weighted centroid of ``power[index-half_width : index+half_width+1]`` (fractional index)."""
-    lo, hi = max(0, index - half_width), min(len(power), index + half_width + 1)
-    w = power[lo:hi]
-    return float(np.sum(w * np.arange(lo, hi)) / np.sum(w)) if np.sum(w) > 0 else float(index)
 
 
 def resolved_flags(range_m, azimuth_deg, *, bandwidth_hz, wavelength_m, speed_mps, prf_hz, cpi,
@@ -69,22 +61,6 @@ def truth_at_t_ref(truth_xyz_m, position_ref_m):
     return np.linalg.norm(d, axis=1), np.degrees(np.arctan2(d[:, 0], d[:, 1]))
 
 
-def _width(profile_power, index, spacing):
-    """3 dB width of a power cut around ``index`` by linear interpolation (NaN if not closed)."""
-    p = profile_power / profile_power[index]
-    left = index
-    while left > 0 and p[left] > 0.5:
-        left -= 1
-    right = index
-    while right < len(p) - 1 and p[right] > 0.5:
-        right += 1
-    if p[left] > 0.5 or p[right] > 0.5:
-        return float("nan")
-    xl = left + (0.5 - p[left]) / (p[left + 1] - p[left])
-    xr = right - (0.5 - p[right]) / (p[right - 1] - p[right])
-    return float((xr - xl) * spacing)
-
-
 def _window_peaks(image, i0, i1, j0, j1):
     """For every target the first maximum of ``image[i0:i1, j0:j1]`` in row-major order (as
     ``np.argmax`` of the window), all windows at once: (row, column) within the window, the value, and
@@ -109,7 +85,8 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
 
     The search windows' peaks and the marginal cuts through them are taken for every target at once
     (gathers of the image; the cuts summed in float64, so the same as one target at a time to rounding:
-    ``tests/test_metrics_batched.py``); the peak refinement and the profile measures per target."""
+    ``tests/test_metrics_batched.py``), and so are the peak refinement and the profile measures
+    (``dsp.profile_rows``: the scalar walks as searches over each target's row)."""
     r_true, az_true = truth_at_t_ref(truth_xyz_m, np.asarray(position_ref_m))
     dr = float(range_m[1] - range_m[0])
     da = float(angle_deg[1] - angle_deg[0])
@@ -132,43 +109,75 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
     # sums 2 w_a + 1 adjacent columns (contiguous, as one column strip does), the angle cut 2 w_r + 1 rows
     inner_a = ~missing & (jp - w_a >= 0) & (jp + w_a + 1 <= n_a)
     inner_r = ~missing & (ip - w_r >= 0) & (ip + w_r + 1 <= n_r)
-    # (in float64: the sums of float32 pixels to its precision, whichever order numpy adds them in)
-    range_cuts = image[:, (jp[inner_a][:, None] + np.arange(-w_a, w_a + 1)[None, :])].sum(axis=2, dtype=np.float64)
+    # (in float64: the sums of float32 pixels to its precision, whichever order they are added in; the
+    # range cuts one column offset at a time, a third faster than one gather of every strip)
+    strip_cols = jp[inner_a]
+    range_cuts = image[:, strip_cols - w_a].astype(np.float64)
+    for offset in range(1 - w_a, w_a + 1):
+        range_cuts += image[:, strip_cols + offset]
     angle_cuts = image[(ip[inner_r][:, None] + np.arange(-w_r, w_r + 1)[None, :]), :].sum(axis=1, dtype=np.float64)
     col_of = np.cumsum(inner_a) - 1
     row_of = np.cumsum(inner_r) - 1
-    for k in range(len(r_true)):
-        row = {"id": k, "x_m": float(truth_xyz_m[k, 0]), "y_m": float(truth_xyz_m[k, 1]),
-               "true_range_m": float(r_true[k]), "true_azimuth_deg": float(az_true[k])}
-        if missing[k]:
-            rows.append({**row, **_missing()})
-            continue
-        i, j = int(ip[k]), int(jp[k])
-        on_edge = wi[k] in (0, i1[k] - i0[k] - 1) or wj[k] in (0, j1[k] - j0[k] - 1)
-        detected = bool(not on_edge and win_peak[k] > floor * 10 ** (DETECT_DB / 10))
-        range_cut = (range_cuts[:, col_of[k]] if inner_a[k]
-                     else image[:, max(0, j - w_a):j + w_a + 1].sum(axis=1, dtype=np.float64))
-        angle_cut = (angle_cuts[row_of[k]] if inner_r[k]
-                     else image[max(0, i - w_r):i + w_r + 1, :].sum(axis=0, dtype=np.float64))
-        i = int(i0[k]) + int(np.argmax(range_cut[i0[k]:i1[k]]))
-        j = int(j0[k]) + int(np.argmax(angle_cut[j0[k]:j1[k]]))
-        fi, _ = interpolate_peak(range_cut, i)
-        fj = _centroid(angle_cut, j, int(round(ANGLE_CENTROID_DEG / da)))
-        meas_r = float(range_m[0] + fi * dr)
-        meas_a = float(angle_deg[0] + fj * da)
-        lo, hi = max(0, i - int(5 * res_cells)), min(len(range_m), i + int(5 * res_cells) + 1)
-        try:
-            pm = profile_metrics(np.sqrt(range_cut[lo:hi]), spacing=dr, oversample=1)
-            islr, pslr = pm.islr_db, pm.pslr_db
-        except ValueError:
-            islr = pslr = float("nan")
-        rows.append({**row, "meas_range_m": meas_r, "meas_azimuth_deg": meas_a,
-                     "range_error_m": meas_r - float(r_true[k]), "azimuth_error_deg": meas_a - float(az_true[k]),
-                     "islr_db": _f(islr), "pslr_db": _f(pslr), "detected": detected,
-                     "range_width_3db_m": _f(_width(range_cut, i, dr)),
-                     "angle_width_3db_deg": _f(_width(angle_cut, j, da)),
-                     "peak_power": float(image[i, j]), "amplitude": float(amplitude[k])})
+    rows = [{"id": k, "x_m": float(truth_xyz_m[k, 0]), "y_m": float(truth_xyz_m[k, 1]),
+             "true_range_m": float(r_true[k]), "true_azimuth_deg": float(az_true[k])} for k in range(len(r_true))]
+    tg = np.flatnonzero(~missing)                               # the targets with a peak in their window
+    # every measured target's two cuts as rows ([T', n_r] and [T', n_a]); a strip the image's edge clips
+    # summed on its own
+    range_rows = np.empty((len(tg), n_r))
+    angle_rows = np.empty((len(tg), n_a))
+    for t, k in enumerate(tg):
+        j, i = int(jp[k]), int(ip[k])
+        range_rows[t] = (range_cuts[:, col_of[k]] if inner_a[k]
+                         else image[:, max(0, j - w_a):j + w_a + 1].sum(axis=1, dtype=np.float64))
+        angle_rows[t] = (angle_cuts[row_of[k]] if inner_r[k]
+                         else image[max(0, i - w_r):i + w_r + 1, :].sum(axis=0, dtype=np.float64))
+    on_edge = ((wi == 0) | (wi == i1 - i0 - 1) | (wj == 0) | (wj == j1 - j0 - 1))[tg]
+    detected = ~on_edge & (win_peak[tg] > floor * 10 ** (DETECT_DB / 10))
+    # the cuts' peaks inside the windows (the first maximum, as np.argmax), refined: the range peak by
+    # the log-parabola fit, the angle peak by the power centroid within +-ANGLE_CENTROID_DEG
+    i = _window_argmax(range_rows, i0[tg], i1[tg])
+    j = _window_argmax(angle_rows, j0[tg], j1[tg])
+    fi, _ = peak3_rows(range_rows, i, np.full(len(tg), n_r))
+    fj = _centroid_rows(angle_rows, j, int(round(ANGLE_CENTROID_DEG / da)))
+    meas_r = range_m[0] + fi * dr
+    meas_a = angle_deg[0] + fj * da
+    # the range profile's ISLR and PSLR over +-5 resolution cells around the peak (clipped to the image)
+    half = int(5 * res_cells)
+    lo = np.maximum(0, i - half)
+    n_prof = np.minimum(n_r, i + half + 1) - lo
+    amp = np.sqrt(np.take_along_axis(range_rows, np.minimum(lo[:, None] + np.arange(2 * half + 1), n_r - 1), axis=1))
+    pslr, islr, _ = power_metrics_rows(amp * amp, n_prof, dr)
+    range_width = half_power_width_rows(range_rows, i, np.full(len(tg), n_r), dr)
+    angle_width = half_power_width_rows(angle_rows, j, np.full(len(tg), n_a), da)
+    peak_power = image[i, j]
+    for t, k in enumerate(tg.tolist()):
+        rows[k].update({"meas_range_m": float(meas_r[t]), "meas_azimuth_deg": float(meas_a[t]),
+                        "range_error_m": float(meas_r[t]) - float(r_true[k]),
+                        "azimuth_error_deg": float(meas_a[t]) - float(az_true[k]),
+                        "islr_db": _f(islr[t]), "pslr_db": _f(pslr[t]), "detected": bool(detected[t]),
+                        "range_width_3db_m": _f(range_width[t]), "angle_width_3db_deg": _f(angle_width[t]),
+                        "peak_power": float(peak_power[t]), "amplitude": float(amplitude[k])})
+    for k in np.flatnonzero(missing).tolist():
+        rows[k].update(_missing())
     return rows
+
+
+def _window_argmax(cuts, lo, hi):
+    """Per row of ``cuts`` the index of the first maximum of ``cuts[t, lo[t]:hi[t]]`` (non-empty windows)."""
+    idx = lo[:, None] + np.arange(max(1, int((hi - lo).max(initial=0))))[None, :]
+    win = np.take_along_axis(cuts, np.minimum(idx, cuts.shape[1] - 1), axis=1)
+    return lo + np.where(idx < hi[:, None], win, -np.inf).argmax(axis=1)
+
+
+def _centroid_rows(power, index, half_width):
+    """Per row the power-weighted centroid of ``power[t, index-half_width : index+half_width+1]`` (clipped
+    to the row; fractional index), ``index`` itself where that power sums to zero."""
+    cols = index[:, None] + np.arange(-half_width, half_width + 1)[None, :]
+    inside = (cols >= 0) & (cols < power.shape[1])
+    w = np.where(inside, np.take_along_axis(power, np.clip(cols, 0, power.shape[1] - 1), axis=1), 0.0)
+    total = w.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(total > 0, (w * cols).sum(axis=1) / total, index.astype(np.float64))
 
 
 def _f(x):
@@ -196,7 +205,7 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
     from it; peak loss compares the strongest single-CPI sample with an ideally focused target
     (amplitude x two-way sum gain at that CPI's beam offset x the window's coherent gain).
     """
-    from ..dsp.imaging import best_ratio_index, oversample_profiles
+    from ..dsp.imaging import oversample_profiles
 
     r_ref, _ = truth_at_t_ref(truth_xyz_m, np.asarray(position_ref_m))
     s = spectra["sum_z"]
@@ -224,33 +233,46 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
     near_ok = near >= 0
     meas_row = np.where(near_ok, np.abs(s[c_row[:, None], z_row[:, None], np.maximum(near, 0)]), -np.inf).max(axis=1)
     starts = np.searchsorted(t_row, np.arange(n_t))
-    acc_of = {}
-    for width in np.unique((i1 - i0)[usable]):      # one batched oversampling per window length
-        sel = np.flatnonzero(usable & (i1 - i0 == width))
+    pslr, islr, width = np.full(n_t, np.nan), np.full(n_t, np.nan), np.full(n_t, np.nan)
+    for n_win in np.unique((i1 - i0)[usable]):      # one batched oversampling per window length
+        sel = np.flatnonzero(usable & (i1 - i0 == n_win))
         rows = np.flatnonzero(np.isin(t_row, sel))
-        profiles = s[c_row[rows][:, None], z_row[rows][:, None], i0[t_row[rows]][:, None] + np.arange(width)[None, :]]
+        profiles = s[c_row[rows][:, None], z_row[rows][:, None], i0[t_row[rows]][:, None] + np.arange(n_win)[None, :]]
         power = np.abs(oversample_profiles(profiles, oversample)) ** 2
-        bounds = np.searchsorted(t_row[rows], sel)
-        for k, acc in zip(sel, np.add.reduceat(power, bounds, axis=0)):
-            acc_of[int(k)] = acc
+        acc = np.add.reduceat(power, np.searchsorted(t_row[rows], sel), axis=0)    # the dwell's sum, per target
+        amp = np.sqrt(acc)
+        pslr[sel], islr[sel], width[sel] = power_metrics_rows(amp * amp, np.full(len(sel), acc.shape[1]),
+                                                              dr / oversample)
+    # the peak loss: the CPI of the best measured-to-ideal ratio (the first maximum when one is positive,
+    # else the dwell's last CPI: dsp.imaging.best_ratio_index), for every usable target at once
+    meas = meas_row.astype(np.float64)
+    ideal = amplitude[t_row] * sigma[t_row, c_row] ** 2 * cg
+    best = _best_ratio_rows(meas / ideal, starts[usable])        # (the usable dwells tile the rows)
+    loss_db = np.full(n_t, np.nan)
+    loss_db[usable] = 20 * np.log10(np.maximum(meas[best], 1e-30) / ideal[best])
     out = []
     for k in range(n_t):
         if not usable[k]:
             out.append({"peak_loss_db": None, "islr_db": None, "pslr_db": None, "range_width_3db_m": None})
             continue
-        lo, hi = starts[k], starts[k + 1] if k + 1 < n_t else len(t_row)
-        meas = meas_row[lo:hi].astype(np.float64)
-        ideal = amplitude[k] * sigma[k, c_row[lo:hi]] ** 2 * cg
-        j = best_ratio_index(meas, ideal)
-        best_meas, best_ideal = float(meas[j]), float(ideal[j])
-        try:
-            pm = profile_metrics(np.sqrt(acc_of[k]), spacing=dr / oversample, oversample=1)
-            islr, pslr, width = pm.islr_db, pm.pslr_db, pm.width_3db
-        except ValueError:
-            islr = pslr = width = float("nan")
-        out.append({"peak_loss_db": float(20 * np.log10(max(best_meas, 1e-30) / best_ideal)),
-                    "islr_db": _f(islr), "pslr_db": _f(pslr), "range_width_3db_m": _f(width)})
+        out.append({"peak_loss_db": float(loss_db[k]), "islr_db": _f(islr[k]), "pslr_db": _f(pslr[k]),
+                    "range_width_3db_m": _f(width[k])})
     return out
+
+
+def _best_ratio_rows(ratio, starts):
+    """For the segments ``ratio[starts[s]:starts[s + 1]]`` (the last to the end), which tile ``ratio`` and
+    are not empty, the index (into ``ratio``) that :func:`dsp.imaging.best_ratio_index` gives each: its
+    first maximum when a ratio in it is positive, else its last element."""
+    if len(starts) == 0:
+        return np.zeros(0, np.intp)
+    stops = np.append(starts[1:], len(ratio))
+    seg = np.repeat(np.arange(len(starts)), stops - starts)
+    top = np.maximum.reduceat(ratio, starts)
+    first = np.full(len(starts), -1)
+    hit = np.flatnonzero(ratio == top[seg])
+    first[seg[hit][::-1]] = hit[::-1]               # the last write wins: each segment's first hit
+    return np.where(top > 0, first, stops - 1)
 
 
 def summarize(rows) -> dict:
