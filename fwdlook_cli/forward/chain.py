@@ -20,12 +20,14 @@ resample with F = 0, remodulate).  Every corrected output refers to t_ref (NOTES
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import scipy.fft
 
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both
-from ..dsp.blas import batched_matmul
+from ..dsp.blas import batched_matmul, worker_threads
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, cpi_doppler_band_hz,
                      cpi_means, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector)
@@ -187,18 +189,42 @@ def range_curvature(data: StageData, *, model: str, radial_accel_mps2: float, t_
 
 
 def _compensate_rows(x_sum, x_diff, rate_rad_per_hz, fr_hz, block_bytes: int = 1 << 20):
-    """ifft over range of ``x * exp(j rate f_r)`` for both channels, one block of pulses at a time (h of
-    a block only: no cube-sized temporary; :func:`dsp.keystone_common.cis_outer`, f_r on its grid)."""
+    """ifft over range of ``x * exp(j rate f_r)`` for both channels, in blocks of pulses (h of a block
+    only: no cube-sized temporary; :func:`dsp.keystone_common.cis_outer`, f_r on its grid).  The blocks
+    run on a thread pool, one FFT thread each (pocketfft's own threads cost more than they gain on
+    transforms this small); each block's product is written into the output and transformed there."""
     y_sum, y_diff = np.empty(x_sum.shape, np.complex64), np.empty(x_diff.shape, np.complex64)
     step = max(1, block_bytes // max(1, 8 * x_sum.shape[1]))
     grid = None if rate_rad_per_hz is None else outer_grid(fr_hz, float(np.max(np.abs(rate_rad_per_hz), initial=0.0)))
-    for lo in range(0, x_sum.shape[0], step):
+    starts = range(0, x_sum.shape[0], step)
+    threads = min(worker_threads(), len(starts))
+    fft_workers = 1 if threads > 1 else -1
+
+    def block(lo):
         b = slice(lo, lo + step)
         h = None if rate_rad_per_hz is None else cis_outer(rate_rad_per_hz[b], fr_hz, grid)
         for x, y in ((x_sum, y_sum), (x_diff, y_diff)):
-            y[b] = (scipy.fft.ifft(x[b], axis=1, workers=-1) if h is None
-                    else scipy.fft.ifft(x[b] * h, axis=1, workers=-1, overwrite_x=True))
+            if h is None:
+                y[b] = x[b]
+            else:
+                np.multiply(x[b], h, out=y[b])
+            _ifft_rows_in_place(y[b], fft_workers)
+
+    if threads > 1:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            list(pool.map(block, starts))
+    else:
+        for lo in starts:
+            block(lo)
     return y_sum, y_diff
+
+
+def _ifft_rows_in_place(block, workers):
+    """The inverse FFT over the last axis of a C-contiguous complex64 block, written over it
+    (``overwrite_x``: pocketfft transforms in place; copied back should a SciPy return a new array)."""
+    out = scipy.fft.ifft(block, axis=1, workers=workers, overwrite_x=True)
+    if not np.shares_memory(out, block):
+        block[...] = out
 
 
 # ----------------------------------------------------------------------------------------------
