@@ -52,11 +52,12 @@ def tail_percentiles(x, q_lo: float, q_hi: float):
 
 
 def _grid_index(coord_m, origin_m, step_m):
-    """``np.rint((coord_m - origin_m) / step_m).astype(np.int64)`` in float64, in one buffer."""
+    """``np.rint((coord_m - origin_m) / step_m)`` in float64, in one buffer (whole numbers, exact in
+    float64 up to 2^53: the caller converts only the indices it keeps)."""
     t = np.subtract(coord_m, origin_m, dtype=np.float64)
     t /= step_m
     np.rint(t, out=t)
-    return t.astype(np.int64)
+    return t
 
 
 def ground_image(cell_x_m, cell_y_m, cell_power, step_m):
@@ -71,12 +72,12 @@ def ground_image(cell_x_m, cell_y_m, cell_power, step_m):
     ix, iy = _grid_index(cell_x_m, x0, step_m), _grid_index(cell_y_m, y0, step_m)
     ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
     iy *= nx
-    iy += ix                                           # the flat bin
+    iy += ix                                           # the flat bin, a whole number in float64
     del ix
     # accumulated in float32, the image's own precision (np.add.at: no grid-sized float64 temporary,
     # whose fresh pages cost more than the sums here)
     img = np.zeros(nx * ny, np.float32)
-    np.add.at(img, iy[ok], np.asarray(cell_power, np.float32)[ok])
+    np.add.at(img, iy[ok].astype(np.int64), np.asarray(cell_power, np.float32)[ok])
     return img.reshape(ny, nx), x0 + step_m * np.arange(nx), y0 + step_m * np.arange(ny)
 
 
