@@ -116,8 +116,6 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
     for offset in range(1 - w_a, w_a + 1):
         range_cuts += image[:, strip_cols + offset]
     angle_cuts = image[(ip[inner_r][:, None] + np.arange(-w_r, w_r + 1)[None, :]), :].sum(axis=1, dtype=np.float64)
-    col_of = np.cumsum(inner_a) - 1
-    row_of = np.cumsum(inner_r) - 1
     rows = [{"id": k, "x_m": float(truth_xyz_m[k, 0]), "y_m": float(truth_xyz_m[k, 1]),
              "true_range_m": float(r_true[k]), "true_azimuth_deg": float(az_true[k])} for k in range(len(r_true))]
     tg = np.flatnonzero(~missing)                               # the targets with a peak in their window
@@ -125,12 +123,14 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
     # summed on its own
     range_rows = np.empty((len(tg), n_r))
     angle_rows = np.empty((len(tg), n_a))
-    for t, k in enumerate(tg):
-        j, i = int(jp[k]), int(ip[k])
-        range_rows[t] = (range_cuts[:, col_of[k]] if inner_a[k]
-                         else image[:, max(0, j - w_a):j + w_a + 1].sum(axis=1, dtype=np.float64))
-        angle_rows[t] = (angle_cuts[row_of[k]] if inner_r[k]
-                         else image[max(0, i - w_r):i + w_r + 1, :].sum(axis=0, dtype=np.float64))
+    range_rows[inner_a[tg]] = range_cuts.T
+    angle_rows[inner_r[tg]] = angle_cuts
+    for t in np.flatnonzero(~inner_a[tg]).tolist():
+        j = int(jp[tg[t]])
+        range_rows[t] = image[:, max(0, j - w_a):j + w_a + 1].sum(axis=1, dtype=np.float64)
+    for t in np.flatnonzero(~inner_r[tg]).tolist():
+        i = int(ip[tg[t]])
+        angle_rows[t] = image[max(0, i - w_r):i + w_r + 1, :].sum(axis=0, dtype=np.float64)
     on_edge = ((wi == 0) | (wi == i1 - i0 - 1) | (wj == 0) | (wj == j1 - j0 - 1))[tg]
     detected = ~on_edge & (win_peak[tg] > floor * 10 ** (DETECT_DB / 10))
     # the cuts' peaks inside the windows (the first maximum, as np.argmax), refined: the range peak by
@@ -244,7 +244,7 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
         pslr[sel], islr[sel], width[sel] = power_metrics_rows(amp * amp, np.full(len(sel), acc.shape[1]),
                                                               dr / oversample)
     # the peak loss: the CPI of the best measured-to-ideal ratio (the first maximum when one is positive,
-    # else the dwell's last CPI: dsp.imaging.best_ratio_index), for every usable target at once
+    # else the dwell's last CPI), for every usable target at once
     meas = meas_row.astype(np.float64)
     ideal = amplitude[t_row] * sigma[t_row, c_row] ** 2 * cg
     best = _best_ratio_rows(meas / ideal, starts[usable])        # (the usable dwells tile the rows)
@@ -262,16 +262,18 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
 
 def _best_ratio_rows(ratio, starts):
     """For the segments ``ratio[starts[s]:starts[s + 1]]`` (the last to the end), which tile ``ratio`` and
-    are not empty, the index (into ``ratio``) that :func:`dsp.imaging.best_ratio_index` gives each: its
-    first maximum when a ratio in it is positive, else its last element."""
+    are not empty, the index (into ``ratio``) of the CPI the peak loss is read at: the segment's first
+    maximum when a ratio in it is positive, else its last element (the rule of the per-dwell code this
+    replaced: ``tests/reference_metrics.py::best_ratio_index``)."""
     if len(starts) == 0:
         return np.zeros(0, np.intp)
     stops = np.append(starts[1:], len(ratio))
     seg = np.repeat(np.arange(len(starts)), stops - starts)
     top = np.maximum.reduceat(ratio, starts)
+    hit = np.flatnonzero(ratio == top[seg])            # ascending: each segment's hits in order
     first = np.full(len(starts), -1)
-    hit = np.flatnonzero(ratio == top[seg])
-    first[seg[hit][::-1]] = hit[::-1]               # the last write wins: each segment's first hit
+    with_hit, at = np.unique(seg[hit], return_index=True)
+    first[with_hit] = hit[at]                          # each segment's first hit
     return np.where(top > 0, first, stops - 1)
 
 
