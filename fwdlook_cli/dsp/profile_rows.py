@@ -62,8 +62,9 @@ def peak3_rows(power, k, n):
 
 
 def half_power_width_rows(power, index, n, spacing):
-    """``forward.evaluate``'s 3 dB width of each row around ``index``: the walks while the normalised
-    power is over 0.5, linear interpolation at both crossings; NaN where a side does not cross."""
+    """The per-target metrics' 3 dB width of each row around ``index`` (the cuts' width: walks while the
+    power over its value at ``index`` is above 0.5, linear interpolation at both crossings; NaN where a
+    side does not cross; the one-row form is ``tests/reference_metrics.py::_width``)."""
     idx = np.arange(power.shape[1])[None, :]
     p = power / _at(power, index)[:, None]
     below = p <= 0.5
