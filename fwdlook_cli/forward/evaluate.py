@@ -145,6 +145,8 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
     half = int(5 * res_cells)
     lo = np.maximum(0, i - half)
     n_prof = np.minimum(n_r, i + half + 1) - lo
+    # the measures take the amplitude |p| and square it, as profile_metrics(sqrt(cut)) did: sqrt then
+    # square is not the identity in the last bit, and the same numbers are wanted
     amp = np.sqrt(np.take_along_axis(range_rows, np.minimum(lo[:, None] + np.arange(2 * half + 1), n_r - 1), axis=1))
     pslr, islr, _ = power_metrics_rows(amp * amp, n_prof, dr)
     range_width = half_power_width_rows(range_rows, i, np.full(len(tg), n_r), dr)
@@ -240,7 +242,7 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
         profiles = s[c_row[rows][:, None], z_row[rows][:, None], i0[t_row[rows]][:, None] + np.arange(n_win)[None, :]]
         power = np.abs(oversample_profiles(profiles, oversample)) ** 2
         acc = np.add.reduceat(power, np.searchsorted(t_row[rows], sel), axis=0)    # the dwell's sum, per target
-        amp = np.sqrt(acc)
+        amp = np.sqrt(acc)                      # (|p| squared back, as above)
         pslr[sel], islr[sel], width[sel] = power_metrics_rows(amp * amp, np.full(len(sel), acc.shape[1]),
                                                               dr / oversample)
     # the peak loss: the CPI of the best measured-to-ideal ratio (the first maximum when one is positive,
