@@ -169,9 +169,12 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
     def prepare(scn):
         prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
 
-    scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
-    run_dir = _default_run_dir(scn, output)
-    metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages)
+    from .io.quicklook import painting
+
+    with painting():                 # image.png's matplotlib imported by a child meanwhile (io/painter.py)
+        scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
+        run_dir = _default_run_dir(scn, output)
+        metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages)
     _print_summary(metrics, run_dir, quiet)
 
 
@@ -196,11 +199,14 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
         prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config], overwrite=overwrite,
                         writes_raw=writes_raw)
 
-    scn, cube = _scenario_and_cube(scenario, raw, config, overrides, quiet, before_cube=prepare)
-    run_dir = _default_run_dir(scn, output)
-    if writes_raw:
-        write_raw(run_dir / "raw.h5", cube)
-    metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages)
+    from .io.quicklook import painting
+
+    with painting():                 # image.png's matplotlib imported by a child meanwhile (io/painter.py)
+        scn, cube = _scenario_and_cube(scenario, raw, config, overrides, quiet, before_cube=prepare)
+        run_dir = _default_run_dir(scn, output)
+        if writes_raw:
+            write_raw(run_dir / "raw.h5", cube)
+        metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages)
     _print_summary(metrics, run_dir, quiet)
     click.echo(str(run_dir / "metrics.json"))
 

@@ -174,7 +174,7 @@ def test_the_spectra_are_not_held_while_the_png_is_drawn(tiny_raw, tmp_path, mon
         with h5py.File(raw, "a") as f:
             del f["truth"]
     refs, alive = [], []
-    real_doppler, real_png = chain.doppler_spectra, quicklook.save_image_png
+    real_doppler, real_png = chain.doppler_spectra, quicklook.start_image_png
 
     def doppler_spy(data, **kw):
         out = real_doppler(data, **kw)
@@ -187,6 +187,6 @@ def test_the_spectra_are_not_held_while_the_png_is_drawn(tiny_raw, tmp_path, mon
         return real_png(*a, **kw)
 
     monkeypatch.setattr(chain, "doppler_spectra", doppler_spy)
-    monkeypatch.setattr(quicklook, "save_image_png", png_spy)
+    monkeypatch.setattr(quicklook, "start_image_png", png_spy)
     assert _run(["process", raw, "-o", tmp_path / "run", "-q"]) == 0
     assert alive == [False]

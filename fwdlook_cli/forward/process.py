@@ -152,18 +152,40 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     final, timings, keys = run_stages(stages, holder.pop(), src_key, run_dir, force=force, from_stage=from_stage,
                                       quiet=quiet, keep=keep_stages, captured=captured, pending_writes=writes)
     t_out = time.perf_counter()
+    pending_png = []
     try:
         metrics, scenario_yaml = _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured,
-                                          writes, t_start, t_out, png)
+                                          writes, t_start, t_out, png, pending_png)
     finally:
         while writes:                    # waited for even when the outputs failed (then re-raised)
             writes.pop()()
+        while pending_png:               # begun and not finished: the outputs failed, no PNG left
+            pending_png.pop().discard()
     atomic_write_text(run_dir / "scenario.yaml", scenario_yaml)
     return metrics
 
 
-def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured, writes, t_start, t_out, png):
-    """image.h5, metrics.json, image.png of a finished chain; returns (metrics, scenario YAML)."""
+def _start_quicklook(run_dir, final, rows, scn, proc, geo):
+    """image.png begun (:func:`io.quicklook.start_image_png`): the image's rows that hold anything, the
+    truth as circles."""
+    from ..io.quicklook import start_image_png
+
+    markers = None
+    if rows is not None:
+        markers = (np.array([r["true_azimuth_deg"] for r in rows]), np.array([r["true_range_m"] for r in rows]))
+    sel = np.any(final["image"] > 0, axis=1)
+    rows_idx = np.nonzero(sel)[0]
+    lo, hi = (rows_idx[0], rows_idx[-1] + 1) if len(rows_idx) else (0, len(final["range_m"]))
+    return start_image_png(run_dir / "image.png", final["image"][lo:hi], final["angle_deg"], final["range_m"][lo:hi],
+                           xlabel="azimuth at t_ref (deg)", ylabel="slant range at t_ref (m)",
+                           title=f"{scn['name']}: {proc['method']} (q={geo['q']}, "
+                                 f"{proc['keystone']}), t_ref = {proc['t_ref']}", markers=markers)
+
+
+def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured, writes, t_start, t_out, png,
+             pending_png):
+    """image.h5, metrics.json, image.png of a finished chain; returns (metrics, scenario YAML).
+    ``pending_png``: a list that holds image.png while it is drawn (the caller discards it on failure)."""
     from .evaluate import dwell_profile_metrics, summarize, target_metrics
 
     ground, gx, gy = ground_image(final["cell_x_m"], final["cell_y_m"], final["cell_power"],
@@ -211,6 +233,8 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                 row.update(extra)
             del spectra                               # 2x the cube: not held while the PNG is drawn
     spectra_of = None
+    if png:              # begun here: a painter running (io/painter.py) draws it beside the files below
+        pending_png.append(_start_quicklook(run_dir, final, rows if truth is not None else None, scn, proc, geo))
     scenario_yaml = dump_scenario(scn)
     waited = sum(writes.pop()() for _ in range(len(writes)))       # every stage file written before these
     write_image_h5(run_dir / "image.h5", final, ground, gx, gy, scenario_yaml=scenario_yaml,
@@ -243,17 +267,6 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
 
         metrics["scene"] = scene_metrics(final["image"], final["range_m"], final["angle_deg"], geo["p_ref"], scn)
     atomic_write_text(run_dir / "metrics.json", json_text(metrics))
-    if png:
-        from ..io.quicklook import save_image_png
-
-        markers = None
-        if truth is not None:
-            markers = (np.array([r["true_azimuth_deg"] for r in rows]), np.array([r["true_range_m"] for r in rows]))
-        sel = np.any(final["image"] > 0, axis=1)
-        rows_idx = np.nonzero(sel)[0]
-        lo, hi = (rows_idx[0], rows_idx[-1] + 1) if len(rows_idx) else (0, len(final["range_m"]))
-        save_image_png(run_dir / "image.png", final["image"][lo:hi], final["angle_deg"], final["range_m"][lo:hi],
-                       xlabel="azimuth at t_ref (deg)", ylabel="slant range at t_ref (m)",
-                       title=f"{scn['name']}: {proc['method']} (q={metrics['params']['q']}, "
-                             f"{proc['keystone']}), t_ref = {proc['t_ref']}", markers=markers)
+    if pending_png:
+        pending_png.pop().finish()
     return metrics, scenario_yaml

@@ -1,6 +1,7 @@
 """Quick-look PNGs of images (dB scale, labelled axes; matplotlib, Agg backend)."""
 from __future__ import annotations
 
+import os
 
 import numpy as np
 
@@ -20,8 +21,80 @@ def save_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
                    markers=None, aspect="auto"):
     """Save ``power`` [len(y_axis), len(x_axis)] as a dB image (peak at 0 dB), atomically.
 
-    ``markers``: optional (x, y) arrays of truth positions drawn as open circles.
+    ``markers``: optional (x, y) arrays of truth positions drawn as open circles.  Drawn by the
+    command's painter where one is running (``io/painter.py``: a child that imported matplotlib while
+    the chain ran), else here (:func:`draw_image_png`).
     """
+    start_image_png(path, power, x_axis, y_axis, xlabel=xlabel, ylabel=ylabel, title=title,
+                    dynamic_range_db=dynamic_range_db, markers=markers, aspect=aspect).finish()
+
+
+def start_image_png(path, power, x_axis, y_axis, **kwargs) -> "PendingPng":
+    """:func:`save_image_png` begun: with a painter running, the child draws it meanwhile; else it is
+    drawn in this process by :meth:`PendingPng.finish`."""
+    from . import painter
+
+    args = (path, power, x_axis, y_axis)
+    child = painter.active()
+    if child is not None:
+        try:       # by name: the child's own draw_image_png
+            child.submit("fwdlook_cli.io.quicklook:draw_image_png", *args, **kwargs)
+        except painter.PainterGone:
+            child = None
+    return PendingPng(child, args, kwargs)
+
+
+def painting():
+    """Within the block, quick looks are drawn by a forked child (``io/painter.py``) that has imported
+    matplotlib and drawn one small figure (:func:`warm_up`) meanwhile."""
+    from . import painter
+
+    return painter.painting(warm_up="fwdlook_cli.io.quicklook:warm_up")
+
+
+def warm_up() -> None:
+    """matplotlib imported and one small quick look drawn into memory: the first figure loads the fonts
+    and caches (about 0.1 s here), which the command's image then finds loaded."""
+    import io
+
+    axis = np.arange(8.0)
+    draw_image_png(io.BytesIO(), np.ones((8, 8)), axis, axis, xlabel="x", ylabel="y", title="t",
+                   markers=(axis[:2], axis[:2]))
+
+
+class PendingPng:
+    """A quick look begun by :func:`start_image_png`."""
+
+    def __init__(self, child, args, kwargs):
+        self.child, self.args, self.kwargs = child, args, kwargs
+
+    def finish(self) -> None:
+        """Return once the PNG is written (raise what drawing it raised)."""
+        from . import painter
+
+        child, self.child = self.child, None
+        if child is not None:
+            try:
+                return child.result()
+            except painter.PainterGone:
+                pass                              # the child is gone: drawn here
+        return draw_image_png(*self.args, **self.kwargs)
+
+    def discard(self) -> None:
+        """The command failed after the PNG was begun: wait for the child, leave no PNG behind."""
+        import contextlib
+
+        child, self.child = self.child, None
+        if child is not None:
+            with contextlib.suppress(Exception):
+                child.result()
+            with contextlib.suppress(OSError):
+                os.unlink(self.args[0])
+
+
+def draw_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynamic_range_db=40.0,
+                   markers=None, aspect="auto"):
+    """:func:`save_image_png` drawn in this process."""
     plt = _plt()
     p = np.asarray(power, dtype=np.float32)         # a picture: float32 dB, computed in place
     db = p / np.float32(max(float(p.max()), 1e-30))
@@ -49,6 +122,9 @@ def save_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
     fig.colorbar(mesh, ax=ax, label="dB")
     fig.tight_layout()
     try:
+        if not isinstance(path, (str, os.PathLike)):     # a file object (the painter's warm-up)
+            fig.savefig(path, format="png")
+            return
         with atomic_path(path) as tmp:          # partial removed and OSError one line on failure
             fig.savefig(tmp)
     finally:
