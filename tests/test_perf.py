@@ -427,10 +427,11 @@ def test_chain_timing_reports_every_stage_and_the_peak_rss(tiny_raw):
         assert t["peak_rss_above_base_bytes"] >= 0
 
 
-@pytest.mark.parametrize("case", ["noise", "constant", "third_strong", "tiny_groups", "sorted"])
+@pytest.mark.parametrize("case", ["noise", "constant", "third_strong", "tiny_groups", "sorted", "sample_misled"])
 def test_median_floor_is_exactly_the_median(case):
-    """The bracketed median (sampled bracket, partition of the bracket only) is np.median to the bit,
-    also where the bracket cannot hold the median (constant data, ties) or the group is tiny."""
+    """The bracketed median (sampled bracket, sort of the bracket only) is np.median to the bit, also
+    where the bracket cannot hold the median (constant data, ties; every sampled cell an outlier, in
+    some groups of the call and not in others) or the group is tiny."""
     rng = np.random.default_rng(3)
     shape = (4, 3) if case == "tiny_groups" else (6, 17920)
     p = rng.exponential(size=shape).astype(np.float32)
@@ -440,6 +441,10 @@ def test_median_floor_is_exactly_the_median(case):
         p[:, : shape[1] // 3] *= 1e3
     elif case == "sorted":
         p.sort(axis=1)
+    elif case == "sample_misled":                 # the strided sample sees outliers only: bracket missed
+        from fwdlook_cli.dsp.imaging import MEDIAN_SAMPLE_STRIDE
+
+        p[::2, ::MEDIAN_SAMPLE_STRIDE] *= 1e6
     got = median_floor(p, shape[1])
     np.testing.assert_array_equal(got, np.median(p.astype(np.float64), axis=1))
 

@@ -45,27 +45,37 @@ def median_floor(power, axis_cells):
 
     A bracket [lo, hi] around the median is read from a strided sample (its order statistics
     +-4 standard deviations of the sample median's rank), the cells below ``lo`` are counted, and only
-    the cells inside the bracket (a few per cent) are partitioned for the two middle order statistics:
-    the same number as ``np.median``, about half the work of partitioning every cell.  A group whose
-    bracket misses the median (probability ~1e-4) is partitioned whole."""
+    the cells inside the bracket (about a tenth) are sorted, every group's in one row of a padded
+    array, for the two middle order statistics: the same number as ``np.median``, at a quarter of the
+    work of partitioning every cell.  A group whose bracket misses the median (probability ~1e-4) is
+    partitioned whole."""
     flat = power.reshape(power.shape[0], axis_cells)
-    n = flat.shape[1]
+    n_groups, n = flat.shape
     k0, k1 = (n - 1) // 2, n // 2
-    out = np.empty(flat.shape[0])
+    out = np.empty(n_groups)
     sample = np.sort(flat[:, ::MEDIAN_SAMPLE_STRIDE], axis=1)
     m = sample.shape[1]
     half = int(np.ceil(2.0 * np.sqrt(m))) + 2          # 4 sigma of the median's rank, sqrt(m)/2 each
     lo = sample[:, max(0, m // 2 - half)][:, None]
     hi = sample[:, min(m - 1, m // 2 + half)][:, None]
-    inside = (flat >= lo) & (flat <= hi)
-    below = np.count_nonzero(flat < lo, axis=1)
-    for g in range(flat.shape[0]):
-        r0, r1 = k0 - below[g], k1 - below[g]
-        cand = flat[g][inside[g]]
-        if r0 < 0 or r1 >= len(cand):                  # the bracket missed: the whole group
-            cand, r0, r1 = np.array(flat[g], dtype=np.float32), k0, k1
-        cand.partition([r0, r1])
-        out[g] = 0.5 * (float(cand[r0]) + float(cand[r1]))
+    under = flat < lo
+    below = np.count_nonzero(under, axis=1)
+    inside = np.greater(flat <= hi, under)             # lo <= x <= hi (True > False)
+    del under
+    count = np.count_nonzero(inside, axis=1)
+    r0, r1 = k0 - below, k1 - below                    # the middle ranks among each group's bracket
+    held = (r0 >= 0) & (r1 < count)
+    # each group's bracket in one row (+inf after it), sorted row by row: one call for every group
+    pad = np.full((n_groups, max(1, int(count.max(initial=0)))), np.inf, dtype=flat.dtype)
+    pad[np.arange(pad.shape[1]) < count[:, None]] = flat.reshape(-1).take(np.flatnonzero(inside))   # (a
+    # boolean index of the whole array costs three times the index list and the take)
+    pad.sort(axis=1)
+    g = np.flatnonzero(held)
+    out[g] = 0.5 * (pad[g, r0[g]].astype(np.float64) + pad[g, r1[g]].astype(np.float64))
+    for g in np.flatnonzero(~held):                    # the bracket missed: the whole group
+        cand = np.array(flat[g], dtype=np.float32)
+        cand.partition([k0, k1])
+        out[g] = 0.5 * (float(cand[k0]) + float(cand[k1]))
     return out
 
 
