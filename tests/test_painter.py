@@ -84,6 +84,24 @@ def test_a_discarded_png_is_not_left_behind(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_closing_an_idle_painter_ends_it_at_once():
+    """A command that stops before its image (an error, Ctrl-C) does not wait for the child's imports."""
+    with painting_checked() as child:
+        pid = child.pid
+    assert _gone(pid)
+    assert os.WIFSIGNALED(child.exit_status) and os.WTERMSIG(child.exit_status) == signal.SIGKILL
+
+
+def test_a_painter_that_drew_leaves_by_its_closed_pipe_after_the_job(tmp_path):
+    power, x, y, kw = _picture()
+    with painting_checked() as child:
+        pending = start_image_png(tmp_path / "image.png", power, x, y, **kw)
+        child.close()                                      # with the job in hand: finished, then gone
+    assert os.WIFEXITED(child.exit_status)
+    assert (tmp_path / "image.png").exists() and not (tmp_path / "image.partial.png").exists()
+    pending.finish()                                       # the child is gone: drawn here instead
+
+
 def test_the_painter_leaves_when_its_command_is_killed(tmp_path):
     script = textwrap.dedent("""
         import os, signal, sys

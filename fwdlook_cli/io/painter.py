@@ -13,7 +13,8 @@ command raises as its own (the same one-line errors).  The PNG is the same file,
 ``"module:function"``, a warm-up first (``io.quicklook.painting``).
 
 The child ignores SIGINT (the command handles Ctrl-C) and leaves by ``os._exit`` when its job pipe
-closes: when the command closes the painter, or when the command dies however it dies.  A child that
+closes, as it does when the command dies however it dies; the command ends an idle child at once
+when it closes the painter.  A child that
 is gone, or a platform without ``fork``, means the PNG is drawn in the command's process as before.
 """
 from __future__ import annotations
@@ -100,7 +101,8 @@ class Painter:
 
     def __init__(self, warm_up: str | None = None):
         self.pid = None
-        self._sender, self._send_error = None, None
+        self.exit_status = None                   # os.waitpid's status, once reaped
+        self._sender, self._send_error, self._busy = None, None, False
         job_r, self._job_w = os.pipe()
         self._reply_r, reply_w = os.pipe()
         try:
@@ -138,6 +140,7 @@ class Painter:
         # written by a thread: a pipe holds 64 KiB and an image is megabytes, which the child reads
         # only once its warm-up is done; the command goes on meanwhile
         job = pickle.dumps((name, args, kwargs), protocol=pickle.HIGHEST_PROTOCOL)
+        self._busy = True
         self._sender = threading.Thread(target=self._send_job, args=(job,), name="fwdlook-painter", daemon=True)
         self._sender.start()
 
@@ -167,11 +170,14 @@ class Painter:
         if got is None:
             self.close()
             raise PainterGone(detail)
+        self._busy = False
         if got[0] is not None:
             raise got[0]
 
     def close(self) -> None:
-        """Close the job pipe (the child leaves) and reap the child."""
+        """End the child and reap it: an idle child at once (SIGKILL: it holds nothing but its imports,
+        and a command stopped by Ctrl-C during its chain does not wait for them); a child with a job
+        in hand finishes it (no partial PNG), finds its pipes closed and leaves."""
         if self.pid is None:
             return
         if self._sender is not None:              # the child reads it all, or is gone (EPIPE)
@@ -181,8 +187,11 @@ class Painter:
         for fd in (self._job_w, self._reply_r):
             with contextlib.suppress(OSError):
                 os.close(fd)
+        if not self._busy:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
         with contextlib.suppress(ChildProcessError):
-            os.waitpid(pid, 0)
+            self.exit_status = os.waitpid(pid, 0)[1]
 
 
 def active() -> Painter | None:
