@@ -135,3 +135,18 @@ def painting_checked():
             return out
 
     return Checked()
+
+
+def test_a_painter_that_does_not_answer_is_ended(monkeypatch):
+    """A child that hangs costs the command the timeout, then the PNG is drawn in the process."""
+    monkeypatch.setattr(painter, "RESULT_TIMEOUT_S", 0.5)
+    child = painter.Painter()
+    try:
+        child.submit("time:sleep", 60)
+        t0 = time.monotonic()
+        with pytest.raises(painter.PainterGone):
+            child.result()
+        assert time.monotonic() - t0 < 10
+    finally:
+        child.close()
+    assert os.WIFSIGNALED(child.exit_status) and os.WTERMSIG(child.exit_status) == signal.SIGKILL

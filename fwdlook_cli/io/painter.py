@@ -14,8 +14,9 @@ command raises as its own (the same one-line errors).  The PNG is the same file,
 
 The child ignores SIGINT (the command handles Ctrl-C) and leaves by ``os._exit`` when its job pipe
 closes, as it does when the command dies however it dies; the command ends an idle child at once
-when it closes the painter.  A child that
-is gone, or a platform without ``fork``, means the PNG is drawn in the command's process as before.
+when it closes the painter.  A child that is gone or has not answered in :data:`RESULT_TIMEOUT_S`
+(then it is ended), or a platform without ``fork``, means the PNG is drawn in the command's process
+as before.
 """
 from __future__ import annotations
 
@@ -23,12 +24,15 @@ import contextlib
 import importlib
 import os
 import pickle
+import select
 import signal
 import struct
 import sys
 import threading
+import time
 
 _HEADER = struct.Struct("<Q")
+RESULT_TIMEOUT_S = 120.0    # a job not answered by then: the child is ended and the PNG drawn in the command
 _ACTIVE = None              # the painter of the command in progress (at most one per process)
 
 
@@ -154,12 +158,20 @@ class Painter:
         """Wait for the job handed over by :meth:`submit`; raise what it raised, or :class:`PainterGone`."""
         if self.pid is None:
             raise PainterGone("the painter is closed")
+        deadline = time.monotonic() + RESULT_TIMEOUT_S
         sender, self._sender = self._sender, None
         if sender is not None:
-            sender.join()
+            sender.join(RESULT_TIMEOUT_S)
         if self._send_error is not None:
             self.close()
             raise PainterGone(str(self._send_error))
+        ready = sender is None or not sender.is_alive()
+        if ready:
+            ready = bool(select.select([self._reply_r], [], [], max(0.0, deadline - time.monotonic()))[0])
+        if not ready:                             # a child that hangs is ended: the PNG is drawn here
+            self._busy = False
+            self.close()
+            raise PainterGone(f"the painter did not answer in {RESULT_TIMEOUT_S:.0f} s")
         try:
             got = _receive(self._reply_r)
         except OSError as exc:
