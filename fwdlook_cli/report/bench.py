@@ -51,7 +51,8 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     stage, stage files written); ``chain_<method>_keep_none_s`` the same CPI chains with
     ``--keep-stages none`` (no stage file: their difference is what the files cost);
     ``chain_<method>_peak_rss_x_cube`` is its peak RSS above the RSS before it, as a multiple of the
-    cube (both channels)."""
+    cube (both channels); ``chain_<method>_cores_busy`` the process's CPU time during the chain over
+    its wall time (median of the rounds)."""
     from ..forward.chain import build_forward_stages
     from ..scenario.loader import load_scenario
     from ..dsp.keystone_czt import KeystonePlan
@@ -132,6 +133,11 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         log.info(f"  round {r + 1}: " + ", ".join(f"{m} {v[-1]['total_s']:.2f} s" for m, v in rounds.items()))
     for key in no_files:
         out[f"chain_{key}_s"] = statistics.median(t["total_s"] for t in rounds[key])
+    # the cores a chain keeps busy: its process's CPU time (every thread) over its wall time, median
+    # of the rounds (2.0 on two cores would be every core busy all the time)
+    for key, runs in rounds.items():
+        busy = [t["cores_busy"] for t in runs if t.get("cores_busy") is not None]
+        out[f"chain_{key}_cores_busy"] = statistics.median(busy) if busy else None
     _step(7, n, "peak memory of each chain (a fresh interpreter each)")
     for method in scenarios:
         key = "chain_s" if method == "decimation" else f"chain_{method}_s"

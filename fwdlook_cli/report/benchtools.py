@@ -26,6 +26,16 @@ def median_time(fn, repeats=5):
     return statistics.median(times)
 
 
+def process_cpu_s() -> float | None:
+    """User plus system CPU time of this process, every thread (s); None where unsupported."""
+    try:
+        import resource
+    except ImportError:              # pragma: no cover (not POSIX)
+        return None
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
 def _status_kib(field: str):
     try:
         with open("/proc/self/status", encoding="ascii") as f:
@@ -62,13 +72,19 @@ def time_chain(cube, scn: dict, repeats: int = 3, rss: bool = True, keep_stages:
     from ..forward.process import process_cube
 
     per_stage: dict[str, list[float]] = {}
+    cores = []
     for _ in range(max(1, int(repeats))):
         with tempfile.TemporaryDirectory() as tmp:
+            cpu0, wall0 = process_cpu_s(), time.perf_counter()
             metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False, keep_stages=keep_stages)
+            cpu1, wall1 = process_cpu_s(), time.perf_counter()
+        if cpu0 is not None and cpu1 is not None:
+            cores.append((cpu1 - cpu0) / max(wall1 - wall0, 1e-9))
         for stage, seconds in metrics["timing_s"].items():
             per_stage.setdefault(stage, []).append(float(seconds))
     out = {k: statistics.median(v) for k, v in per_stage.items()}
-    result = {"stages_s": {k: v for k, v in out.items() if k != "total"}, "total_s": out["total"]}
+    result = {"stages_s": {k: v for k, v in out.items() if k != "total"}, "total_s": out["total"],
+              "cores_busy": statistics.median(cores) if cores else None}
     if rss:
         result.update(chain_peak_rss(cube, scn))
     return result
