@@ -163,45 +163,49 @@ class Painter:
         if sender is not None:
             sender.join(RESULT_TIMEOUT_S)
         if self._send_error is not None:
-            self.close()
-            raise PainterGone(str(self._send_error))
+            self._end(str(self._send_error))
         ready = sender is None or not sender.is_alive()
         if ready:
             ready = bool(select.select([self._reply_r], [], [], max(0.0, deadline - time.monotonic()))[0])
         if not ready:                             # a child that hangs is ended: the PNG is drawn here
-            self._busy = False
-            self.close()
-            raise PainterGone(f"the painter did not answer in {RESULT_TIMEOUT_S:.0f} s")
+            self._sender = sender                 # (joined by close, once the child is gone)
+            self._end(f"the painter did not answer in {RESULT_TIMEOUT_S:.0f} s")
         try:
             got = _receive(self._reply_r)
         except OSError as exc:
-            got = None
-            detail = str(exc)
+            got, detail = None, str(exc)
         else:
             detail = "the painter exited"
         if got is None:
-            self.close()
-            raise PainterGone(detail)
+            self._end(detail)
         self._busy = False
         if got[0] is not None:
             raise got[0]
 
+    def _end(self, why: str):
+        """The child cannot answer (gone, or hung): end it, reap it, raise :class:`PainterGone`."""
+        self._busy = False
+        self.close()
+        raise PainterGone(why)
+
     def close(self) -> None:
         """End the child and reap it: an idle child at once (SIGKILL: it holds nothing but its imports,
         and a command stopped by Ctrl-C during its chain does not wait for them); a child with a job
-        in hand finishes it (no partial PNG), finds its pipes closed and leaves."""
+        in hand finishes it (no partial PNG), finds its pipes closed and leaves.  The job pipe is
+        closed only once the thread writing to it has returned (a closed descriptor's number may be
+        reused by the next file the command opens)."""
         if self.pid is None:
             return
-        if self._sender is not None:              # the child reads it all, or is gone (EPIPE)
-            self._sender.join()
-            self._sender = None
         pid, self.pid = self.pid, None
-        for fd in (self._job_w, self._reply_r):
-            with contextlib.suppress(OSError):
-                os.close(fd)
         if not self._busy:
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
+        if self._sender is not None:              # the child reads it all, or is gone (EPIPE)
+            self._sender.join()
+            self._sender = None
+        for fd in (self._job_w, self._reply_r):
+            with contextlib.suppress(OSError):
+                os.close(fd)
         with contextlib.suppress(ChildProcessError):
             self.exit_status = os.waitpid(pid, 0)[1]
 
