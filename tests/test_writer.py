@@ -161,7 +161,9 @@ def test_the_dwell_metrics_take_the_spectra_from_memory_and_a_reused_run_from_th
 @pytest.mark.parametrize("truth", [True, False])
 def test_the_spectra_are_not_held_while_the_png_is_drawn(tiny_raw, tmp_path, monkeypatch, truth):
     """The Doppler spectra (2 x the cube) that the dwell metrics take from memory are released before
-    the quick-look PNG, also for a cube without truth, whose metrics never read them."""
+    the quick-look PNG is drawn in the process (no painter: io/painter.py draws it in a child of its
+    own memory), also for a cube without truth, whose metrics never read them."""
+    import contextlib
     import gc
     import shutil
     import weakref
@@ -174,7 +176,7 @@ def test_the_spectra_are_not_held_while_the_png_is_drawn(tiny_raw, tmp_path, mon
         with h5py.File(raw, "a") as f:
             del f["truth"]
     refs, alive = [], []
-    real_doppler, real_png = chain.doppler_spectra, quicklook.start_image_png
+    real_doppler, real_png = chain.doppler_spectra, quicklook.draw_image_png
 
     def doppler_spy(data, **kw):
         out = real_doppler(data, **kw)
@@ -187,6 +189,7 @@ def test_the_spectra_are_not_held_while_the_png_is_drawn(tiny_raw, tmp_path, mon
         return real_png(*a, **kw)
 
     monkeypatch.setattr(chain, "doppler_spectra", doppler_spy)
-    monkeypatch.setattr(quicklook, "start_image_png", png_spy)
+    monkeypatch.setattr(quicklook, "draw_image_png", png_spy)
+    monkeypatch.setattr(quicklook, "painting", contextlib.nullcontext)     # drawn here, in the process
     assert _run(["process", raw, "-o", tmp_path / "run", "-q"]) == 0
     assert alive == [False]

@@ -165,14 +165,16 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     return metrics
 
 
-def _start_quicklook(run_dir, final, rows, scn, proc, geo):
+def _start_quicklook(run_dir, final, truth, scn, proc, geo):
     """image.png begun (:func:`io.quicklook.start_image_png`): the image's rows that hold anything, the
-    truth as circles."""
+    truth as circles (at t_ref: the metrics' ``true_azimuth_deg``, ``true_range_m``)."""
     from ..io.quicklook import start_image_png
+    from .evaluate import truth_at_t_ref
 
     markers = None
-    if rows is not None:
-        markers = (np.array([r["true_azimuth_deg"] for r in rows]), np.array([r["true_range_m"] for r in rows]))
+    if truth is not None:
+        r_true, az_true = truth_at_t_ref(truth, np.asarray(geo["p_ref"]))
+        markers = (az_true, r_true)
     sel = np.any(final["image"] > 0, axis=1)
     rows_idx = np.nonzero(sel)[0]
     lo, hi = (rows_idx[0], rows_idx[-1] + 1) if len(rows_idx) else (0, len(final["range_m"]))
@@ -188,6 +190,10 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
     ``pending_png``: a list that holds image.png while it is drawn (the caller discards it on failure)."""
     from .evaluate import dwell_profile_metrics, summarize, target_metrics
 
+    truth = cube.truth_xyz_m()
+    if png:        # begun first: a painter running (io/painter.py) draws it beside the metrics and files
+        # below; without one it is drawn at the end, once the Doppler spectra are released
+        pending_png.append(_start_quicklook(run_dir, final, truth, scn, proc, geo))
     ground, gx, gy = ground_image(final["cell_x_m"], final["cell_y_m"], final["cell_power"],
                                   step_m=float(cube.range_spacing_m) / 2)
     packed = {name: GzipChunks(a) for name, a in (("image", final["image"]), ("real_beam", final["real_beam"]),
@@ -196,7 +202,6 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
     # left is this one, dropped once the dwell metrics have read them, or unread (no truth)
     spectra_of = captured.pop("doppler_spectra", None)
     rows = []
-    truth = cube.truth_xyz_m()
     if truth is not None:
         rows = target_metrics(final["image"], final["range_m"], final["angle_deg"], truth,
                               cube.truth["amplitude"], geo["p_ref"], bandwidth_hz=cube.radar["bandwidth_hz"])
@@ -233,8 +238,6 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                 row.update(extra)
             del spectra                               # 2x the cube: not held while the PNG is drawn
     spectra_of = None
-    if png:              # begun here: a painter running (io/painter.py) draws it beside the files below
-        pending_png.append(_start_quicklook(run_dir, final, rows if truth is not None else None, scn, proc, geo))
     scenario_yaml = dump_scenario(scn)
     waited = sum(writes.pop()() for _ in range(len(writes)))       # every stage file written before these
     write_image_h5(run_dir / "image.h5", final, ground, gx, gy, scenario_yaml=scenario_yaml,
