@@ -1,6 +1,7 @@
 """Quick-look PNGs of images (dB scale, labelled axes; matplotlib, Agg backend)."""
 from __future__ import annotations
 
+import contextlib
 import os
 
 import numpy as np
@@ -82,8 +83,6 @@ class PendingPng:
 
     def discard(self) -> None:
         """The command failed after the PNG was begun: wait for the child, leave no PNG behind."""
-        import contextlib
-
         child, self.child = self.child, None
         if child is not None:
             with contextlib.suppress(Exception):
