@@ -129,12 +129,6 @@ class Painter:
         os.close(job_r)
         os.close(reply_w)
 
-    def run(self, name: str, *args, **kwargs) -> None:
-        """Run the function ``name`` (``"module:function"``) with these arguments in the child; raise
-        what it raised, or :class:`PainterGone` when the child is not there to answer."""
-        self.submit(name, *args, **kwargs)
-        self.result()
-
     def submit(self, name: str, *args, **kwargs) -> None:
         """Hand the child a job and return at once (:meth:`result` waits for it; one job at a time)."""
         if self.pid is None:
