@@ -329,8 +329,35 @@ def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene, backen
     print_bench(as_json, scaling=scaling, plot_path=plot_path, repeats=repeats, scene=scene, backend=backend)
 
 
+QUICKLOOK_COMMANDS = ("process", "run")        # the commands that end with image.png
+QUICKLOOK_WARM_UP = "fwdlook_cli.io.quicklook:warm_up"   # io.quicklook.WARM_UP (not imported here: numpy)
+
+
+def _command_of(args) -> str | None:
+    """The subcommand named by ``args`` (the first word after the group's options), None for help or
+    the version."""
+    for arg in args:
+        if arg in ("-h", "--help", "--version"):
+            return None
+        if not arg.startswith("-"):
+            return arg
+    return None
+
+
 def main(argv=None):
     """Console entry point: maps BadInput and click usage errors to one line and exit 2."""
+    from .io import painter
+
+    args = sys.argv[1:] if argv is None else list(argv)
+    if _command_of(args) in QUICKLOOK_COMMANDS and not {"-h", "--help"} & set(args):
+        painter.fork_early(QUICKLOOK_WARM_UP)    # before numpy is imported (io/painter.py)
+    try:
+        _main(argv)
+    finally:
+        painter.close_early()
+
+
+def _main(argv):
     from .dsp.blas import share_one_allocator_arena
 
     share_one_allocator_arena()          # the stages' thread pools: one allocator arena (dsp/blas.py)

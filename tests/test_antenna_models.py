@@ -208,3 +208,51 @@ def test_contract_keys_only_with_a_4_deg_beam_validates_and_runs(tmp_path):
     assert m["calibration"]["source"] == "cube"
     assert m["calibration"]["slope_per_deg"] == pytest.approx(MonopulseAntenna(4.0).slope_per_deg)
     assert m["summary"]["detected"] == 2
+
+
+def test_the_design_solvers_root_is_scipys_brentq_root():
+    """bracketed_root (bisection, no scipy.optimize import) against scipy's brentq, which shares no
+    code with it: the same roots to the tolerance asked, and whole designs to 1e-12."""
+    from scipy.optimize import brentq
+
+    from fwdlook_cli.dsp import antenna
+
+    cases = [(lambda x: np.sinc(x) ** 2 - 0.5, 0.1, 0.9, 1e-15), (lambda x: x ** 3 - 2.0, 0.0, 3.0, 1e-14),
+             (lambda x: np.cos(x) - x, 0.0, 1.0, 2e-12), (lambda x: np.exp(x) - 1e3, -1.0, 10.0, 1e-14)]
+    for f, a, b, xtol in cases:
+        ours, theirs = antenna.bracketed_root(f, a, b, xtol=xtol), brentq(f, a, b, xtol=xtol)
+        assert abs(ours - theirs) <= 2 * xtol + 8 * np.finfo(float).eps * abs(theirs)
+        assert (f(ours - 4 * xtol) < 0) != (f(ours + 4 * xtol) < 0)            # a sign change around it
+    with pytest.raises(ValueError, match="same sign"):
+        antenna.bracketed_root(lambda x: x * x + 1.0, -1.0, 1.0)
+    designs = [dict(beamwidth_3db_deg=6.0), dict(beamwidth_3db_deg=3.0, squint_deg=0.9),
+               dict(beamwidth_3db_deg=4.0, pattern="sinc2"), dict(beamwidth_3db_deg=8.0, squint_deg=2.0, pattern="sinc2"),
+               dict(beamwidth_3db_deg=5.0, crossover_db=-1.5)]
+    ours = [MonopulseAntenna(**d) for d in designs]
+    mp = pytest.MonkeyPatch()
+    try:
+        mp.setattr(antenna, "bracketed_root", lambda f, a, b, xtol=2e-12: brentq(f, a, b, xtol=xtol))
+        antenna._squint_curve.cache_clear()
+        antenna.rho_limit.cache_clear()
+        theirs = [MonopulseAntenna(**d) for d in designs]
+    finally:
+        mp.undo()
+        antenna._squint_curve.cache_clear()
+        antenna.rho_limit.cache_clear()
+    for a, b in zip(ours, theirs):
+        for name in ("rho", "element_halfwidth_deg", "squint_deg", "slope_per_deg", "crossover_db"):
+            assert getattr(a, name) == pytest.approx(getattr(b, name), rel=1e-12, abs=1e-12), name
+        assert a.two_way_3db_width_deg() == pytest.approx(b.two_way_3db_width_deg(), rel=1e-10)
+
+
+@pytest.mark.parametrize("pattern", ["gaussian2", "sinc2"])
+def test_the_sampled_squint_curve_is_within_its_margin_of_the_exact_one(pattern):
+    """A squint more than 1e-4 (in half-beamwidths) below the sampled curve's maximum is accepted
+    without the exact maximum (antenna._rho_for_squint): the sampled curve must be within 1e-5 of
+    rho / v_h(rho) solved point by point, and its maximum below the exact one plus that."""
+    from fwdlook_cli.dsp import antenna
+
+    rho, q = antenna._squint_curve(pattern)
+    exact = np.array([r / antenna._half_width_units(pattern, r) for r in rho[::5]])
+    assert np.abs(q[::5] - exact).max() < 1e-5
+    assert q.max() <= max_squint_deg(pattern, 2.0) + 1e-5         # max_squint_deg(bw = 2): in units of h

@@ -150,3 +150,74 @@ def test_a_painter_that_does_not_answer_is_ended(monkeypatch):
     finally:
         child.close()
     assert os.WIFSIGNALED(child.exit_status) and os.WTERMSIG(child.exit_status) == signal.SIGKILL
+
+
+
+def test_process_forks_its_painter_before_numpy_and_the_painter_draws_its_png(tmp_path):
+    """``fwdlook process`` forks the painter first thing (cli.main), before numpy is imported, and the
+    run's image.png is that child's: the command's own draw_image_png, replaced right after the fork,
+    refuses."""
+    script = textwrap.dedent("""
+        import sys
+        from fwdlook_cli.io import painter
+        forks = []
+        fork_early = painter.fork_early
+        def refuse(*args, **kwargs):
+            raise AssertionError("drawn in the command's process")
+        def spy(*args):
+            forks.append("numpy" in sys.modules)
+            child = fork_early(*args)
+            import fwdlook_cli.io.quicklook as q          # the parent's module only: the child has forked
+            q.draw_image_png = refuse
+            return child
+        painter.fork_early = spy
+        from fwdlook_cli.cli import main
+        try:
+            main(sys.argv[1:])
+        except SystemExit as exc:
+            print("exit", exc.code, "numpy imported before the fork:", forks)
+    """)
+    res = subprocess.run([sys.executable, "-c", script, "process", "scenarios/tiny.yaml", "-o", str(tmp_path / "run"),
+                          "-q"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert "exit 0 numpy imported before the fork: [False]" in res.stdout, res.stdout + res.stderr
+    assert (tmp_path / "run" / "image.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("argv, forks", [(["process", "x.yaml"], True), (["-q", "run", "x.yaml"], True),
+                                         (["-v", "process", "--help"], False), (["--help", "process"], False),
+                                         (["simulate", "x.yaml"], False), (["--version"], False), ([], False)])
+def test_only_the_commands_that_draw_a_quick_look_fork_early(monkeypatch, argv, forks):
+    from fwdlook_cli import cli
+
+    assert cli.QUICKLOOK_WARM_UP == quicklook.WARM_UP
+    made, closed = [], []
+    monkeypatch.setattr(painter, "fork_early", lambda warm_up: made.append(warm_up))
+    monkeypatch.setattr(painter, "close_early", lambda: closed.append(True))
+    monkeypatch.setattr(cli, "_main", lambda argv: None)
+    cli.main(argv)
+    assert made == ([quicklook.WARM_UP] if forks else []) and closed == [True]
+
+
+def test_a_command_that_fails_before_its_chain_ends_the_early_painter(tmp_path, capsys):
+    """Bad input (exit 2) before ``painting`` took the early painter: main ends and reaps it."""
+    from fwdlook_cli import cli
+
+    made = []
+    fork_early = painter.fork_early
+
+    def spy(warm_up):
+        made.append(fork_early(warm_up))
+        return made[-1]
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(painter, "fork_early", spy)
+    try:
+        with pytest.raises(SystemExit) as exc:
+            cli.main(["process", str(tmp_path / "missing.yaml"), "-o", str(tmp_path / "run")])
+    finally:
+        mp.undo()
+    assert exc.value.code == 2 and "missing.yaml" in capsys.readouterr().err
+    child = made[0]
+    assert child is not None and child.pid is None and child.exit_status is not None   # closed, reaped
+    assert painter._EARLY is None and painter.active() is None

@@ -548,3 +548,27 @@ def test_one_blas_thread_limits_every_blas_and_restores_it():
         assert set(inside) == set(before) and set(inside.values()) == {1}
         after = {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
         assert after == before
+
+
+def test_a_decimation_run_imports_neither_scipy_optimize_nor_interpolate(tmp_path):
+    """Their imports are a quarter of a second of a command's start (README, Speed): the decimation
+    chain and the simulator solve their roots without them (dsp.antenna.bracketed_root), and only
+    what needs them imports them (``tracking``'s Doppler history: scipy.interpolate)."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import sys
+        from fwdlook_cli.cli import main
+        try:
+            main(sys.argv[1:])
+        except SystemExit as exc:
+            heavy = sorted(m for m in ("scipy.optimize", "scipy.interpolate") if m in sys.modules)
+            print("exit", exc.code, "imported:", heavy)
+    """)
+    for method, heavy in (("decimation", "[]"), ("tracking", "['scipy.interpolate', 'scipy.optimize']")):
+        res = subprocess.run([sys.executable, "-c", script, "run", "scenarios/tiny.yaml", "-o", str(tmp_path / method),
+                              "--set", f"processing.method={method}", "-q"], capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0, res.stderr
+        assert f"exit 0 imported: {heavy}" in res.stdout, res.stdout + res.stderr

@@ -41,14 +41,39 @@ import functools
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import brentq
 
 PATTERNS = ("gaussian2", "sinc2", "table")
 DEFAULT_CROSSOVER_DB = -3.0
 TEXTBOOK_CROSSOVER_DB = -10.0 * np.log10(2.0)
 HALF_POWER = 1.0 / np.sqrt(2.0)
 _LN2 = np.log(2.0)
-_SINC_X3 = brentq(lambda x: np.sinc(x) ** 2 - 0.5, 0.1, 0.9, xtol=1e-15)   # 0.442946
+
+
+def bracketed_root(f, a: float, b: float, xtol: float = 2e-12) -> float:
+    """A root of the continuous ``f`` in [a, b], where f(a) and f(b) differ in sign, by bisection to
+    ``xtol`` (plus 4 ulp of the root, scipy's ``brentq`` tolerance): the design solver's roots, each a
+    few dozen evaluations, without importing scipy.optimize, a quarter of a second of every command's
+    start (``brentq`` finds the same roots to that tolerance: tests/test_antenna.py)."""
+    fa, fb = float(f(a)), float(f(b))
+    if fa == 0.0 or fb == 0.0:
+        return float(a if fa == 0.0 else b)
+    if (fa < 0.0) == (fb < 0.0):
+        raise ValueError(f"f({a}) and f({b}) have the same sign: no bracketed root")
+    for _ in range(200):                        # 2^-200 of any bracket: ends by the tolerance first
+        m = 0.5 * (a + b)
+        if abs(b - a) <= 2.0 * (xtol + 4.0 * np.finfo(float).eps * abs(m)):
+            return float(m)
+        fm = float(f(m))
+        if fm == 0.0:
+            return float(m)
+        if (fm < 0.0) == (fa < 0.0):
+            a, fa = m, fm
+        else:
+            b = m
+    return float(0.5 * (a + b))
+
+
+_SINC_X3 = bracketed_root(lambda x: np.sinc(x) ** 2 - 0.5, 0.1, 0.9, xtol=1e-15)   # 0.442946
 
 
 class AntennaDesignError(ValueError):
@@ -91,7 +116,7 @@ def rho_limit(pattern: str) -> float:
         y = np.pi * _SINC_X3 * u
         return -np.sin(y) / y - 2.0 * np.cos(y) / y**2 + 2.0 * np.sin(y) / y**3
 
-    return float(brentq(second, 0.5, 2.0, xtol=1e-14))
+    return float(bracketed_root(second, 0.5, 2.0, xtol=1e-14))
 
 
 def crossover_db_of_rho(pattern: str, rho) -> np.ndarray:
@@ -102,7 +127,7 @@ def rho_of_crossover(pattern: str, crossover_db: float) -> float:
     level = 10.0 ** (crossover_db / 20.0)
     if pattern == "gaussian2":
         return float(np.sqrt(-2.0 * np.log(level) / _LN2))
-    return float(brentq(lambda u: np.sinc(_SINC_X3 * u) - level, 0.0, 1.0 / _SINC_X3, xtol=1e-14))
+    return float(bracketed_root(lambda u: np.sinc(_SINC_X3 * u) - level, 0.0, 1.0 / _SINC_X3, xtol=1e-14))
 
 
 def _half_width_units(pattern: str, rho: float) -> float:
@@ -111,7 +136,7 @@ def _half_width_units(pattern: str, rho: float) -> float:
     v = np.linspace(0.0, v_max, 4001)
     below = np.nonzero(_sum_units(pattern, v, rho) < HALF_POWER)[0]
     i = int(below[0])
-    return float(brentq(lambda x: _sum_units(pattern, x, rho) - HALF_POWER, v[i - 1], v[i], xtol=1e-14))
+    return float(bracketed_root(lambda x: _sum_units(pattern, x, rho) - HALF_POWER, v[i - 1], v[i], xtol=1e-14))
 
 
 @functools.lru_cache(maxsize=None)
@@ -142,18 +167,21 @@ def max_squint_deg(pattern: str, beamwidth_3db_deg: float) -> float:
 def _rho_for_squint(pattern: str, beamwidth_3db_deg: float, squint_deg: float) -> float:
     h = beamwidth_3db_deg / 2.0
     target = squint_deg / h
-    s_max = max_squint_deg(pattern, beamwidth_3db_deg)
+    rho, q = _squint_curve(pattern)
+    # the curve's sampled maximum is below the true one by at most its interpolation error (~1e-5):
+    # a squint 1e-4 below it is within the limit, and only one nearer needs the exact maximum (a
+    # bounded minimisation, scipy.optimize: its import is a quarter of a second of a command's start)
+    s_max = q.max() * h if target <= q.max() - 1e-4 else max_squint_deg(pattern, beamwidth_3db_deg)
     if squint_deg > s_max:
         raise AntennaDesignError(
             f"too large for a {beamwidth_3db_deg:g} deg sum beam (two {pattern} beams this far apart "
             f"cannot form it); allowed: squint_deg <= {s_max:.4f} ({s_max / beamwidth_3db_deg:.4f} x the "
             f"beamwidth)", "antenna.squint_deg")
-    rho, q = _squint_curve(pattern)
     f = q - target
     roots = []
     for i in np.nonzero(np.sign(f[:-1]) != np.sign(f[1:]))[0]:
         g = lambda r: r / _half_width_units(pattern, r) - target  # noqa: E731
-        roots.append(brentq(g, rho[i], rho[i + 1], xtol=1e-14))
+        roots.append(bracketed_root(g, rho[i], rho[i + 1], xtol=1e-14))
     if not roots:  # at the fold, within the grid step
         roots = [rho[int(np.argmax(q))]]
     cross = crossover_db_of_rho(pattern, np.array(roots))
@@ -210,7 +238,7 @@ class _RatioInverse:
     def two_way_3db_width_deg(self) -> float:
         """Two-way (sum^2 power) 3 dB width: the real-beam image's angular resolution."""
         f = lambda x: 4.0 * np.log(np.abs(self.sum_voltage(x)) + 1e-300) + np.log(2.0)  # noqa: E731
-        return brentq(f, 0.0, self.beamwidth_3db_deg / 2.0) + brentq(lambda x: f(-x), 0.0,
+        return bracketed_root(f, 0.0, self.beamwidth_3db_deg / 2.0) + bracketed_root(lambda x: f(-x), 0.0,
                                                                     self.beamwidth_3db_deg / 2.0)
 
     def to_attrs(self) -> dict:

@@ -7,7 +7,6 @@ import math
 import numbers
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.special import sici
 
 from .peaks import _HALF_POWER, _check_factor, _interp3, oversample_profile
@@ -244,6 +243,8 @@ def ideal_sinc_pslr_db():
     .. [1] F. J. Harris, "On the use of windows for harmonic analysis with the discrete Fourier
        transform", Proc. IEEE 66(1), 1978.
     """
+    from scipy.optimize import brentq      # here: its import is a quarter of a second
+
     u1 = brentq(lambda u: u * math.cos(u) - math.sin(u), math.pi, 1.5 * math.pi, xtol=1e-15)
     return 20.0 * math.log10(abs(math.sin(u1) / u1))
 

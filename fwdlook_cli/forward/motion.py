@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from ..dsp.geometry import C_MPS
 
@@ -119,6 +118,9 @@ class DopplerPhaseHistory:
         los = unit_vector(beam_deg, depression_deg)
         f_b = 2.0 * np.einsum("ni,ni->n", velocity_mps, los) * fc_hz / C_MPS
         self.doppler_hz = f_b
+        from scipy.interpolate import CubicSpline     # here: a quarter of a second to import, which
+        # only the methods that follow this history pay
+
         anti = CubicSpline(slow_time_s, f_b).antiderivative()
         self._anti = anti
         self._offset = float(anti(t_ref_s))

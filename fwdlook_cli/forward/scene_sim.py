@@ -47,9 +47,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.fft
-from scipy.optimize import brentq
 
-from ..dsp.antenna import MonopulseAntenna
+from ..dsp.antenna import MonopulseAntenna, bracketed_root
 from ..dsp.geometry import C_MPS
 from ..dsp.pulse import TABLE_OVERSAMPLE, CompressedPulse
 from ..dsp.noise import band_limited_noise
@@ -74,7 +73,7 @@ def gate_angle_deg(antenna: MonopulseAntenna, gain_threshold_db: float) -> float
         hi *= 2.0
         if hi > 360.0:
             return 360.0
-    return brentq(f, 0.0, hi, xtol=1e-12)
+    return bracketed_root(f, 0.0, hi, xtol=1e-12)
 
 
 def _azimuth(targets_m, position_m):

@@ -34,6 +34,7 @@ import time
 _HEADER = struct.Struct("<Q")
 RESULT_TIMEOUT_S = 120.0    # a job not answered by then: the child is ended and the PNG drawn in the command
 _ACTIVE = None              # the painter of the command in progress (at most one per process)
+_EARLY = None               # a painter forked by :func:`fork_early`, not yet taken by :func:`painting`
 
 
 class PainterGone(RuntimeError):
@@ -105,6 +106,7 @@ class Painter:
 
     def __init__(self, warm_up: str | None = None):
         self.pid = None
+        self.warm_up = warm_up
         self.exit_status = None                   # os.waitpid's status, once reaped
         self._sender, self._send_error, self._busy = None, None, False
         job_r, self._job_w = os.pipe()
@@ -209,13 +211,41 @@ def active() -> Painter | None:
     return _ACTIVE
 
 
+def _can_fork() -> bool:
+    return sys.platform.startswith("linux") and hasattr(os, "fork")
+
+
+def fork_early(warm_up: str | None = None) -> Painter | None:
+    """Fork the command's painter now, before the command's own imports: the command line calls this
+    first thing for the commands that draw a quick look, so that the child imports matplotlib (and
+    numpy) beside the command's imports of numpy and scipy instead of after them (the child's import,
+    warm-up and drawing are what a ``fwdlook process`` waits for last).  The next :func:`painting`
+    with the same ``warm_up`` takes it; :func:`close_early` ends one that none took."""
+    global _EARLY
+    if _EARLY is None and _ACTIVE is None and _can_fork():
+        with contextlib.suppress(OSError):
+            _EARLY = Painter(warm_up)
+    return _EARLY
+
+
+def close_early() -> None:
+    """End the painter of :func:`fork_early` if no :func:`painting` took it (the command failed first)."""
+    global _EARLY
+    painter, _EARLY = _EARLY, None
+    if painter is not None:
+        painter.close()
+
+
 @contextlib.contextmanager
 def painting(warm_up: str | None = None):
     """Within the block, :func:`active` is a forked :class:`Painter` that ran ``warm_up`` (Linux; None
-    elsewhere, or where the fork fails: the callers then work in this process)."""
-    global _ACTIVE
+    elsewhere, or where the fork fails: the callers then work in this process): the one
+    :func:`fork_early` made for the same ``warm_up`` where there is one, else one forked now."""
+    global _ACTIVE, _EARLY
     painter = None
-    if _ACTIVE is None and sys.platform.startswith("linux") and hasattr(os, "fork"):
+    if _ACTIVE is None and _EARLY is not None and _EARLY.warm_up == warm_up:
+        painter, _EARLY = _EARLY, None
+    elif _ACTIVE is None and _can_fork():
         with contextlib.suppress(OSError):
             painter = Painter(warm_up)
     if painter is not None:

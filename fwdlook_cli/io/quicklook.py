@@ -50,7 +50,10 @@ def painting():
     matplotlib and drawn one small figure (:func:`warm_up`) meanwhile."""
     from . import painter
 
-    return painter.painting(warm_up="fwdlook_cli.io.quicklook:warm_up")
+    return painter.painting(warm_up=WARM_UP)
+
+
+WARM_UP = f"{__name__}:warm_up"       # the painter's warm-up, by name (cli.QUICKLOOK_WARM_UP forks with it)
 
 
 def warm_up() -> None:
@@ -91,16 +94,25 @@ class PendingPng:
                 os.unlink(self.args[0])
 
 
+QUICKLOOK_MARGINS = dict(left=0.12, right=0.99, bottom=0.117, top=0.932)
+
+
 def draw_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynamic_range_db=40.0,
                    markers=None, aspect="auto"):
-    """:func:`save_image_png` drawn in this process."""
-    plt = _plt()
+    """:func:`save_image_png` drawn in this process (a bare :class:`matplotlib.figure.Figure`: the same
+    PNG as pyplot's figure, without importing pyplot, 0.05 s of the painter's start)."""
+    from matplotlib.figure import Figure
+
     p = np.asarray(power, dtype=np.float32)         # a picture: float32 dB, computed in place
     db = p / np.float32(max(float(p.max()), 1e-30))
     np.maximum(db, np.float32(10 ** (-dynamic_range_db / 10 - 1)), out=db)
     np.log10(db, out=db)
     db *= np.float32(10.0)
-    fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=110)
+    fig = Figure(figsize=(7.5, 5.0), dpi=110)
+    # fixed margins, about what tight_layout finds for range ticks of up to six digits (tight_layout
+    # lays the figure out by drawing it once more: a fifth of the drawing's time)
+    fig.subplots_adjust(**QUICKLOOK_MARGINS)
+    ax = fig.subplots()
     extent = _uniform_extent(x_axis, y_axis)
     if extent is not None:      # a raster: what pcolormesh draws cell by cell, at a fraction of the
         # memory (a quad mesh of ~1 M cells held about 90 MB while drawn) and of the time
@@ -118,16 +130,12 @@ def draw_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     ax.set_aspect(aspect)
-    fig.colorbar(mesh, ax=ax, label="dB")
-    fig.tight_layout()
-    try:
-        if not isinstance(path, (str, os.PathLike)):     # a file object (the painter's warm-up)
-            fig.savefig(path, format="png")
-            return
-        with atomic_path(path) as tmp:          # partial removed and OSError one line on failure
-            fig.savefig(tmp)
-    finally:
-        plt.close(fig)
+    fig.colorbar(mesh, ax=ax, label="dB", fraction=0.15, pad=0.03)
+    if not isinstance(path, (str, os.PathLike)):     # a file object (the painter's warm-up)
+        fig.savefig(path, format="png")
+        return
+    with atomic_path(path) as tmp:          # partial removed and OSError one line on failure
+        fig.savefig(tmp, format="png")
 
 
 DISPLAY_PIXELS = (420, 640)     # (rows, columns) of a quick look's axes, about what the figure shows
