@@ -550,10 +550,10 @@ def test_one_blas_thread_limits_every_blas_and_restores_it():
         assert after == before
 
 
-def test_a_decimation_run_imports_neither_scipy_optimize_nor_interpolate(tmp_path):
-    """Their imports are a quarter of a second of a command's start (README, Speed): the decimation
-    chain and the simulator solve their roots without them (dsp.antenna.bracketed_root), and only
-    what needs them imports them (``tracking``'s Doppler history: scipy.interpolate)."""
+def test_a_run_imports_neither_scipy_optimize_nor_interpolate(tmp_path):
+    """Their imports are a quarter of a second of a command's start (README, Speed): the chain and the
+    simulator solve their roots without them (dsp.antenna.bracketed_root), and ``tracking``'s Doppler
+    history on the uniform pulse grid is the closed-form spline (dsp.spline)."""
     import subprocess
     import sys
     import textwrap
@@ -567,7 +567,7 @@ def test_a_decimation_run_imports_neither_scipy_optimize_nor_interpolate(tmp_pat
             heavy = sorted(m for m in ("scipy.optimize", "scipy.interpolate") if m in sys.modules)
             print("exit", exc.code, "imported:", heavy)
     """)
-    for method, heavy in (("decimation", "[]"), ("tracking", "['scipy.interpolate', 'scipy.optimize']")):
+    for method, heavy in (("decimation", "[]"), ("tracking", "[]"), ("bulk", "[]")):
         res = subprocess.run([sys.executable, "-c", script, "run", "scenarios/tiny.yaml", "-o", str(tmp_path / method),
                               "--set", f"processing.method={method}", "-q"], capture_output=True, text=True, timeout=120)
         assert res.returncode == 0, res.stderr

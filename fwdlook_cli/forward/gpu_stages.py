@@ -21,7 +21,6 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from ..dsp.pulse import weighting
 from ..dsp.xp import cis, fft_kwargs, fft_module, get_xp, is_numpy, to_device, to_host
@@ -142,8 +141,7 @@ def psi_taylor(hist: DopplerPhaseHistory, slow_time_s):
     """Psi(t_m) and its first four derivatives on the pulse grid (rad, rad/s, ...): Psi' = 2 pi f_b with
     f_b the cubic spline of the beam-centre Doppler (the spline Psi integrates), so the series to
     fourth order is Psi's own piecewise quartic."""
-    f_b = CubicSpline(slow_time_s, hist.doppler_hz)
-    return [hist.phase_rad(slow_time_s)] + [2.0 * np.pi * f_b(slow_time_s, nu) for nu in range(4)]
+    return [hist.phase_rad(slow_time_s)] + [2.0 * np.pi * hist._anti(slow_time_s, nu) for nu in range(1, 5)]
 
 
 def tracking_cycles(xp, derivs, t0_index, alpha, scale, prf_hz: float):

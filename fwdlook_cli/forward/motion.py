@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dsp.geometry import C_MPS
+from ..dsp.spline import MIN_KNOTS, UniformSplineAntiderivative, is_uniform
 
 
 @dataclass(frozen=True)
@@ -106,22 +107,32 @@ def bulk_range_history_m(position_m, t_ref_index, depression_deg):
     return -(p[:, 1] - y_ref) * np.cos(np.radians(depression_deg))
 
 
+def spline_antiderivative(t_s, values):
+    """``scipy.interpolate.CubicSpline(t_s, values).antiderivative()``: on a uniform pulse grid the
+    closed form of ``dsp.spline`` (the same numbers to rounding, without importing scipy.interpolate:
+    a quarter of a second of a command's start), else scipy's."""
+    t_s = np.asarray(t_s, dtype=np.float64)
+    if len(t_s) >= MIN_KNOTS and is_uniform(t_s):
+        return UniformSplineAntiderivative(t_s, values)
+    from scipy.interpolate import CubicSpline
+
+    return CubicSpline(t_s, values).antiderivative()
+
+
 class DopplerPhaseHistory:
     """Predicted carrier phase of the beam-centre direction, Psi(t) = 2 pi int f_b dt, Psi(t_ref) = 0.
 
     f_b(t) = 2 v(t) . u(theta_beam(t), phi_0) / lambda is the Doppler of a scatterer on the beam axis
     (eq. 16 and 25 with the INS velocity and the scan).  Psi is the antiderivative of a cubic spline of
-    f_b on the pulse grid, so it can be evaluated at the keystone's off-grid times.
+    f_b on the pulse grid (not-a-knot, :func:`spline_antiderivative`), so it can be evaluated at the
+    keystone's off-grid times.
     """
 
     def __init__(self, slow_time_s, velocity_mps, beam_deg, depression_deg, fc_hz, t_ref_s):
         los = unit_vector(beam_deg, depression_deg)
         f_b = 2.0 * np.einsum("ni,ni->n", velocity_mps, los) * fc_hz / C_MPS
         self.doppler_hz = f_b
-        from scipy.interpolate import CubicSpline     # here: a quarter of a second to import, which
-        # only the methods that follow this history pay
-
-        anti = CubicSpline(slow_time_s, f_b).antiderivative()
+        anti = spline_antiderivative(slow_time_s, f_b)
         self._anti = anti
         self._offset = float(anti(t_ref_s))
 
