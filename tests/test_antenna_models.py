@@ -211,7 +211,7 @@ def test_contract_keys_only_with_a_4_deg_beam_validates_and_runs(tmp_path):
 
 
 def test_the_design_solvers_root_is_scipys_brentq_root():
-    """bracketed_root (bisection, no scipy.optimize import) against scipy's brentq, which shares no
+    """bracketed_root (Illinois with bisection, no scipy.optimize import) against scipy's brentq, which shares no
     code with it: the same roots to the tolerance asked, and whole designs to 1e-12."""
     from scipy.optimize import brentq
 
@@ -225,6 +225,12 @@ def test_the_design_solvers_root_is_scipys_brentq_root():
         assert (f(ours - 4 * xtol) < 0) != (f(ours + 4 * xtol) < 0)            # a sign change around it
     with pytest.raises(ValueError, match="same sign"):
         antenna.bracketed_root(lambda x: x * x + 1.0, -1.0, 1.0)
+    # a triple root (false position alone crawls there; scipy's brentq gives up at 1e-14) and a step
+    # of tanh: each within the tolerance, in at most about twice a bisection's evaluations
+    for f, root in ((lambda x: (x - 0.2) ** 3, 0.2), (lambda x: np.tanh(50.0 * (x - 0.3)), 0.3)):
+        calls = []
+        found = antenna.bracketed_root(lambda x: calls.append(x) or f(x), 0.0, 1.0, xtol=1e-14)
+        assert abs(found - root) <= 2e-14 and len(calls) <= 2.2 * np.ceil(np.log2(1.0 / 1e-14)) + 4
     designs = [dict(beamwidth_3db_deg=6.0), dict(beamwidth_3db_deg=3.0, squint_deg=0.9),
                dict(beamwidth_3db_deg=4.0, pattern="sinc2"), dict(beamwidth_3db_deg=8.0, squint_deg=2.0, pattern="sinc2"),
                dict(beamwidth_3db_deg=5.0, crossover_db=-1.5)]
