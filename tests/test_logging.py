@@ -104,6 +104,9 @@ def test_bench_shows_progress(capsys, monkeypatch):
     assert code == 0
     result = json.loads(out)
     assert "fft2_s" in result
+    # the one-thread reference beside it, and its ratio: the reference's own gain from the second core
+    assert result["fft2_one_thread_s"] > 0
+    assert result["ratios_to_fft2"]["fft2_one_thread"] == pytest.approx(result["fft2_one_thread_s"] / result["fft2_s"])
     # every chain timed in the same interleaved rounds; the dwell ratio is a median of the rounds' own
     for key in ("chain_s", "chain_tracking_s", "chain_dwell_s", "chain_dwell_nofit_s"):
         assert result[key] > 0
