@@ -432,7 +432,8 @@ def test_chain_timing_reports_every_stage_and_the_peak_rss(tiny_raw):
 
 def test_process_cpu_time_counts_busy_threads():
     """The bench's cores_busy clock: two threads spinning in Python for 0.3 s of wall time use 0.3 s of
-    CPU between them (the GIL lets one run at a time), and a sleeping process uses almost none."""
+    CPU between them (the GIL lets one run at a time), a sleeping process uses almost none, and a
+    forked child spinning for 0.3 s adds its 0.3 s once reaped."""
     import threading
     import time
 
@@ -456,6 +457,17 @@ def test_process_cpu_time_counts_busy_threads():
     c0 = process_cpu_s()
     time.sleep(0.2)
     assert process_cpu_s() - c0 < 0.05
+    # a forked worker's CPU counts once it is reaped (the joint fit's workers, dsp.forked)
+    import os
+
+    c0, w0 = process_cpu_s(), time.perf_counter()
+    pid = os.fork()
+    if pid == 0:                                    # pragma: no cover (the child: its clock starts at 0)
+        while time.process_time() < 0.3:
+            pass
+        os._exit(0)
+    os.waitpid(pid, 0)
+    assert 0.29 <= process_cpu_s() - c0 <= 1.1 * (time.perf_counter() - w0) + 0.05
 
 
 @pytest.mark.parametrize("case", ["noise", "constant", "third_strong", "tiny_groups", "sorted", "sample_misled"])
