@@ -583,6 +583,7 @@ def test_a_run_imports_neither_scipy_optimize_nor_interpolate(tmp_path):
     """)
     for method, heavy in (("decimation", "[]"), ("tracking", "[]"), ("bulk", "[]")):
         res = subprocess.run([sys.executable, "-c", script, "run", "scenarios/tiny.yaml", "-o", str(tmp_path / method),
-                              "--set", f"processing.method={method}", "-q"], capture_output=True, text=True, timeout=120)
+                              "--set", f"processing.method={method}", "-q"],
+                             capture_output=True, text=True, timeout=120)
         assert res.returncode == 0, res.stderr
         assert f"exit 0 imported: {heavy}" in res.stdout, res.stdout + res.stderr

@@ -255,8 +255,8 @@ class _RatioInverse:
     def two_way_3db_width_deg(self) -> float:
         """Two-way (sum^2 power) 3 dB width: the real-beam image's angular resolution."""
         f = lambda x: 4.0 * np.log(np.abs(self.sum_voltage(x)) + 1e-300) + np.log(2.0)  # noqa: E731
-        return bracketed_root(f, 0.0, self.beamwidth_3db_deg / 2.0) + bracketed_root(lambda x: f(-x), 0.0,
-                                                                    self.beamwidth_3db_deg / 2.0)
+        half = self.beamwidth_3db_deg / 2.0
+        return bracketed_root(f, 0.0, half) + bracketed_root(lambda x: f(-x), 0.0, half)
 
     def to_attrs(self) -> dict:
         """The /antenna group's attributes (CONTRACT.md section 3 extension); datasets via ratio_table."""
