@@ -152,7 +152,6 @@ def test_a_painter_that_does_not_answer_is_ended(monkeypatch):
     assert os.WIFSIGNALED(child.exit_status) and os.WTERMSIG(child.exit_status) == signal.SIGKILL
 
 
-
 def test_process_forks_its_painter_before_numpy_and_the_painter_draws_its_png(tmp_path):
     """``fwdlook process`` forks the painter first thing (cli.main), before numpy is imported, and the
     run's image.png is that child's: the command's own draw_image_png, replaced right after the fork,
@@ -199,7 +198,7 @@ def test_only_the_commands_that_draw_a_quick_look_fork_early(monkeypatch, argv, 
     assert made == ([quicklook.WARM_UP] if forks else []) and closed == [True]
 
 
-def test_a_command_that_fails_before_its_chain_ends_the_early_painter(tmp_path, capsys):
+def test_a_command_that_fails_before_its_chain_ends_the_early_painter(tmp_path, capsys, monkeypatch):
     """Bad input (exit 2) before ``painting`` took the early painter: main ends and reaps it."""
     from fwdlook_cli import cli
 
@@ -210,13 +209,9 @@ def test_a_command_that_fails_before_its_chain_ends_the_early_painter(tmp_path, 
         made.append(fork_early(warm_up))
         return made[-1]
 
-    mp = pytest.MonkeyPatch()
-    mp.setattr(painter, "fork_early", spy)
-    try:
-        with pytest.raises(SystemExit) as exc:
-            cli.main(["process", str(tmp_path / "missing.yaml"), "-o", str(tmp_path / "run")])
-    finally:
-        mp.undo()
+    monkeypatch.setattr(painter, "fork_early", spy)
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["process", str(tmp_path / "missing.yaml"), "-o", str(tmp_path / "run")])
     assert exc.value.code == 2 and "missing.yaml" in capsys.readouterr().err
     child = made[0]
     assert child is not None and child.pid is None and child.exit_status is not None   # closed, reaped
