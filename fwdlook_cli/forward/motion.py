@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dsp.geometry import C_MPS
-from ..dsp.spline import MIN_KNOTS, UniformSplineAntiderivative, is_uniform
+from ..dsp.spline import UniformSplineAntiderivative
 
 
 @dataclass(frozen=True)
@@ -111,9 +111,10 @@ def spline_antiderivative(t_s, values):
     """``scipy.interpolate.CubicSpline(t_s, values).antiderivative()``: on a uniform pulse grid the
     closed form of ``dsp.spline`` (the same numbers to rounding, without importing scipy.interpolate:
     a quarter of a second of a command's start), else scipy's."""
-    t_s = np.asarray(t_s, dtype=np.float64)
-    if len(t_s) >= MIN_KNOTS and is_uniform(t_s):
+    try:
         return UniformSplineAntiderivative(t_s, values)
+    except ValueError:                   # not uniform, or too short for the closed form
+        pass
     from scipy.interpolate import CubicSpline
 
     return CubicSpline(t_s, values).antiderivative()
