@@ -425,6 +425,9 @@ def test_chain_timing_reports_every_stage_and_the_peak_rss(tiny_raw):
                                    "doppler_spectra", "monopulse_image", "outputs"]
     assert t["total_s"] >= sum(t["stages_s"].values()) * 0.99
     assert "cores_busy" in t                                   # its clock: test_process_cpu_time_counts_busy_threads
+    if t["user_cpu_s"] is not None:                            # its split: test_process_cpu_split_tells_...
+        assert t["cores_busy"] * t["wall_s"] == pytest.approx(t["user_cpu_s"] + t["system_cpu_s"], rel=1e-9)
+        assert t["user_cpu_s"] > 0 and t["system_cpu_s"] >= 0
     if t["peak_rss_x_cube"] is not None:                       # Linux: measured in a fresh interpreter
         # the tiny cube (0.25 MB) is within the RSS noise of two interpreters: only the sign is a fact
         assert t["peak_rss_above_base_bytes"] >= 0
@@ -468,6 +471,37 @@ def test_process_cpu_time_counts_busy_threads():
         os._exit(0)
     os.waitpid(pid, 0)
     assert 0.29 <= process_cpu_s() - c0 <= 1.1 * (time.perf_counter() - w0) + 0.05
+
+
+def test_process_cpu_split_tells_the_kernels_work_from_the_process_own():
+    """The bench's user / system split: a Python spin is the process's own (user) time; touching fresh
+    anonymous pages one byte each (a page fault and a cleared page per 4 KiB, almost no user work) is
+    the kernel's (system) time; the two sum to the cores_busy clock."""
+    import mmap
+    import time
+
+    from fwdlook_cli.report.benchtools import process_cpu_s, process_cpu_split_s
+
+    if process_cpu_split_s() is None:
+        pytest.skip("no getrusage here")
+    u0, s0 = process_cpu_split_s()
+    w0 = time.perf_counter()
+    while time.perf_counter() < w0 + 0.2:
+        pass
+    u1, s1 = process_cpu_split_s()
+    assert u1 - u0 >= 0.1 and s1 - s0 < 0.5 * (u1 - u0)
+    # fresh pages until the kernel has spent 0.1 s on them (at most 4 GiB, in 32 MiB mappings)
+    page = mmap.PAGESIZE
+    spent = 0.0
+    for _ in range(128):
+        with mmap.mmap(-1, 32 << 20) as m:
+            np.frombuffer(m, dtype=np.uint8)[::page] = 1
+        u2, s2 = process_cpu_split_s()
+        spent = s2 - s1
+        if spent >= 0.1:
+            break
+    assert spent >= 0.1 and u2 - u1 < spent
+    assert abs(sum(process_cpu_split_s()) - process_cpu_s()) < 0.02
 
 
 @pytest.mark.parametrize("case", ["noise", "constant", "third_strong", "tiny_groups", "sorted", "sample_misled"])

@@ -52,7 +52,8 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     ``--keep-stages none`` (no stage file: their difference is what the files cost);
     ``chain_<method>_peak_rss_x_cube`` is its peak RSS above the RSS before it, as a multiple of the
     cube (both channels); ``chain_<method>_cores_busy`` the process's CPU time during the chain over
-    its wall time (median of the rounds)."""
+    its wall time (median of the rounds), ``chain_<method>_user_cpu_ms`` and ``_system_cpu_ms`` that CPU
+    time split into the process's own code and the kernel's work for it (medians, in ms: not ratios)."""
     from ..forward.chain import build_forward_stages
     from ..scenario.loader import load_scenario
     from ..dsp.keystone_czt import KeystonePlan
@@ -135,9 +136,14 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         out[f"chain_{key}_s"] = statistics.median(t["total_s"] for t in rounds[key])
     # the cores a chain keeps busy: its process's CPU time (every thread) over its wall time, median
     # of the rounds (2.0 on two cores would be every core busy all the time)
+    # and where that CPU goes: the user's code (numpy, pocketfft, HDF5, Python) or the kernel's work for
+    # the process (page faults on first-touched memory, the stage files' copies into the page cache)
     for key, runs in rounds.items():
         busy = [t["cores_busy"] for t in runs if t.get("cores_busy") is not None]
         out[f"chain_{key}_cores_busy"] = statistics.median(busy) if busy else None
+        for clock in ("user", "system"):
+            spent = [t[f"{clock}_cpu_s"] for t in runs if t.get(f"{clock}_cpu_s") is not None]
+            out[f"chain_{key}_{clock}_cpu_ms"] = 1e3 * statistics.median(spent) if spent else None
     _step(7, n, "peak memory of each chain (a fresh interpreter each)")
     for method in scenarios:
         key = "chain_s" if method == "decimation" else f"chain_{method}_s"

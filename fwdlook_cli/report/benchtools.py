@@ -26,19 +26,27 @@ def median_time(fn, repeats=5):
     return statistics.median(times)
 
 
-def process_cpu_s() -> float | None:
-    """User plus system CPU time of this process, every thread, and of the children it has reaped (the
+def process_cpu_split_s() -> tuple[float, float] | None:
+    """(user, system) CPU time of this process, every thread, and of the children it has reaped (the
     joint fit's forked workers, ``dsp.forked``: a chain's own work done in other processes) (s); None
-    where unsupported."""
+    where unsupported.  System time is the kernel's work for the process: page faults on memory it
+    touches first (the pages cleared), the copies of written bytes into the page cache."""
     try:
         import resource
     except ImportError:              # pragma: no cover (not POSIX)
         return None
-    total = 0.0
+    user = system = 0.0
     for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN):
         usage = resource.getrusage(who)
-        total += usage.ru_utime + usage.ru_stime
-    return total
+        user += usage.ru_utime
+        system += usage.ru_stime
+    return user, system
+
+
+def process_cpu_s() -> float | None:
+    """User plus system CPU time of :func:`process_cpu_split_s` (s); None where unsupported."""
+    split = process_cpu_split_s()
+    return None if split is None else split[0] + split[1]
 
 
 def _status_kib(field: str):
@@ -72,24 +80,32 @@ def time_chain(cube, scn: dict, repeats: int = 3, rss: bool = True, keep_stages:
     """Run the whole chain ``repeats`` times as ``fwdlook process`` runs it (every stage recomputed,
     every stage file, image.h5 and metrics.json written; no PNG): medians per stage and in total.
     ``keep_stages``: as ``--keep-stages`` (``none``: no stage file written, what the files cost).
+    ``cores_busy``, ``user_cpu_s`` and ``system_cpu_s``: the process's CPU time over the call's wall time
+    (``wall_s``, around ``process_cube``), and that CPU time split (:func:`process_cpu_split_s`).
     With ``rss``, the chain's peak RSS is measured once more in a fresh interpreter
     (:func:`chain_peak_rss`), since a warm process reuses memory it already holds."""
     from ..forward.process import process_cube
 
     per_stage: dict[str, list[float]] = {}
-    cores = []
+    cores, user, system, walls = [], [], [], []
     for _ in range(max(1, int(repeats))):
         with tempfile.TemporaryDirectory() as tmp:
-            cpu0, wall0 = process_cpu_s(), time.perf_counter()
+            cpu0, wall0 = process_cpu_split_s(), time.perf_counter()
             metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False, keep_stages=keep_stages)
-            cpu1, wall1 = process_cpu_s(), time.perf_counter()
+            cpu1, wall1 = process_cpu_split_s(), time.perf_counter()
+        walls.append(wall1 - wall0)
         if cpu0 is not None and cpu1 is not None:
-            cores.append((cpu1 - cpu0) / max(wall1 - wall0, 1e-9))
+            user.append(cpu1[0] - cpu0[0])
+            system.append(cpu1[1] - cpu0[1])
+            cores.append((user[-1] + system[-1]) / max(wall1 - wall0, 1e-9))
         for stage, seconds in metrics["timing_s"].items():
             per_stage.setdefault(stage, []).append(float(seconds))
     out = {k: statistics.median(v) for k, v in per_stage.items()}
     result = {"stages_s": {k: v for k, v in out.items() if k != "total"}, "total_s": out["total"],
-              "cores_busy": statistics.median(cores) if cores else None}
+              "cores_busy": statistics.median(cores) if cores else None,
+              "user_cpu_s": statistics.median(user) if user else None,
+              "system_cpu_s": statistics.median(system) if system else None,
+              "wall_s": statistics.median(walls)}
     if rss:
         result.update(chain_peak_rss(cube, scn))
     return result
