@@ -54,7 +54,8 @@ def stage_key(name: str, params: dict, previous_key: str) -> str:
 
 def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir: Path, *,
                force: bool = False, from_stage: str | None = None, quiet: bool = False,
-               keep: str = "all", captured: dict | None = None, pending_writes: list | None = None):
+               keep: str = "all", captured: dict | None = None, pending_writes: list | None = None,
+               stage_cpu: dict | None = None):
     """Run ``stages`` in order over ``source``; returns (last StageData, timings dict, keys dict).
 
     ``keep``: ``all`` writes every stage file (a killed run resumes after the last finished stage);
@@ -70,6 +71,9 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     writer thread while the next stages compute (:class:`_StageWriter`); ``pending_writes``: a list to
     which the function waiting for the last writes is appended instead of waiting here (it returns the
     seconds it waited; the caller must call it, error or not, before it treats the files as written).
+    ``stage_cpu``: a dict filled with {stage name: (user s, system s)}, the process's CPU time while each
+    computed stage ran (every thread: its blocks' pool and the writer's work on the file before it), so
+    that the kernel's share (page faults on memory touched first) can be told from the stage's own.
     """
     if keep not in KEEP_STAGES:
         raise BadInput(f"--keep-stages {keep}: allowed: {', '.join(KEEP_STAGES)}")
@@ -103,10 +107,14 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
                 if st.name in captured:
                     captured[st.name] = functools.partial(read_stage_mapped, paths[i])
                 continue
+            cpu0 = cpu_split_s() if stage_cpu is not None else None
             t0 = time.perf_counter()
             out = st.fn(data, **st.params)
             t_compute = time.perf_counter() - t0
             timings[st.name] = t_compute
+            if cpu0 is not None:
+                cpu1 = cpu_split_s()
+                stage_cpu[st.name] = (cpu1[0] - cpu0[0], cpu1[1] - cpu0[1])
             if i in kept:                   # written on the writer thread while the next stage computes
                 # a re-layout is a view of the previous file when that file exists (this run's, or an
                 # earlier run's when the chain starts here)
@@ -135,6 +143,16 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     if first < len(stages) and first > 0 and not quiet:
         log.info(f"reused stages 1-{first} ({', '.join(names[:first])})")
     return data, timings, dict(zip(names, keys))
+
+
+def cpu_split_s() -> tuple[float, float]:
+    """(user, system) CPU seconds of this process, every thread (``getrusage``; (0, 0) off POSIX)."""
+    try:
+        import resource
+    except ImportError:              # pragma: no cover (not POSIX)
+        return 0.0, 0.0
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime, usage.ru_stime
 
 
 class _StageWriter:

@@ -77,18 +77,19 @@ def test_shared_chirp_tracking_keystone_matches_the_direct_formula(tracking_case
     assert ys.dtype == np.complex64
 
 
+@pytest.mark.parametrize("min_columns", [1, 8])
 @pytest.mark.parametrize("threads", ["1", "3"])
 @pytest.mark.parametrize("tracking", [False, True])
-def test_keystone_column_blocks_change_nothing(tracking_case, tracking, threads, monkeypatch):
-    """One column per block, on one thread or on a pool of three (where the cores allow), gives the
-    whole-block keystone bit for bit."""
+def test_keystone_column_blocks_change_nothing(tracking_case, tracking, threads, min_columns, monkeypatch):
+    """One column per block (or the default floor of a cache line's eight), on one thread or on a pool
+    of three (where the cores allow), gives the whole-block keystone bit for bit."""
     monkeypatch.setenv("FWDLOOK_THREADS", threads)
     c = tracking_case
     trk = (c["hist"], c["t"], c["prf"], c["scale"]) if tracking else None
     kw = dict(alpha=c["alpha"], t0_index=c["t0"], implementation="czt", ambiguity=0 if tracking else 3,
               tracking=trk)
     whole = keystone_both(c["xs"], c["xd"], block_bytes=1 << 30, **kw)
-    tiny = keystone_both(c["xs"], c["xd"], block_bytes=1, **kw)          # one column per block
+    tiny = keystone_both(c["xs"], c["xd"], block_bytes=1, min_columns=min_columns, **kw)   # the narrowest
     for a, b in zip(whole, tiny):
         np.testing.assert_array_equal(a, b)
 
@@ -428,6 +429,11 @@ def test_chain_timing_reports_every_stage_and_the_peak_rss(tiny_raw):
     if t["user_cpu_s"] is not None:                            # its split: test_process_cpu_split_tells_...
         assert t["cores_busy"] * t["wall_s"] == pytest.approx(t["user_cpu_s"] + t["system_cpu_s"], rel=1e-9)
         assert t["user_cpu_s"] > 0 and t["system_cpu_s"] >= 0
+        # per stage (the scaling series' user-CPU fits): every stage and the outputs, each stage's span
+        # inside the chain's, so with one repeat their CPU sums to at most the chain's
+        assert list(t["stages_user_cpu_s"]) == list(t["stages_s"]) == list(t["stages_system_cpu_s"])
+        assert sum(t["stages_user_cpu_s"].values()) <= t["user_cpu_s"] + 1e-6
+        assert sum(t["stages_system_cpu_s"].values()) <= t["system_cpu_s"] + 1e-6
     if t["peak_rss_x_cube"] is not None:                       # Linux: measured in a fresh interpreter
         # the tiny cube (0.25 MB) is within the RSS noise of two interpreters: only the sign is a fact
         assert t["peak_rss_above_base_bytes"] >= 0
@@ -504,6 +510,46 @@ def test_process_cpu_split_tells_the_kernels_work_from_the_process_own():
             break
     assert spent >= 0.1 and u2 - u1 < spent
     assert abs(sum(process_cpu_split_s()) - process_cpu_s()) < 0.02
+
+
+def test_run_stages_splits_each_stage_cpu_into_its_own_and_the_kernels(tmp_path):
+    """``run_stages(stage_cpu=...)``: a stage that spins in Python is charged user time, one that touches
+    fresh anonymous pages (a fault and a cleared page per 4 KiB) system time, each to its own name."""
+    import mmap
+    import time
+
+    from fwdlook_cli.io.stagefile import StageData
+    from fwdlook_cli.report.benchtools import process_cpu_split_s
+    from fwdlook_cli.runner import Stage, run_stages
+
+    if process_cpu_split_s() is None:
+        pytest.skip("no getrusage here")
+
+    def spin(data):
+        u0 = process_cpu_split_s()[0]
+        deadline = time.perf_counter() + 10.0
+        while process_cpu_split_s()[0] - u0 < 0.15 and time.perf_counter() < deadline:
+            for _ in range(100_000):
+                pass
+        return data
+
+    def touch(data):
+        s0 = process_cpu_split_s()[1]
+        for _ in range(128):                   # fresh pages until the kernel has spent 0.1 s on them
+            with mmap.mmap(-1, 32 << 20) as m:
+                np.frombuffer(m, dtype=np.uint8)[::mmap.PAGESIZE] = 1
+            if process_cpu_split_s()[1] - s0 >= 0.1:
+                break
+        return data
+
+    source = StageData()
+    source.add("x", np.arange(4.0), ("n",), "1", "x")
+    cpu: dict = {}
+    run_stages([Stage("spin", spin, {}), Stage("touch", touch, {})], source, "k" * 64, tmp_path,
+               quiet=True, keep="none", stage_cpu=cpu)
+    (u_spin, s_spin), (u_touch, s_touch) = cpu["spin"], cpu["touch"]
+    assert u_spin >= 0.15 and s_spin < 0.5 * u_spin
+    assert s_touch >= 0.1 and u_touch < s_touch
 
 
 @pytest.mark.parametrize("case", ["noise", "constant", "third_strong", "tiny_groups", "sorted", "sample_misled"])
@@ -601,7 +647,7 @@ def test_one_blas_thread_limits_every_blas_and_restores_it():
 
 
 def test_a_run_imports_neither_scipy_optimize_nor_interpolate(tmp_path):
-    """Their imports are a quarter of a second of a command's start (README, Speed): the chain and the
+    """Their imports are a quarter of a second of a command's start (docs/SPEED_HISTORY.md, eighth round): the chain and the
     simulator solve their roots without them (dsp.antenna.bracketed_root), and ``tracking``'s Doppler
     history on the uniform pulse grid is the closed-form spline (dsp.spline)."""
     import subprocess

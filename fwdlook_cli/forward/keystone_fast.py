@@ -45,11 +45,19 @@ def history_phase_shifted(derivs, dt_s):
     return acc
 
 
+# At least this many columns per block (one 64-byte cache line of complex64): a block reads and writes
+# its columns strided through [pulses, columns] arrays, so a narrower block uses part of every line it
+# fetches, and two threads' blocks write into the same lines.  Narrower blocks are what the byte budget
+# left for long sequences: there the tracking keystone's user CPU grew from 69 to 1135 ms over
+# 2500-20000 pulses (2.4-3.2 x per doubling from 5000), with this floor from 75 to 508 ms (README,
+# Speed: "Scaling").
+MIN_BLOCK_COLUMNS = 8
 BLOCK_BYTES = 2 << 20       # CZT work buffer per column block (L x columns x 8 bytes): ~50 columns at L = 5000
 
 
 def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, doppler_ref=0.0,
-                  n_taps=16, tracking=None, block_bytes: int = BLOCK_BYTES, period: int | None = None):
+                  n_taps=16, tracking=None, block_bytes: int = BLOCK_BYTES, period: int | None = None,
+                  min_columns: int = MIN_BLOCK_COLUMNS):
     """Keystone of both channels ([n_slow, n_cols] each) sharing one geometry; returns (y_sum, y_diff).
 
     ``tracking``: None, or (hist, slow_time_s, prf_hz, scale) for the tracking keystone: demodulate by
@@ -59,7 +67,8 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
     same numbers).  ``period``: the columns are groups of ``period`` (the decimated layout [Q, n_fr]:
     column q n_fr + k has the alpha of range frequency k); a block then takes range frequencies
     k0..k1 of every group, so that each alpha's chirps and filter are computed once, not once per
-    block its columns fall in.
+    block its columns fall in.  ``min_columns``: the narrowest block (of each group), whatever
+    ``block_bytes`` leaves (:data:`MIN_BLOCK_COLUMNS`; 1 lets the byte budget alone decide).
     """
     p, n_cols = x_sum.shape
     alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n_cols,))
@@ -70,9 +79,10 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
     width = n_cols // groups                   # a block: columns [k0, k1) of each of the groups
     # a thread pool over the column blocks (FFTs one thread each; the command line shares one
     # allocator arena among the threads, dsp.blas, so the blocks in flight cost what one block did)
-    per_block = max(1, step // groups)
+    per_block = max(1, step // groups, min(width, int(min_columns)))
     threads = min(worker_threads(), -(-width // per_block)) if implementation == "czt" else 1
-    per_block = max(1, per_block // threads)   # the blocks in flight hold what one block did
+    per_block = max(1, per_block // threads, min(width, int(min_columns)))   # the blocks in flight hold
+    # what one block did, unless that is narrower than min_columns
     y_sum = np.empty((p, n_cols), np.complex64)
     y_diff = np.empty((p, n_cols), np.complex64)
 

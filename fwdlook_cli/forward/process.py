@@ -111,15 +111,18 @@ def _two_way_beamwidth_deg(cube) -> float:
 
 
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
-                 png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False) -> dict:
+                 png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False,
+                 stage_cpu: dict | None = None) -> dict:
     """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics.
+    ``stage_cpu``: as :func:`runner.run_stages` (each computed stage's user and system CPU time), and
+    ``outputs`` (the metrics, image.h5 and metrics.json).
 
     The run directory's outputs of an earlier run are removed first and ``scenario.yaml`` is written
     last, so a failed or interrupted run never leaves outputs that look complete for other settings
     (the stage files stay: they carry their own hashes and are reused only where they match).
     """
     from .chain import build_forward_stages
-    from ..runner import run_stages
+    from ..runner import cpu_split_s, run_stages
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -150,12 +153,17 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         cube.diff = np.broadcast_to(np.zeros((), cube.diff.dtype), cube.diff.shape)
     writes = []            # the last stage files are written while the outputs below are computed
     final, timings, keys = run_stages(stages, holder.pop(), src_key, run_dir, force=force, from_stage=from_stage,
-                                      quiet=quiet, keep=keep_stages, captured=captured, pending_writes=writes)
+                                      quiet=quiet, keep=keep_stages, captured=captured, pending_writes=writes,
+                                      stage_cpu=stage_cpu)
     t_out = time.perf_counter()
+    cpu_out = cpu_split_s() if stage_cpu is not None else None
     pending_png = []
     try:
         metrics, scenario_yaml = _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured,
                                           writes, t_start, t_out, png, pending_png)
+        if cpu_out is not None:
+            cpu_end = cpu_split_s()
+            stage_cpu["outputs"] = (cpu_end[0] - cpu_out[0], cpu_end[1] - cpu_out[1])
     finally:
         while writes:                    # waited for even when the outputs failed (then re-raised)
             writes.pop()()

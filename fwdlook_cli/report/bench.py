@@ -174,8 +174,8 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     out["fft2_s"] = statistics.median(fft2_times + fft2_after)
     out["fft2_repeats"] = len(fft2_times) + len(fft2_after)
     # the same fft2 on one thread: what the reference gains from this machine's second core (2.8 ms on
-    # two free cores against 5.6 ms on one, README Speed), which every ratio above inherits while the
-    # chain keeps 1.4-1.6 cores busy; its ratio to fft2_s is that gain
+    # two free cores against 5.6 ms on one: docs/SPEED_HISTORY.md, seventh round), which every ratio
+    # above inherits while the chain keeps 1.4-1.6 cores busy; its ratio to fft2_s is that gain
     out["fft2_one_thread_s"] = statistics.median(_times(lambda: scipy.fft.fft2(x, workers=1), FFT2_REPEATS))
     out["cube_mib"] = (cube.sum.nbytes + cube.diff.nbytes) / 2**20
     out["chain_repeats"] = chain_repeats
@@ -199,6 +199,9 @@ def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, re
             print(f"N log N shows as exponent {result['nlogn_exponent']['pulses']:.3f} over pulses, "
                   f"{result['nlogn_exponent']['range_bins']:.3f} over range bins")
             for key, exps in result["exponents"].items():
+                print(f"{key:<22s} " + ", ".join(f"{k} {v:.2f}" for k, v in exps.items()))
+            print("the same, fitted to each stage's user CPU time (the kernel's page work left out):")
+            for key, exps in result["exponents_user_cpu"].items():
                 print(f"{key:<22s} " + ", ".join(f"{k} {v:.2f}" for k, v in exps.items()))
         return
     if backend == "gpu":                       # gpu_bench.py: the GPU stages against a device fft2

@@ -81,18 +81,27 @@ def time_chain(cube, scn: dict, repeats: int = 3, rss: bool = True, keep_stages:
     every stage file, image.h5 and metrics.json written; no PNG): medians per stage and in total.
     ``keep_stages``: as ``--keep-stages`` (``none``: no stage file written, what the files cost).
     ``cores_busy``, ``user_cpu_s`` and ``system_cpu_s``: the process's CPU time over the call's wall time
-    (``wall_s``, around ``process_cube``), and that CPU time split (:func:`process_cpu_split_s`).
+    (``wall_s``, around ``process_cube``), and that CPU time split (:func:`process_cpu_split_s`);
+    ``stages_user_cpu_s`` and ``stages_system_cpu_s``: the same split per stage, medians (the
+    process's CPU while the stage computed, ``runner.run_stages``).
     With ``rss``, the chain's peak RSS is measured once more in a fresh interpreter
     (:func:`chain_peak_rss`), since a warm process reuses memory it already holds."""
     from ..forward.process import process_cube
 
     per_stage: dict[str, list[float]] = {}
+    stage_user: dict[str, list[float]] = {}
+    stage_system: dict[str, list[float]] = {}
     cores, user, system, walls = [], [], [], []
     for _ in range(max(1, int(repeats))):
+        stage_cpu: dict = {}
         with tempfile.TemporaryDirectory() as tmp:
             cpu0, wall0 = process_cpu_split_s(), time.perf_counter()
-            metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False, keep_stages=keep_stages)
+            metrics = process_cube(cube, scn, tmp, force=True, quiet=True, png=False, keep_stages=keep_stages,
+                                   stage_cpu=stage_cpu)
             cpu1, wall1 = process_cpu_split_s(), time.perf_counter()
+        for stage, (u, s) in stage_cpu.items():
+            stage_user.setdefault(stage, []).append(u)
+            stage_system.setdefault(stage, []).append(s)
         walls.append(wall1 - wall0)
         if cpu0 is not None and cpu1 is not None:
             user.append(cpu1[0] - cpu0[0])
@@ -105,7 +114,9 @@ def time_chain(cube, scn: dict, repeats: int = 3, rss: bool = True, keep_stages:
               "cores_busy": statistics.median(cores) if cores else None,
               "user_cpu_s": statistics.median(user) if user else None,
               "system_cpu_s": statistics.median(system) if system else None,
-              "wall_s": statistics.median(walls)}
+              "wall_s": statistics.median(walls),
+              "stages_user_cpu_s": {k: statistics.median(v) for k, v in stage_user.items()},
+              "stages_system_cpu_s": {k: statistics.median(v) for k, v in stage_system.items()}}
     if rss:
         result.update(chain_peak_rss(cube, scn))
     return result
@@ -180,6 +191,9 @@ RANGE_BINS = (256, 512, 1024, 2048, 4096)
 SCALING_POINTS_M = [[-100.0, 1700.0], [0.0, 1730.0], [100.0, 1680.0]]
 
 
+NOT_STAGES = ("shape", "user_cpu", "system_cpu")      # a scaling row's keys that are not stage times
+
+
 def scaling_scenario(paper: dict, n_pulses: int, n_range: int) -> dict:
     """The paper scenario with three points, ``n_pulses`` over the same 1 s scan (the PRF scales with
     the pulse count, so the geometry stays that of the paper) and ``n_range`` range samples."""
@@ -210,10 +224,17 @@ def nlogn_exponent(sizes) -> float:
 def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int = 3, plot_path=None,
                    pulses=PULSES, range_bins=RANGE_BINS, progress=None) -> dict:
     """Stage times over pulses (range bins fixed at 280) and range bins (pulses fixed at 2500); fitted
-    exponents per stage and in total; a log-log plot when ``plot_path`` is given."""
+    exponents per stage and in total; a log-log plot when ``plot_path`` is given.
+
+    ``exponents`` fit the wall times; ``exponents_user_cpu`` the stages' user CPU time (every thread),
+    which leaves out the kernel's work for the process.  The two differ where a machine charges much
+    for memory touched the first time: arrays above glibc's mmap threshold (32 MiB at most) get fresh
+    pages on every allocation, smaller ones reuse the heap, so the wall time's cost per byte changes
+    within the series (README, Speed: "Scaling")."""
     from ..forward.simulate import simulate_scenario
 
     result = {"pulses": list(pulses), "range_bins": list(range_bins), "series": {}, "exponents": {},
+              "exponents_user_cpu": {},
               "nlogn_exponent": {"pulses": nlogn_exponent(pulses), "range_bins": nlogn_exponent(range_bins)}}
     for axis, sizes in (("pulses", pulses), ("range_bins", range_bins)):
         for method in methods:
@@ -224,15 +245,21 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
                 scn["processing"] = dict(scn["processing"], method=method)
                 cube, _ = simulate_scenario(scn)
                 t = time_chain(cube, scn, repeats=repeats, rss=False)
-                rows.append({"shape": list(cube.sum.shape), **t["stages_s"], "total": t["total_s"]})
+                rows.append({"shape": list(cube.sum.shape), **t["stages_s"], "total": t["total_s"],
+                             "user_cpu": {**t["stages_user_cpu_s"], "total": t["user_cpu_s"]},
+                             "system_cpu": {**t["stages_system_cpu_s"], "total": t["system_cpu_s"]}})
                 if progress:
                     progress(f"scaling {axis} {method} {cube.sum.shape}: {t['total_s']:.2f} s")
             key = f"{axis}_{method}"
             result["series"][key] = rows
-            stages = [k for k in rows[0] if k not in ("shape",)]
+            stages = [k for k in rows[0] if k not in NOT_STAGES]
             result["exponents"][key] = {
                 k: fit_exponent(sizes, [max(r[k], 1e-6) for r in rows]) for k in stages
                 if min(r[k] for r in rows) > 1e-4}
+            result["exponents_user_cpu"][key] = {
+                k: fit_exponent(sizes, [r["user_cpu"][k] for r in rows]) for k in stages
+                if all(r["user_cpu"].get(k) is not None for r in rows)
+                and min(r["user_cpu"][k] for r in rows) > 1e-3}
     if plot_path is not None:
         _plot_scaling(result, Path(plot_path))
         result["plot"] = str(plot_path)
@@ -240,31 +267,44 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
 
 
 def _plot_scaling(result: dict, path: Path) -> None:
+    """Log-log stage times per series: wall time (top row) and user CPU time (bottom row), one colour
+    per stage in every panel, the fitted exponent in each label, N log N dashed."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     keys = list(result["series"])
-    fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 4.0), squeeze=False)
-    for ax, key in zip(axes[0], keys):
+    stages = [k for k in result["series"][keys[0]][0] if k not in NOT_STAGES]
+    colour = {stage: f"C{i}" for i, stage in enumerate(stages)}
+    fig, axes = plt.subplots(2, len(keys), figsize=(4.2 * len(keys), 7.6), squeeze=False)
+    for col, key in enumerate(keys):
         rows = result["series"][key]
         axis = "pulses" if key.startswith("pulses") else "range_bins"
         n = np.asarray(result[axis], float)
-        for stage in [k for k in rows[0] if k != "shape"]:
-            t = np.asarray([r[stage] for r in rows])
-            if t.min() <= 1e-4:
-                continue
-            ax.loglog(n, t, "o-", ms=3, lw=1, label=f"{stage} ({result['exponents'][key].get(stage, 0):.2f})")
-        ref = n * np.log(n)
-        ax.loglog(n, ref / ref[-1] * max(r["total"] for r in rows), "k--", lw=0.8, label="N log N")
-        ax.set_xlabel(axis.replace("_", " "))
-        ax.set_ylabel("s")
-        ax.set_title(key.replace("_", " "), fontsize=9)
-        ax.legend(fontsize=6)
+        for row, (what, label) in enumerate((("wall", "wall time (s)"), ("user_cpu", "user CPU time (s)"))):
+            ax = axes[row][col]
+            exps = result["exponents" if what == "wall" else "exponents_user_cpu"][key]
+            for stage in stages:
+                if stage not in exps:
+                    continue
+                t = np.asarray([r[stage] if what == "wall" else r[what][stage] for r in rows])
+                ax.loglog(n, t, "o-", ms=3, lw=1, color=colour[stage], label=f"{stage} ({exps[stage]:.2f})")
+            ref = n * np.log(n)
+            top = max(r["total"] if what == "wall" else r[what]["total"] for r in rows)
+            ax.loglog(n, ref / ref[-1] * top, "k--", lw=0.8,
+                      label=f"N log N ({result['nlogn_exponent'][axis]:.2f})")
+            ax.set_xticks(n)
+            ax.set_xticklabels([f"{int(v)}" for v in n], fontsize=7)
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.set_xlabel(axis.replace("_", " "))
+            ax.set_ylabel(label)
+            ax.set_title(f"{key.replace('_', ' ')}: {what.replace('_', ' ')}", fontsize=9)
+            ax.legend(fontsize=6)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 
