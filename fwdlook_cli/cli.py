@@ -119,12 +119,16 @@ def _default_run_dir(scn, output):
     return Path(output) if output else Path("runs") / scn["name"]
 
 
-def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", keep_stages="all"):
+def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", keep_stages="all",
+             out_of_core=False):
     if scn["kind"] == "isar":
         from .isar.process import process_isar_cube
 
         if keep_stages != "all":
             raise BadInput(f"{source}: --keep-stages {keep_stages}: the ISAR chain keeps every stage; allowed: all")
+        if out_of_core:
+            raise BadInput(f"{source}: --out-of-core: the ISAR chain runs in memory; --out-of-core is for the "
+                           f"forward-looking chain")
         return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
     from .forward.process import process_cube
 
@@ -149,6 +153,22 @@ keep_stages_option = click.option(
          "read), none (fastest; a rerun recomputes everything).")
 output_dir_option = click.option("-o", "--output", "output", default=None, metavar="RUN_DIR",
                                  help="Run directory (default runs/<scenario name>).")
+out_of_core_option = click.option(
+    "--out-of-core", "out_of_core", is_flag=True,
+    help="Hold the raw cube's echoes and every stage's arrays in unnamed scratch files beside the run "
+         "directory instead of in memory (forward chain, CPU): cubes larger than the machine's memory; "
+         "the same results.")
+
+
+def _out_of_core(enabled: bool, output):
+    """The context of ``--out-of-core`` (io/backing.py): scratch files in the run directory's parent."""
+    import contextlib
+
+    if not enabled:
+        return contextlib.nullcontext()
+    from .io.backing import file_backed
+
+    return file_backed(Path(output).absolute().parent if output else Path("runs"))
 
 
 @cli.command()
@@ -161,8 +181,9 @@ output_dir_option = click.option("-o", "--output", "output", default=None, metav
 @click.option("--force", is_flag=True, help="Recompute every stage.")
 @overwrite_option
 @keep_stages_option
+@out_of_core_option
 @quiet_option
-def process(source, output, config, raw, overrides, from_stage, force, overwrite, keep_stages, quiet):
+def process(source, output, config, raw, overrides, from_stage, force, overwrite, keep_stages, out_of_core, quiet):
     """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
     from .io.outputs import prepare_run_dir
 
@@ -171,10 +192,10 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
 
     from .io.quicklook import painting
 
-    with painting():                 # image.png's matplotlib imported by a child meanwhile (io/painter.py)
+    with painting(), _out_of_core(out_of_core, output):   # the PNG's matplotlib in a child (io/painter.py)
         scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
         run_dir = _default_run_dir(scn, output)
-        metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages)
+        metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages, out_of_core)
     _print_summary(metrics, run_dir, quiet)
 
 
@@ -187,8 +208,9 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
 @click.option("--force", is_flag=True, help="Recompute every stage.")
 @overwrite_option
 @keep_stages_option
+@out_of_core_option
 @quiet_option
-def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages, quiet):
+def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages, out_of_core, quiet):
     """The main job: simulate (or load --raw), process and report into RUN_DIR."""
     from .io.raw import write_raw
     from .io.outputs import prepare_run_dir
@@ -201,12 +223,12 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
 
     from .io.quicklook import painting
 
-    with painting():                 # image.png's matplotlib imported by a child meanwhile (io/painter.py)
+    with painting(), _out_of_core(out_of_core, output):   # the PNG's matplotlib in a child (io/painter.py)
         scn, cube = _scenario_and_cube(scenario, raw, config, overrides, quiet, before_cube=prepare)
         run_dir = _default_run_dir(scn, output)
         if writes_raw:
             write_raw(run_dir / "raw.h5", cube)
-        metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages)
+        metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages, out_of_core)
     _print_summary(metrics, run_dir, quiet)
     click.echo(str(run_dir / "metrics.json"))
 

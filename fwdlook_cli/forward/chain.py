@@ -26,12 +26,13 @@ import numpy as np
 import scipy.fft
 
 from ..dsp.geometry import C_MPS, ambiguity_number
-from .keystone_fast import keystone_both
+from .keystone_fast import keystone_both, keystone_both_blocked
 from ..dsp.blas import batched_matmul, worker_threads
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, cpi_doppler_band_hz,
                      cpi_means, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector)
 from ..runner import Stage
+from ..io import backing
 from ..io.stagefile import StageData
 from .monopulse import monopulse_image   # noqa: F401 (stage 7, forward/monopulse.py; chain.monopulse_image)
 
@@ -56,9 +57,17 @@ def range_fft(data: StageData, *, fs_hz: float) -> StageData:
     out.add("fr_hz", fr_hz, ("fr_hz",), "Hz", "range frequency (FFT order)")
     out.add("range_m", data["range_m"], ("range_m",), "m", "slant range of the input samples")
     for ch in ("sum", "diff"):
-        out.add(f"{ch}_f", scipy.fft.fft(data[ch], axis=1, workers=-1), ("slow_time_s", "fr_hz"), "1",
-                f"{ch} channel, range frequency")
+        out.add(f"{ch}_f", _fft_rows(data[ch]), ("slow_time_s", "fr_hz"), "1", f"{ch} channel, range frequency")
     return out
+
+
+def _fft_rows(x):
+    """FFT of every row: one call in memory; in blocks of pulses into a file-backed output when the
+    chain runs out of core (io/backing.py), the same numbers (each row's transform is its own)."""
+    if not backing.active():
+        return scipy.fft.fft(x, axis=1, workers=-1)
+    return backing.map_blocks(lambda s: scipy.fft.fft(x[s], axis=1, workers=-1), x.shape[0], x.shape,
+                              np.result_type(x.dtype, np.complex64), 8 * x.shape[1])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -124,8 +133,12 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
             delta_r = beam_range_history_m(pos, m0, data["scan_angle_deg"], depression_deg,
                                            reference_range_m)
         # envelope shift of pulse m by the predicted R(t_m) - R(t_ref); carrier phase kept
-        shift = cis_outer(4.0 * np.pi * delta_r / C_MPS, fr_hz).reshape(p, q, n_f)
-        y_sum, y_diff = x_sum * shift, x_diff * shift
+        rate = 4.0 * np.pi * delta_r / C_MPS
+        if backing.active():     # out of core: blocks of pulses into file-backed outputs, the same numbers
+            y_sum, y_diff = _shifted_rows(x_sum, x_diff, rate, fr_hz)
+        else:
+            shift = cis_outer(rate, fr_hz).reshape(p, q, n_f)
+            y_sum, y_diff = x_sum * shift, x_diff * shift
     elif method in ("traditional", "decimation", "tracking"):
         alpha = fc_hz / (fc_hz + fr_hz)                   # eq. (8)
         t0_sub = (m0 - np.arange(q)) / q                  # global origin in each sub-sequence's samples
@@ -140,10 +153,11 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
             tracking = (hist, t, prf_hz, 1.0 + fr_hz / fc_hz)    # Doppler at f_r scales by (fc+fr)/fc
         ref = 0.0 if method == "tracking" else doppler_ref_hz / (prf_hz / q)
         # one geometry, both channels: chirps, demodulation and remodulation computed once
-        y_sum, y_diff = keystone_both(x_sum.reshape(p, q * n_f), x_diff.reshape(p, q * n_f), alpha=alpha_cols,
-                                      t0_index=t0_cols, implementation=implementation,
-                                      ambiguity=0 if method == "tracking" else ambiguity,
-                                      doppler_ref=ref, n_taps=n_taps, tracking=tracking, period=n_f)
+        both = keystone_both_blocked if backing.active() else keystone_both   # out of core: super-blocks
+        y_sum, y_diff = both(x_sum.reshape(p, q * n_f), x_diff.reshape(p, q * n_f), alpha=alpha_cols,
+                             t0_index=t0_cols, implementation=implementation,
+                             ambiguity=0 if method == "tracking" else ambiguity,
+                             doppler_ref=ref, n_taps=n_taps, tracking=tracking, period=n_f)
         y_sum, y_diff = y_sum.reshape(p, q, n_f), y_diff.reshape(p, q, n_f)
     else:
         raise ValueError(f"method {method!r}; allowed: none, bulk, beam, traditional, decimation, tracking")
@@ -152,6 +166,21 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
     out.attrs.update(method=method, keystone=implementation, ambiguity_number=int(ambiguity),
                      t_ref_s=float(t_ref_s))
     return out
+
+
+def _shifted_rows(x_sum, x_diff, rate, fr_hz):
+    """``x * exp(j rate[m] f_r)`` of both channels ([p, q, n_f], pulse m = p q + q) in blocks of pulses,
+    into file-backed outputs (the phasors of a block only; the grid of the whole axis, so that every
+    row is the one :func:`cis_outer` gives for all of them)."""
+    shape, n_f = x_sum.shape, x_sum.shape[-1]
+    y_sum, y_diff = backing.empty(shape, np.complex64), backing.empty(shape, np.complex64)
+    grid = outer_grid(fr_hz, float(np.max(np.abs(rate), initial=0.0)))
+    step = backing.rows_per_block(8 * n_f)
+    for x, y in ((x_sum, y_sum), (x_diff, y_diff)):
+        xf, yf = x.reshape(-1, n_f), y.reshape(-1, n_f)
+        for a in range(0, xf.shape[0], step):
+            np.multiply(xf[a:a + step], cis_outer(rate[a:a + step], fr_hz, grid), out=yf[a:a + step])
+    return y_sum, y_diff
 
 
 # ----------------------------------------------------------------------------------------------
@@ -193,7 +222,7 @@ def _compensate_rows(x_sum, x_diff, rate_rad_per_hz, fr_hz, block_bytes: int = 1
     only: no cube-sized temporary; :func:`dsp.keystone_common.cis_outer`, f_r on its grid).  The blocks
     run on a thread pool, one FFT thread each (pocketfft's own threads cost more than they gain on
     transforms this small); each block's product is written into the output and transformed there."""
-    y_sum, y_diff = np.empty(x_sum.shape, np.complex64), np.empty(x_diff.shape, np.complex64)
+    y_sum, y_diff = backing.empty(x_sum.shape, np.complex64), backing.empty(x_diff.shape, np.complex64)
     step = max(1, block_bytes // max(1, 8 * x_sum.shape[1]))
     grid = None if rate_rad_per_hz is None else outer_grid(fr_hz, float(np.max(np.abs(rate_rad_per_hz), initial=0.0)))
     starts = range(0, x_sum.shape[0], step)
@@ -260,8 +289,8 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     e = e.astype(np.complex64)
     n_r = data["sum"].shape[1]
     # one small product per CPI and channel, the BLAS on one thread (dsp.blas: no pool stalls)
-    z_sum = batched_matmul(e, data["sum"][:m].reshape(n_cpi, cpi, n_r))
-    z_diff = batched_matmul(e, data["diff"][:m].reshape(n_cpi, cpi, n_r))
+    z_sum = _zoom(e, data["sum"][:m].reshape(n_cpi, cpi, n_r))
+    z_diff = _zoom(e, data["diff"][:m].reshape(n_cpi, cpi, n_r))
     if estimator == "iaa":      # processing.doppler_estimator: iaa (dsp.iaa), same cells and scale
         from ..dsp.iaa import iaa_doppler
 
@@ -289,6 +318,15 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     out.add("diff_z", z_diff, ("cpi_time_s", "doppler_cell", "range_m"), "1", "difference Doppler spectrum")
     out.attrs.update(cpi=cpi, coherent_gain=float(w.sum()), doppler_window=window)
     return out
+
+
+def _zoom(e, x):
+    """``e @ x`` per CPI ([n_cpi, n_doppler, cpi] @ [n_cpi, cpi, n_r]): one batched product in memory;
+    in blocks of CPIs into a file-backed output out of core (io/backing.py), the same products."""
+    if not backing.active():
+        return batched_matmul(e, x)
+    return backing.map_blocks(lambda c: batched_matmul(e[c], x[c]), x.shape[0], (x.shape[0], e.shape[1], x.shape[2]),
+                              np.result_type(e.dtype, x.dtype), 8 * e.shape[1] * x.shape[2])
 
 
 # ----------------------------------------------------------------------------------------------

@@ -70,6 +70,8 @@ from ..dsp.antenna import two_way_width_for
 from ..dsp.geometry import C_MPS, azimuth_at_t_ref
 from ..dsp.blas import worker_threads
 from ..dsp.imaging import float32_floor, median_floor
+from ..io import backing
+from .monopulse import subaperture_real_beam
 from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
@@ -343,23 +345,6 @@ def _orthogonalise(w, e, g, n_a, t_s, n_orders=1, max_corr2=0.9):
     return w - sum(coef[gi][..., p] * basis[p] for p in range(n_orders))
 
 
-def _real_beam_image(data, beam, sub_pulses, range_m, angle_deg, angle_step_deg, p_ref):
-    """The real-beam image: incoherent sum power of each sub-aperture at its beam angle (t_ref mapping)."""
-    n_sub = len(beam) // sub_pulses
-    mm = n_sub * sub_pulses
-    x = data["sum"][:mm].reshape(n_sub, sub_pulses, -1)
-    rb_power = np.sum(x.real**2 + x.imag**2, axis=1)
-    beam_j = beam[:mm].reshape(n_sub, sub_pulses).mean(axis=1)
-    pos_j = data["position_m"][:mm].reshape(n_sub, sub_pulses, 3).mean(axis=1)
-    n_r, n_a = len(range_m), len(angle_deg)
-    rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_sub, n_r)),
-                                   np.broadcast_to(beam_j[:, None], (n_sub, n_r)), pos_j[:, None, :], p_ref)
-    rb_idx = np.rint((rb_az - angle_deg[0]) / angle_step_deg)
-    good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
-    rb_flat = np.broadcast_to(np.arange(n_r), (n_sub, n_r))[good] * n_a + rb_idx[good].astype(np.int64)
-    return np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)
-
-
 def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: float, beta_per_deg2: float,
                 beamwidth_deg: float, angle_step_deg: float, range_oversample: int, threshold_db: float,
                 dynamic_range_db: float, position_ref_m: list, sub_pulses: int = 40,
@@ -382,7 +367,9 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     diff = data["diff"]
     if diff_gain_db or diff_phase_deg:           # the calibration's channel imbalance divided out first
         imbalance = 10 ** (diff_gain_db / 20) * np.exp(1j * np.radians(diff_phase_deg))
-        diff = (diff / np.complex64(imbalance)).astype(np.complex64)
+        raw = diff               # in blocks of pulses (file-backed out of core, io/backing.py)
+        diff = backing.map_blocks(lambda s: (raw[s] / np.complex64(imbalance)).astype(np.complex64),
+                                  raw.shape[0], raw.shape, np.complex64, raw[0].nbytes)
     s_rot, d_rot, gain, pos_dwell, plain_gain = dwell_focus(
         data["sum"], diff, slow_time_s=data["slow_time_s"], scan_angle_deg=beam,
         position_m=data["position_m"], velocity_mps=vel, range_m=range_m, angle_deg=angle_deg, fc_hz=fc_hz,
@@ -432,7 +419,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio_kept) / slope_per_deg
                                     + boresight_offset_deg, p_dw, p_ref)
         az = np.where(np.isfinite(az), az, angle_deg[looked][i_dir])
-        real_beam = _real_beam_image(data, beam, sub_pulses, range_m, angle_deg, angle_step_deg, p_ref)
+        real_beam = subaperture_real_beam(data, beam, sub_pulses, range_m, angle_deg, angle_step_deg, p_ref)
     except BaseException:             # (an interrupt included) the fit's workers released, not waited for
         if finish_fit is not None:
             finish_fit.cancel()

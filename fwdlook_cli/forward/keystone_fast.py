@@ -14,8 +14,9 @@ import numpy as np
 
 from ..dsp.blas import worker_threads
 from ..dsp.keystone import keystone_dft, keystone_sinc
-from ..dsp.keystone_common import OuterPhasors, _cis
+from ..dsp.keystone_common import OuterPhasors, _cis, outer_grid
 from ..dsp.keystone_czt import KeystonePlan
+from ..io import backing
 
 
 def history_taylor(hist, t_s):
@@ -57,7 +58,7 @@ BLOCK_BYTES = 2 << 20       # CZT work buffer per column block (L x columns x 8 
 
 def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, doppler_ref=0.0,
                   n_taps=16, tracking=None, block_bytes: int = BLOCK_BYTES, period: int | None = None,
-                  min_columns: int = MIN_BLOCK_COLUMNS):
+                  min_columns: int = MIN_BLOCK_COLUMNS, demod_grid="auto"):
     """Keystone of both channels ([n_slow, n_cols] each) sharing one geometry; returns (y_sum, y_diff).
 
     ``tracking``: None, or (hist, slow_time_s, prf_hz, scale) for the tracking keystone: demodulate by
@@ -69,6 +70,8 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
     k0..k1 of every group, so that each alpha's chirps and filter are computed once, not once per
     block its columns fall in.  ``min_columns``: the narrowest block (of each group), whatever
     ``block_bytes`` leaves (:data:`MIN_BLOCK_COLUMNS`; 1 lets the byte budget alone decide).
+    ``demod_grid``: the tracking demodulation's frequency grid (:func:`dsp.keystone_common.outer_grid`
+    of every column's scale, from a caller that passes a part of them: the same phasors).
     """
     p, n_cols = x_sum.shape
     alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n_cols,))
@@ -83,14 +86,14 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
     threads = min(worker_threads(), -(-width // per_block)) if implementation == "czt" else 1
     per_block = max(1, per_block // threads, min(width, int(min_columns)))   # the blocks in flight hold
     # what one block did, unless that is narrower than min_columns
-    y_sum = np.empty((p, n_cols), np.complex64)
-    y_diff = np.empty((p, n_cols), np.complex64)
+    y_sum = backing.empty((p, n_cols), np.complex64)      # file-backed when out of core (io/backing.py)
+    y_diff = backing.empty((p, n_cols), np.complex64)
 
     if tracking is not None:             # the history's derivatives and the phasor grid: once, all blocks
         hist, t, prf_hz, scale = tracking
         scale = np.broadcast_to(np.asarray(scale, dtype=np.float64), (n_cols,))
         derivs = history_taylor(hist, t)
-        demod = OuterPhasors(-derivs[0], scale)     # the phase is linear in scale = 1 + f_r/f_c
+        demod = OuterPhasors(-derivs[0], scale, demod_grid)   # the phase is linear in scale = 1 + f_r/f_c
 
     def cols(a, k):                      # a per-column array's block: columns k of every group
         return a[k] if groups == 1 else a.reshape(groups, width)[:, k].reshape(-1)
@@ -118,6 +121,46 @@ def keystone_both(x_sum, x_diff, *, alpha, t0_index, implementation, ambiguity, 
     else:
         for lo in range(0, width, per_block):
             block(lo)
+    return y_sum, y_diff
+
+
+SUPERBLOCK_BYTES = 64 << 20   # out of core: the bytes of one channel's columns read from the file at once
+
+
+def keystone_both_blocked(x_sum, x_diff, *, alpha, t0_index, period=None, tracking=None,
+                          superblock_bytes: int = SUPERBLOCK_BYTES, **kw):
+    """:func:`keystone_both` of file-backed arrays (``--out-of-core``, io/backing.py), in super-blocks of
+    range frequencies: each super-block's columns (of every group, for ``period``) are read from the
+    file at once into memory, transformed there and written back.  A column block of a [pulses,
+    columns] file touches every pulse's page, so the super-block is as wide as ``superblock_bytes``
+    allows (512 columns at 16384 pulses): each page of the input is then read about once, not once per
+    narrow block.  The same numbers as the whole (every column is its own)."""
+    p, n_cols = x_sum.shape
+    groups = n_cols // period if period and n_cols % period == 0 and n_cols > period else 1
+    width = n_cols // groups
+    alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n_cols,))
+    t0_index = np.broadcast_to(np.asarray(t0_index, dtype=np.float64), (n_cols,))
+    scale = None if tracking is None else np.broadcast_to(np.asarray(tracking[3], dtype=np.float64), (n_cols,))
+    y_sum, y_diff = backing.empty((p, n_cols), np.complex64), backing.empty((p, n_cols), np.complex64)
+    step = max(1, int(superblock_bytes) // (8 * p * groups))
+    if tracking is not None:             # the demodulation's grid of every column, as the whole has it
+        rate = history_taylor(tracking[0], tracking[1])[0]
+        kw["demod_grid"] = outer_grid(scale, float(np.max(np.abs(rate), initial=0.0)))
+
+    def cols(a, k):                      # a per-column array's super-block: columns k of every group
+        return a.reshape(groups, width)[:, k].reshape(-1)
+
+    for k0 in range(0, width, step):
+        k = slice(k0, min(width, k0 + step))
+        n_k = k.stop - k.start
+        xs, xd = (np.ascontiguousarray(a.reshape(p, groups, width)[:, :, k]).reshape(p, groups * n_k)
+                  for a in (x_sum, x_diff))
+        trk = None if tracking is None else tuple(tracking[:3]) + (cols(scale, k),)
+        with backing.in_memory():
+            ys, yd = keystone_both(xs, xd, alpha=cols(alpha, k), t0_index=cols(t0_index, k),
+                                   period=n_k if groups > 1 else None, tracking=trk, **kw)
+        y_sum.reshape(p, groups, width)[:, :, k] = ys.reshape(p, groups, n_k)
+        y_diff.reshape(p, groups, width)[:, :, k] = yd.reshape(p, groups, n_k)
     return y_sum, y_diff
 
 

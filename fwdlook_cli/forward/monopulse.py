@@ -12,6 +12,7 @@ import numpy as np
 from ..dsp.blas import worker_threads
 from ..dsp.geometry import azimuth_at_t_ref
 from ..dsp.imaging import azimuth_at_t_ref_cells, iter_kept_cells
+from ..io import backing
 from ..io.stagefile import StageData
 
 
@@ -125,3 +126,23 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     out.attrs.update(range_oversample=range_oversample, angle_step_deg=angle_step_deg,
                      slope_per_deg=slope_per_deg, position_ref_m=list(map(float, p_ref)))
     return out
+
+
+def subaperture_real_beam(data, beam, sub_pulses, range_m, angle_deg, angle_step_deg, p_ref):
+    """The dwell imaging's real-beam image: incoherent sum power of each sub-aperture of ``sub_pulses``
+    pulses at its beam angle (t_ref mapping; forward/dwell.py)."""
+    n_sub = len(beam) // sub_pulses
+    mm = n_sub * sub_pulses
+    x = data["sum"][:mm].reshape(n_sub, sub_pulses, -1)
+    # in blocks of sub-apertures (no cube-sized temporary; file-backed out of core, io/backing.py)
+    rb_power = backing.map_blocks(lambda j: np.sum(x[j].real**2 + x[j].imag**2, axis=1), n_sub,
+                                  (n_sub, x.shape[2]), np.float32, x[0].nbytes)
+    beam_j = beam[:mm].reshape(n_sub, sub_pulses).mean(axis=1)
+    pos_j = data["position_m"][:mm].reshape(n_sub, sub_pulses, 3).mean(axis=1)
+    n_r, n_a = len(range_m), len(angle_deg)
+    rb_az, _, _ = azimuth_at_t_ref(np.broadcast_to(range_m, (n_sub, n_r)),
+                                   np.broadcast_to(beam_j[:, None], (n_sub, n_r)), pos_j[:, None, :], p_ref)
+    rb_idx = np.rint((rb_az - angle_deg[0]) / angle_step_deg)
+    good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
+    rb_flat = np.broadcast_to(np.arange(n_r), (n_sub, n_r))[good] * n_a + rb_idx[good].astype(np.int64)
+    return np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)

@@ -10,6 +10,7 @@ from .. import __version__
 from ..scenario.loader import dump_scenario, scenario_hash
 from ..errors import BadInput
 from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, json_text, put_scale, put_sparse_gzip, set_attrs
+from ..io import backing
 from ..io.cube import cube_hash
 
 
@@ -137,6 +138,14 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the cube's pulse count {cube.n_pulses}")
     if proc["cpi"] > cube.n_pulses:
         raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the cube's {cube.n_pulses} pulses")
+    if backing.active():     # --out-of-core: the stages that work in blocks only (io/backing.py)
+        if proc.get("backend", "cpu") != "cpu":
+            raise BadInput(f"{source}: processing.backend = {proc['backend']} with --out-of-core: the GPU stages "
+                           f"take whole arrays; allowed with --out-of-core: processing.backend = cpu")
+        if proc.get("doppler_estimator", "fft") != "fft":
+            raise BadInput(f"{source}: processing.doppler_estimator = {proc['doppler_estimator']} with "
+                           f"--out-of-core: IAA takes whole CPIs of every range cell; allowed with "
+                           f"--out-of-core: fft")
     t_start = time.perf_counter()
     src, stages, geo = build_forward_stages(cube, proc)
     names = [st.name for st in stages]

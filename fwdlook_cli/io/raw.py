@@ -13,6 +13,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from . import backing
 from .cube import RADAR_KEYS, RawCube
 from ..errors import BadInput
 from .describe import _plain
@@ -115,10 +116,12 @@ def _array(f, path, source, *, kind, shape, complex_ok=False):
         want = "[" + ", ".join(str(s) for s in shape) + "]"
         raise BadInput(f"{source}: /{path}: shape {list(ds.shape)}, expected {want}")
     check_declared_dataset(source, path, ds.shape, dt.itemsize)   # before the read allocates it
-    data = ds[()]
-    if not np.all(np.isfinite(data)):
-        bad = int(np.size(data) - np.count_nonzero(np.isfinite(data)))
+    data = backing.read_dataset(ds)      # file-backed, block by block, in an out-of-core run
+    bad = backing.count_nonfinite(data)
+    if bad:
         raise BadInput(f"{source}: /{path}: {bad} NaN/Inf values; allowed: finite values only")
+    if data.dtype != kind and backing.active():       # converted block by block, file-backed too
+        return backing.map_blocks(lambda s: data[s].astype(kind), len(data), data.shape, kind, data[0].nbytes)
     return data.astype(kind, copy=False)
 
 

@@ -14,6 +14,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from . import backing
 from .h5 import atomic_h5, set_attrs
 from .integrity import (DATASETS_ATTR, DIGEST_ATTR, STAGE_FORMAT_VERSION, declaration, digest, digest_async,
                         read_declaration)
@@ -201,7 +202,8 @@ def read_stage(path: Path) -> StageData:
         for name, ds in f.items():
             if not isinstance(ds, h5py.Dataset):
                 continue
-            out.vars[name] = Var(ds[()], dims_of(ds, name, declared), str(_text(ds.attrs.get("units", ""))),
+            out.vars[name] = Var(backing.read_dataset(ds), dims_of(ds, name, declared),   # file-backed
+                                 str(_text(ds.attrs.get("units", ""))),                   # out of core
                                  str(_text(ds.attrs.get("long_name", ""))))
     return out
 
@@ -268,7 +270,7 @@ def load_verified(path, key: str):
                     return None, f"/{name}: shape {list(ds.shape)}, declared {want_shape}"
                 if np.dtype(want_dtype) != ds.dtype:
                     return None, f"/{name}: dtype {ds.dtype}, declared {np.dtype(want_dtype)}"
-                data = ds[()]
+                data = backing.read_dataset(ds)          # file-backed when out of core (io/backing.py)
                 if digest(data) != want_digest:
                     return None, f"/{name}: data does not match its {DIGEST_ATTR} digest (bit rot or edited)"
                 if len(dims) != np.ndim(data):

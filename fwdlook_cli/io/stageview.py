@@ -12,6 +12,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from . import backing
 from .stagefile import stage_file_key
 
 
@@ -81,7 +82,7 @@ def read_stage_mapped(path: Path, min_bytes: int = 1 << 20):
             if not isinstance(ds, h5py.Dataset):
                 continue
             data = _mapped(ds, path) if ds.size * ds.dtype.itemsize >= min_bytes else None
-            data = ds[()] if data is None else data
+            data = backing.read_dataset(ds) if data is None else data     # file-backed out of core
             out.vars[name] = Var(data, dims_of(ds, name, declared), str(_text(ds.attrs.get("units", ""))),
                                  str(_text(ds.attrs.get("long_name", ""))))
     return out

@@ -1,0 +1,119 @@
+"""File-backed arrays for ``--out-of-core``: the chain's cube-sized arrays held in unnamed scratch files
+instead of anonymous memory.
+
+Inside :func:`file_backed`, :func:`empty` returns an array of at least :data:`MIN_BYTES` as a shared
+memory map of an unnamed temporary file in the scratch directory (``tempfile.TemporaryFile``: on Linux
+an ``O_TMPFILE`` that never has a name, so nothing is left behind however the process ends; its disk
+space is freed when the last view of the array goes).  The kernel then holds as much of the array in
+its page cache as memory allows and writes the rest to the file, so a chain whose stages work in blocks
+(every stage does: keystone over range-frequency columns, curvature over pulses, Doppler and image
+over CPIs) runs with its anonymous memory bounded by those blocks, on cubes larger than the machine's
+memory.  Outside it, :func:`empty` is ``np.empty``.  The numbers are the same either way: only where
+the bytes live changes.
+
+The state is process-wide (one chain runs at a time in a command; the stages' worker threads see it
+too), set and restored by :func:`file_backed`.
+"""
+from __future__ import annotations
+
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BadInput
+
+MIN_BYTES = 1 << 20          # smaller arrays stay in memory (the page cache would hold them anyway)
+BLOCK_BYTES = 8 << 20        # the bytes a file-backed stage reads or writes per block
+
+_scratch_dir: Path | None = None
+_min_bytes: int = MIN_BYTES
+
+
+def active() -> bool:
+    """Whether cube-sized arrays are file-backed now."""
+    return _scratch_dir is not None
+
+
+@contextmanager
+def file_backed(directory, min_bytes: int = MIN_BYTES):
+    """Within the block, :func:`empty` puts arrays of ``min_bytes`` or more in scratch files under
+    ``directory`` (created if missing)."""
+    global _scratch_dir, _min_bytes
+    directory = Path(directory)
+    try:                                  # refused here, in one line, not at the first big array
+        directory.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=directory).close()
+    except OSError as exc:
+        raise BadInput(f"--out-of-core: scratch directory {directory}: {exc.strerror or exc}; allowed: a "
+                       f"writable directory (the run directory's parent)") from None
+    before = (_scratch_dir, _min_bytes)
+    _scratch_dir, _min_bytes = directory, int(min_bytes)
+    try:
+        yield directory
+    finally:
+        _scratch_dir, _min_bytes = before
+
+
+@contextmanager
+def in_memory():
+    """Within the block, :func:`empty` is ``np.empty`` again (a stage's own bounded work buffers)."""
+    global _scratch_dir
+    before, _scratch_dir = _scratch_dir, None
+    try:
+        yield
+    finally:
+        _scratch_dir = before
+
+
+def empty(shape, dtype) -> np.ndarray:
+    """``np.empty(shape, dtype)``, file-backed inside :func:`file_backed` when it is large enough
+    (its contents are then zeros, as a new file's are)."""
+    shape = tuple(int(n) for n in (shape if np.ndim(shape) else (shape,)))
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    if _scratch_dir is None or nbytes < _min_bytes or nbytes == 0:
+        return np.empty(shape, dtype)
+    with tempfile.TemporaryFile(dir=_scratch_dir, prefix=".fwdlook-scratch-") as f:
+        f.truncate(nbytes)
+        # the map holds the file open (its own descriptor): the file lives as long as the array
+        return np.memmap(f, dtype=dtype, mode="r+", shape=shape)
+
+
+def rows_per_block(row_bytes: int, block_bytes: int = BLOCK_BYTES) -> int:
+    """How many rows of ``row_bytes`` a file-backed stage takes per block."""
+    return max(1, int(block_bytes) // max(1, int(row_bytes)))
+
+
+def map_blocks(fn, n_rows: int, shape, dtype, row_bytes: int) -> np.ndarray:
+    """An array of ``shape`` (file-backed when large, inside :func:`file_backed`) whose rows ``s`` are
+    ``fn(s)``, for slices ``s`` of :func:`rows_per_block` rows of ``row_bytes`` each: a stage's
+    element-wise or per-row work done block by block, the same numbers as on the whole."""
+    out = empty(shape, dtype)
+    step = rows_per_block(row_bytes)
+    for a in range(0, int(n_rows), step):
+        s = slice(a, min(a + step, int(n_rows)))
+        out[s] = fn(s)
+    return out
+
+
+def read_dataset(ds):
+    """All of an open HDF5 dataset (or any array-like with ``shape``, ``dtype`` and slicing): ``ds[()]``,
+    unchanged; inside :func:`file_backed`, when large, block by block of rows into a file-backed array
+    (an out-of-core run's cube and stage inputs: no copy of the whole in memory)."""
+    shape = tuple(ds.shape or ())
+    nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(ds.dtype).itemsize
+    if _scratch_dir is None or not shape or nbytes < _min_bytes or np.dtype(ds.dtype).hasobject:
+        return ds[()]
+    return map_blocks(lambda s: ds[s], shape[0], shape, ds.dtype, nbytes // max(1, shape[0]))
+
+
+def count_nonfinite(a) -> int:
+    """NaN and Inf values in ``a``, counted block by block of rows (no array-sized mask)."""
+    a = np.asarray(a)
+    if a.ndim == 0:
+        return int(not np.isfinite(a))
+    step = rows_per_block(a[0].nbytes if a.shape[0] else 1)
+    return sum(int(a[s:s + step].size - np.count_nonzero(np.isfinite(a[s:s + step])))
+               for s in range(0, a.shape[0], step))

@@ -1,0 +1,151 @@
+"""``--out-of-core`` (io/backing.py, issue 11 item 3): the cube and every stage's arrays in unnamed scratch
+files, the stages in blocks read from and written to them.  The results are the in-memory chain's bit
+for bit (every stage file's arrays, image.h5, metrics.json's targets) with blocks far smaller than
+the arrays; nothing is left in the scratch directory; bad combinations are one-line errors."""
+import json
+import os
+
+import h5py
+import numpy as np
+import pytest
+import scipy.fft
+
+from fwdlook_cli.errors import BadInput
+from fwdlook_cli.forward import keystone_fast
+from fwdlook_cli.forward.keystone_fast import keystone_both, keystone_both_blocked
+from fwdlook_cli.forward.motion import DopplerPhaseHistory
+from fwdlook_cli.forward.process import process_cube
+from fwdlook_cli.io import backing
+from fwdlook_cli.io.raw import read_raw, write_raw
+from fwdlook_cli.testing import tiny_scenario
+
+
+def test_file_backed_arrays_are_unnamed_maps_and_only_inside_the_context(tmp_path):
+    with backing.file_backed(tmp_path, min_bytes=1024):
+        big = backing.empty((64, 32), np.complex64)               # 16 KiB: file-backed
+        small = backing.empty((4, 4), np.complex64)               # under min_bytes: memory
+        assert isinstance(big, np.memmap) and not isinstance(small, np.memmap)
+        assert not big.any()                                      # a new file reads as zeros
+        big[:] = 1 + 2j
+        assert os.listdir(tmp_path) == []                         # O_TMPFILE: never a name
+        with backing.in_memory():
+            assert not isinstance(backing.empty((64, 32), np.complex64), np.memmap)
+        assert backing.active()
+    assert not backing.active() and not isinstance(backing.empty((64, 32), np.complex64), np.memmap)
+    assert np.all(big == 1 + 2j)                                  # the map outlives the context
+
+
+def test_blocked_reads_and_counts_are_the_whole_ones(tmp_path):
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((1000, 37)).astype(np.float32)
+    x[[3, 500, 999], [0, 5, 36]] = [np.nan, np.inf, -np.inf]
+    with h5py.File(tmp_path / "x.h5", "w") as f:
+        f.create_dataset("x", data=x, chunks=(64, 37))
+    with h5py.File(tmp_path / "x.h5", "r") as f, backing.file_backed(tmp_path, min_bytes=0):
+        backing.BLOCK_BYTES, saved = 1000, backing.BLOCK_BYTES    # 6 rows a block
+        try:
+            y = backing.read_dataset(f["x"])
+            assert isinstance(y, np.memmap) and backing.count_nonfinite(y) == 3
+        finally:
+            backing.BLOCK_BYTES = saved
+    np.testing.assert_array_equal(y, x)
+
+
+def test_keystone_super_blocks_give_the_whole_keystone(tmp_path):
+    """The out-of-core keystone reads super-blocks of range frequencies (of every sub-sequence) and
+    transforms each in memory: the decimated layout and the tracking keystone (whose demodulation grid
+    is the whole axis's) bit for bit the in-memory keystone of all columns."""
+    rng = np.random.default_rng(5)
+    p, q, n_f, prf, fc = 256, 3, 40, 2500.0, 18e9
+    fr = scipy.fft.fftfreq(n_f, 1 / 60e6)
+    xs, xd = ((rng.standard_normal((p, q * n_f)) + 1j * rng.standard_normal((p, q * n_f))).astype(np.complex64)
+              for _ in range(2))
+    grouped = dict(alpha=np.tile(fc / (fc + fr), q), t0_index=np.repeat([40.2, 39.9, 39.5], n_f),
+                   implementation="czt", ambiguity=2, period=n_f)
+    t = np.arange(p) / prf
+    vel = np.column_stack([np.zeros(p), 240.0 + 50.0 * t, np.zeros(p)])
+    hist = DopplerPhaseHistory(t, vel, -15.0 + 30.0 * t / t[-1], 1.7, fc, t[p // 2])
+    tracking = dict(alpha=fc / (fc + fr), t0_index=np.full(n_f, p / 2.0), implementation="czt", ambiguity=0,
+                    tracking=(hist, t, prf, 1.0 + fr / fc), period=n_f)
+    for kw, (a, b) in ((grouped, (xs, xd)), (tracking, (xs[:, :n_f], xd[:, :n_f]))):
+        whole = keystone_both(a, b, **kw)
+        with backing.file_backed(tmp_path, min_bytes=0):
+            for width in (1, 7):                                   # columns of each group per super-block
+                blocked = keystone_both_blocked(a, b, superblock_bytes=8 * p * (q if kw is grouped else 1) * width,
+                                                **kw)
+                for u, v in zip(whole, blocked):
+                    np.testing.assert_array_equal(u, v)
+
+
+def _stage_arrays(run_dir):
+    out = {}
+    for path in sorted((run_dir / "stages").glob("*.h5")) + [run_dir / "image.h5"]:
+        with h5py.File(path, "r") as f:
+            f.visititems(lambda n, o: out.__setitem__(f"{path.name}:{n}", o[()]) if isinstance(o, h5py.Dataset)
+                         else None)
+    return out
+
+
+@pytest.mark.parametrize("method, imaging", [("decimation", "cpi"), ("tracking", "cpi"), ("tracking", "dwell"),
+                                             ("beam", "cpi")])
+def test_the_out_of_core_chain_is_the_in_memory_chain(tiny_raw, tmp_path, monkeypatch, method, imaging):
+    """Every stage file's arrays, image.h5 and the targets of metrics.json, with every array of the run
+    file-backed (min_bytes 0) and blocks of a few rows: bit for bit; a rerun reuses the stage files
+    (read back file-backed) with the same outputs; no scratch file is left."""
+    monkeypatch.setattr(backing, "BLOCK_BYTES", 4096)
+    monkeypatch.setattr(keystone_fast, "SUPERBLOCK_BYTES", 16384)
+    scn = tiny_scenario(processing={"method": method, "imaging": imaging, "q": 4})
+    memory = process_cube(read_raw(tiny_raw), scn, tmp_path / "memory", png=False, quiet=True)
+    scratch = tmp_path / "scratch"
+    with backing.file_backed(scratch, min_bytes=0):
+        cube = read_raw(tiny_raw)
+        assert isinstance(cube.sum, np.memmap)
+        on_file = process_cube(cube, scn, tmp_path / "file", png=False, quiet=True, release_cube=True)
+        again = process_cube(read_raw(tiny_raw), scn, tmp_path / "file", png=False, quiet=True)
+    assert os.listdir(scratch) == []
+    assert on_file["targets"] == memory["targets"] == again["targets"]
+    assert set(again["timing_s"]) == set(on_file["timing_s"])
+    a, b = _stage_arrays(tmp_path / "memory"), _stage_arrays(tmp_path / "file")
+    assert a.keys() == b.keys()
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
+def read_raw_tiny(tmp_path):
+    from fwdlook_cli.forward.simulate import simulate_scenario
+
+    cube, _ = simulate_scenario(tiny_scenario())
+    return cube
+
+
+def test_out_of_core_still_rejects_a_cube_with_nan(tmp_path):
+    cube = read_raw_tiny(tmp_path)
+    cube.diff[7, 3] = np.nan
+    write_raw(tmp_path / "nan.h5", cube)
+    with backing.file_backed(tmp_path / "scratch", min_bytes=0), pytest.raises(BadInput) as err:
+        read_raw(tmp_path / "nan.h5")
+    assert str(err.value).endswith("/echo/diff: 1 NaN/Inf values; allowed: finite values only")
+
+
+def test_the_command_line_flag(tiny_raw, tmp_path, capsys):
+    """``process --out-of-core`` runs and leaves nothing beside the run directory; a setting it cannot
+    honour (IAA, whole CPIs of every range cell) is one line on stderr and exit 2."""
+    from fwdlook_cli.cli import main
+
+    def run(*argv):
+        with pytest.raises(SystemExit) as exc:
+            main([str(a) for a in argv])
+        return exc.value.code, capsys.readouterr().err
+
+    code, err = run("process", tiny_raw, "-o", tmp_path / "run", "--out-of-core", "-q")
+    assert code == 0, err
+    assert sorted(os.listdir(tmp_path)) == ["run"]
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text())["summary"]["detected"] >= 1
+    code, err = run("process", tiny_raw, "-o", tmp_path / "iaa", "--out-of-core", "-q",
+                    "--set", "processing.doppler_estimator=iaa", "--set", "processing.imaging=cpi")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert str(tiny_raw) in err and "allowed with --out-of-core: fft" in err
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    code, err = run("process", tiny_raw, "-o", blocker / "run", "--out-of-core", "-q")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "scratch directory" in err
