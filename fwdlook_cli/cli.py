@@ -126,9 +126,7 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", ke
 
         if keep_stages != "all":
             raise BadInput(f"{source}: --keep-stages {keep_stages}: the ISAR chain keeps every stage; allowed: all")
-        if out_of_core:
-            raise BadInput(f"{source}: --out-of-core: the ISAR chain runs in memory; --out-of-core is for the "
-                           f"forward-looking chain")
+        _refuse_out_of_core_isar(scn, source, out_of_core)
         return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
     from .forward.process import process_cube
 
@@ -160,6 +158,13 @@ out_of_core_option = click.option(
          "the same results.")
 
 
+def _refuse_out_of_core_isar(scn, source, out_of_core: bool) -> None:
+    """``--out-of-core`` is for the forward-looking chain: refused for an ISAR scenario before any work."""
+    if out_of_core and scn["kind"] == "isar":
+        raise BadInput(f"{source}: --out-of-core: the ISAR chain runs in memory; --out-of-core is for the "
+                       f"forward-looking chain (scenario kind forward)")
+
+
 def _out_of_core(enabled: bool, output):
     """The context of ``--out-of-core`` (io/backing.py): scratch files in the run directory's parent."""
     import contextlib
@@ -188,6 +193,7 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
     from .io.outputs import prepare_run_dir
 
     def prepare(scn):
+        _refuse_out_of_core_isar(scn, raw or source, out_of_core)
         prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
 
     from .io.quicklook import painting
@@ -218,6 +224,7 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
     writes_raw = not raw and Path(scenario).suffix.lower() not in (".h5", ".hdf5", ".hdf")
 
     def prepare(scn):
+        _refuse_out_of_core_isar(scn, raw or scenario, out_of_core)
         prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config], overwrite=overwrite,
                         writes_raw=writes_raw)
 

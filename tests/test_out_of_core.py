@@ -145,6 +145,10 @@ def test_the_command_line_flag(tiny_raw, tmp_path, capsys):
                     "--set", "processing.doppler_estimator=iaa", "--set", "processing.imaging=cpi")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert str(tiny_raw) in err and "allowed with --out-of-core: fft" in err
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    code, err = run("run", os.path.join(root, "scenarios", "isar_theta3.yaml"), "-o", tmp_path / "isar",
+                    "--out-of-core", "-q")                      # refused before the cube is simulated
+    assert code == 2 and "ISAR chain runs in memory" in err and not (tmp_path / "isar").exists()
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
     code, err = run("process", tiny_raw, "-o", blocker / "run", "--out-of-core", "-q")
