@@ -95,6 +95,8 @@ def test_the_out_of_core_chain_is_the_in_memory_chain(tiny_raw, tmp_path, monkey
     monkeypatch.setattr(backing, "BLOCK_BYTES", 4096)
     monkeypatch.setattr(keystone_fast, "SUPERBLOCK_BYTES", 16384)
     scn = tiny_scenario(processing={"method": method, "imaging": imaging, "q": 4})
+    cube = read_raw(tiny_raw)
+    assert backing.rows_per_block(cube.sum[0].nbytes) < cube.n_pulses // 8      # many blocks per stage
     memory = process_cube(read_raw(tiny_raw), scn, tmp_path / "memory", png=False, quiet=True)
     scratch = tmp_path / "scratch"
     with backing.file_backed(scratch, min_bytes=0):

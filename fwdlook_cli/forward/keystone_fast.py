@@ -128,12 +128,12 @@ SUPERBLOCK_BYTES = 64 << 20   # out of core: the bytes of one channel's columns 
 
 
 def keystone_both_blocked(x_sum, x_diff, *, alpha, t0_index, period=None, tracking=None,
-                          superblock_bytes: int = SUPERBLOCK_BYTES, **kw):
+                          superblock_bytes: int | None = None, **kw):
     """:func:`keystone_both` of file-backed arrays (``--out-of-core``, io/backing.py), in super-blocks of
     range frequencies: each super-block's columns (of every group, for ``period``) are read from the
     file at once into memory, transformed there and written back.  A column block of a [pulses,
     columns] file touches every pulse's page, so the super-block is as wide as ``superblock_bytes``
-    allows (512 columns at 16384 pulses): each page of the input is then read about once, not once per
+    (default :data:`SUPERBLOCK_BYTES`, read when called) allows (512 columns at 16384 pulses): each page of the input is then read about once, not once per
     narrow block.  The same numbers as the whole (every column is its own)."""
     p, n_cols = x_sum.shape
     groups = n_cols // period if period and n_cols % period == 0 and n_cols > period else 1
@@ -142,7 +142,7 @@ def keystone_both_blocked(x_sum, x_diff, *, alpha, t0_index, period=None, tracki
     t0_index = np.broadcast_to(np.asarray(t0_index, dtype=np.float64), (n_cols,))
     scale = None if tracking is None else np.broadcast_to(np.asarray(tracking[3], dtype=np.float64), (n_cols,))
     y_sum, y_diff = backing.empty((p, n_cols), np.complex64), backing.empty((p, n_cols), np.complex64)
-    step = max(1, int(superblock_bytes) // (8 * p * groups))
+    step = max(1, int(SUPERBLOCK_BYTES if superblock_bytes is None else superblock_bytes) // (8 * p * groups))
     if tracking is not None:             # the demodulation's grid of every column, as the whole has it
         rate = history_taylor(tracking[0], tracking[1])[0]
         kw["demod_grid"] = outer_grid(scale, float(np.max(np.abs(rate), initial=0.0)))

@@ -81,9 +81,10 @@ def empty(shape, dtype) -> np.ndarray:
         return np.memmap(f, dtype=dtype, mode="r+", shape=shape)
 
 
-def rows_per_block(row_bytes: int, block_bytes: int = BLOCK_BYTES) -> int:
-    """How many rows of ``row_bytes`` a file-backed stage takes per block."""
-    return max(1, int(block_bytes) // max(1, int(row_bytes)))
+def rows_per_block(row_bytes: int, block_bytes: int | None = None) -> int:
+    """How many rows of ``row_bytes`` a file-backed stage takes per block (of :data:`BLOCK_BYTES`, read
+    when called)."""
+    return max(1, int(BLOCK_BYTES if block_bytes is None else block_bytes) // max(1, int(row_bytes)))
 
 
 def map_blocks(fn, n_rows: int, shape, dtype, row_bytes: int) -> np.ndarray:
