@@ -142,7 +142,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         if proc.get("backend", "cpu") != "cpu":
             raise BadInput(f"{source}: processing.backend = {proc['backend']} with --out-of-core: the GPU stages "
                            f"take whole arrays; allowed with --out-of-core: processing.backend = cpu")
-        if proc.get("doppler_estimator", "fft") != "fft":
+        if proc.get("doppler_estimator", "fft") != "fft" and proc.get("imaging", "cpi") == "cpi":
             raise BadInput(f"{source}: processing.doppler_estimator = {proc['doppler_estimator']} with "
                            f"--out-of-core: IAA takes whole CPIs of every range cell; allowed with "
                            f"--out-of-core: fft")
