@@ -155,3 +155,22 @@ def test_the_command_line_flag(tiny_raw, tmp_path, capsys):
     blocker.write_text("not a directory")
     code, err = run("process", tiny_raw, "-o", blocker / "run", "--out-of-core", "-q")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "scratch directory" in err
+
+
+def test_a_cube_too_big_for_memory_is_told_about_out_of_core(tiny_raw, tmp_path, monkeypatch, caplog):
+    """Reading a cube whose in-memory run would need more than the memory available warns once, before
+    the read, naming the file and --out-of-core; not when it fits, nor inside the out-of-core context."""
+    import logging
+
+    cube_bytes = 2 * 8 * int(np.prod(h5py.File(tiny_raw, "r")["echo/sum"].shape))
+    caplog.set_level(logging.WARNING)
+    for available, expected in ((10 * cube_bytes, 0), (2 * cube_bytes, 1)):
+        monkeypatch.setattr(backing, "memory_available_bytes", lambda a=available: a)
+        caplog.clear()
+        read_raw(tiny_raw)
+        hints = [r.getMessage() for r in caplog.records if "--out-of-core" in r.getMessage()]
+        assert len(hints) == expected and all(str(tiny_raw) in h for h in hints)
+    caplog.clear()
+    with backing.file_backed(tmp_path):
+        read_raw(tiny_raw)
+    assert not [r for r in caplog.records if "--out-of-core" in r.getMessage()]

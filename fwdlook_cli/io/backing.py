@@ -23,7 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BadInput
+from ..limits import gib
 
+IN_MEMORY_X_CUBE = 3.0       # an in-memory run's peak above its base, in cubes (README: Memory, CPI imaging)
 MIN_BYTES = 1 << 20          # smaller arrays stay in memory (the page cache would hold them anyway)
 BLOCK_BYTES = 8 << 20        # the bytes a file-backed stage reads or writes per block
 
@@ -118,3 +120,26 @@ def count_nonfinite(a) -> int:
     step = rows_per_block(a[0].nbytes if a.shape[0] else 1)
     return sum(int(a[s:s + step].size - np.count_nonzero(np.isfinite(a[s:s + step])))
                for s in range(0, a.shape[0], step))
+
+
+def memory_available_bytes() -> int | None:
+    """The kernel's estimate of the memory available to new work (``MemAvailable``), or None."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def memory_hint(cube_bytes: int) -> str | None:
+    """One line for a cube that an in-memory run would likely not fit (None when it fits, when
+    :func:`file_backed` is on, or when the available memory is unknown)."""
+    available = None if active() else memory_available_bytes()
+    need = IN_MEMORY_X_CUBE * cube_bytes
+    if available is None or need <= available:
+        return None
+    return (f"processing this {gib(cube_bytes)} cube in memory needs about {gib(need)} and {gib(available)} "
+            f"is available: --out-of-core holds it in scratch files instead")

@@ -8,6 +8,7 @@ rejects a missing, mis-shaped, wrongly typed or non-finite dataset with one :cla
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import h5py
@@ -22,6 +23,7 @@ from ..limits import check_declared_dataset, shown
 
 RAW_FORMAT = "fwdlook-raw"
 RAW_FORMAT_VERSION = 1
+log = logging.getLogger(__name__)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -162,6 +164,9 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
                        f"[n_pulses, n_range] with both >= 2")
     n_p, n_r = echo_sum_ds.shape
     check_declared_dataset(source, "echo/sum", (n_p, n_r), 8 * (1 if "diff" not in f["echo"] else 2))
+    hint = backing.memory_hint(n_p * n_r * 8 * (1 if "diff" not in f["echo"] else 2))
+    if hint:                               # said before the read that may not fit
+        log.warning(f"{source}: {hint}")
     echo_sum = _array(f, "echo/sum", source, kind=np.complex64, shape=(n_p, n_r), complex_ok=True)
     channels = _plain(f.attrs.get("channels", "sum,diff"))
     if channels == "sum" and "diff" not in f["echo"]:
