@@ -17,7 +17,7 @@ import pytest
 import scipy.fft
 
 from fwdlook_cli.cli import main
-from fwdlook_cli.dsp.blas import batched_matmul
+from fwdlook_cli.dsp.blas import batched_matmul, batched_matmul_each
 from fwdlook_cli.dsp.imaging import azimuth_at_t_ref_cells, float32_floor, kept_cells, median_floor, power_f32
 from fwdlook_cli.dsp.keystone import keystone_dft
 from fwdlook_cli.dsp.keystone_common import OuterPhasors, _cis, cis_outer
@@ -299,6 +299,20 @@ def test_single_thread_batched_products_equal_matmul():
     e = (rng.standard_normal((7, 16, 8)) + 1j * rng.standard_normal((7, 16, 8))).astype(np.complex64)
     x = (rng.standard_normal((7, 8, 33)) + 1j * rng.standard_normal((7, 8, 33))).astype(np.complex64)
     np.testing.assert_array_equal(batched_matmul(e, x), np.matmul(e, x))
+
+
+@pytest.mark.parametrize("threads", ["1", "2"])
+def test_side_by_side_products_equal_each_product(monkeypatch, threads):
+    """The Doppler zoom's channels on threads: each product the same call, so bit for bit, in order."""
+    monkeypatch.setenv("FWDLOOK_THREADS", threads)
+    rng = np.random.default_rng(5)
+    e = (rng.standard_normal((9, 16, 8)) + 1j * rng.standard_normal((9, 16, 8))).astype(np.complex64)
+    xs = [(rng.standard_normal((9, 8, 40)) + 1j * rng.standard_normal((9, 8, 40))).astype(np.complex64)
+          for _ in range(3)]
+    got = batched_matmul_each(e, xs)
+    assert len(got) == 3
+    for g, x in zip(got, xs):
+        np.testing.assert_array_equal(g, np.matmul(e, x))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ import scipy.fft
 
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both, keystone_both_blocked
-from ..dsp.blas import batched_matmul, worker_threads
+from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, cpi_doppler_band_hz,
                      cpi_means, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector)
@@ -288,9 +288,9 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     e = w[None, None, :] * _cis(-2.0 * np.pi * f_z[:, :, None] * (t_cpi - t_c[:, None])[:, None, :])
     e = e.astype(np.complex64)
     n_r = data["sum"].shape[1]
-    # one small product per CPI and channel, the BLAS on one thread (dsp.blas: no pool stalls)
-    z_sum = _zoom(e, data["sum"][:m].reshape(n_cpi, cpi, n_r))
-    z_diff = _zoom(e, data["diff"][:m].reshape(n_cpi, cpi, n_r))
+    # one small product per CPI and channel, the BLAS on one thread (dsp.blas: no pool stalls), the
+    # two channels side by side
+    z_sum, z_diff = _zoom(e, data["sum"][:m].reshape(n_cpi, cpi, n_r), data["diff"][:m].reshape(n_cpi, cpi, n_r))
     if estimator == "iaa":      # processing.doppler_estimator: iaa (dsp.iaa), same cells and scale
         from ..dsp.iaa import iaa_doppler
 
@@ -320,13 +320,15 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     return out
 
 
-def _zoom(e, x):
-    """``e @ x`` per CPI ([n_cpi, n_doppler, cpi] @ [n_cpi, cpi, n_r]): one batched product in memory;
-    in blocks of CPIs into a file-backed output out of core (io/backing.py), the same products."""
+def _zoom(e, *xs):
+    """``e @ x`` per CPI ([n_cpi, n_doppler, cpi] @ [n_cpi, cpi, n_r]) for each channel ``x``: one batched
+    product each, in memory the channels on threads side by side (``dsp.blas.batched_matmul_each``); in
+    blocks of CPIs into file-backed outputs out of core (io/backing.py), the same products."""
     if not backing.active():
-        return batched_matmul(e, x)
-    return backing.map_blocks(lambda c: batched_matmul(e[c], x[c]), x.shape[0], (x.shape[0], e.shape[1], x.shape[2]),
-                              np.result_type(e.dtype, x.dtype), 8 * e.shape[1] * x.shape[2])
+        return batched_matmul_each(e, xs)
+    return [backing.map_blocks(lambda c, x=x: batched_matmul(e[c], x[c]), x.shape[0],
+                               (x.shape[0], e.shape[1], x.shape[2]), np.result_type(e.dtype, x.dtype),
+                               8 * e.shape[1] * x.shape[2]) for x in xs]
 
 
 # ----------------------------------------------------------------------------------------------
