@@ -111,5 +111,12 @@ def test_bench_shows_progress(capsys, monkeypatch):
     for key in ("chain_s", "chain_tracking_s", "chain_dwell_s", "chain_dwell_nofit_s"):
         assert result[key] > 0
     assert result["chain_dwell_over_tracking"] > 0 and result["chain_repeats"] == 3
+    # the reference sampled before, between (before each of the 3 x 6 chain runs) and after the chains
+    from fwdlook_cli.report.bench import FFT2_BETWEEN, FFT2_REPEATS
+
+    assert result["fft2_repeats"] == 2 * FFT2_REPEATS + 3 * 6 * FFT2_BETWEEN
+    assert result["fft2_median_between_chains"] > 0
+    lo, hi = sorted(result["fft2_median_before_after"] + [result["fft2_median_between_chains"]])[::2]
+    assert lo <= result["fft2_s"] <= hi            # the median of all lies between the sets' medians
     steps = [ln for ln in err.splitlines() if ln.startswith("bench [")]
     assert [s.split("]")[0] for s in steps] == [f"bench [{i}/10" for i in range(1, 11)]
