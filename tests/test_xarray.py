@@ -51,6 +51,9 @@ def test_raw_cube_opens_in_xarray_with_named_dims(tiny_run):
     assert tree["platform"]["position_m"].dims == ("slow_time_s", "xyz")
     assert tree["axes"]["scan_angle_deg"].dims == ("slow_time_s",)
     assert tree["truth/targets"]["x_m"].dims == ("target",)
+    # the antenna's ratio table: the ratio against its offsets, no dimension without a name
+    assert tree["antenna"]["ratio"].dims == ("ratio_offset_deg",)
+    np.testing.assert_array_equal(tree["antenna"]["ratio_offset_deg"].values, cube.antenna["ratio_offset_deg"])
     np.testing.assert_array_equal(tree["platform"]["position_m"].values, cube.position_m)
 
 

@@ -64,11 +64,18 @@ def write_raw(path: str | Path, cube: RawCube) -> None:
         if cube.antenna:
             ant = f.create_group("antenna")
             for key, value in cube.antenna.items():
-                if key in ANTENNA_DATASETS:
-                    put(ant, key, np.asarray(value, dtype=np.float64), ANTENNA_DATASETS[key][0],
-                        ANTENNA_DATASETS[key][1])
-                else:
+                if key not in ANTENNA_DATASETS:
                     ant.attrs[key] = value
+            # the ratio table: the offsets a dimension scale of the ratio (xarray and netCDF readers see
+            # ratio(ratio_offset_deg), not a dimension without a name)
+            table = {key: np.asarray(cube.antenna[key], dtype=np.float64) for key in ANTENNA_DATASETS
+                     if key in cube.antenna}
+            offset = None
+            if "ratio_offset_deg" in table:
+                offset = put_scale(ant, "ratio_offset_deg", table["ratio_offset_deg"], *ANTENNA_DATASETS["ratio_offset_deg"])
+            if "ratio" in table:
+                same = offset is not None and offset.shape == table["ratio"].shape
+                put(ant, "ratio", table["ratio"], *ANTENNA_DATASETS["ratio"], **({"dims": (offset,)} if same else {}))
         plat = f.create_group("platform")
         xyz = put_scale(plat, "xyz", np.arange(3), "1", "axis: 0 = x cross-range, 1 = y forward, 2 = z up")
         put(plat, "position_m", cube.position_m.astype(np.float64), "m",
