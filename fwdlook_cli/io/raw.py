@@ -72,10 +72,11 @@ def write_raw(path: str | Path, cube: RawCube) -> None:
                      if key in cube.antenna}
             offset = None
             if "ratio_offset_deg" in table:
-                offset = put_scale(ant, "ratio_offset_deg", table["ratio_offset_deg"], *ANTENNA_DATASETS["ratio_offset_deg"])
+                offset = put_scale(ant, "ratio_offset_deg", table["ratio_offset_deg"],
+                                   *ANTENNA_DATASETS["ratio_offset_deg"])
             if "ratio" in table:
                 same = offset is not None and offset.shape == table["ratio"].shape
-                put(ant, "ratio", table["ratio"], *ANTENNA_DATASETS["ratio"], **({"dims": (offset,)} if same else {}))
+                put(ant, "ratio", table["ratio"], *ANTENNA_DATASETS["ratio"], dims=(offset,) if same else ())
         plat = f.create_group("platform")
         xyz = put_scale(plat, "xyz", np.arange(3), "1", "axis: 0 = x cross-range, 1 = y forward, 2 = z up")
         put(plat, "position_m", cube.position_m.astype(np.float64), "m",
