@@ -122,16 +122,90 @@ def count_nonfinite(a) -> int:
                for s in range(0, a.shape[0], step))
 
 
-def memory_available_bytes() -> int | None:
-    """The kernel's estimate of the memory available to new work (``MemAvailable``), or None."""
+def memory_available_bytes(proc: str = "/proc") -> int | None:
+    """The memory available to new work in this process, or None: the kernel's estimate
+    (``MemAvailable``), or the room under the memory limit of the process's cgroup or of an ancestor
+    (:func:`cgroup_room_bytes`: a container's, a batch job's) where that is smaller."""
+    available = None
     try:
-        with open("/proc/meminfo", encoding="ascii") as f:
+        with open(Path(proc, "meminfo"), encoding="ascii") as f:
             for line in f:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    available = int(line.split()[1]) * 1024
+                    break
     except (OSError, ValueError, IndexError):
+        pass
+    room = cgroup_room_bytes(proc)
+    if room is None:
+        return available
+    return room if available is None else min(available, room)
+
+
+_NO_LIMIT = 1 << 60          # cgroup v1 writes "no limit" as a number near 2^63
+
+
+def _read_number(path: Path) -> int | None:
+    try:
+        text = path.read_text(encoding="ascii").strip()
+    except OSError:
         return None
-    return None
+    return int(text) if text.isdigit() else None           # v2 writes "max" for no limit
+
+
+def _stat_field(path: Path, names: tuple) -> int:
+    """The first of ``names`` in a cgroup's ``memory.stat`` (0 where absent or unreadable)."""
+    try:
+        fields = dict(line.split() for line in path.read_text(encoding="ascii").splitlines() if line.count(" ") == 1)
+    except (OSError, ValueError):
+        return 0
+    for name in names:
+        if fields.get(name, "").isdigit():
+            return int(fields[name])
+    return 0
+
+
+def cgroup_room_bytes(proc: str = "/proc") -> int | None:
+    """Room left under the memory limits of this process's memory cgroup and of each ancestor visible
+    in a cgroup mount: the smallest of limit - (usage - inactive page cache), the kernel's reclaimable
+    file pages counted as free as ``MemAvailable`` counts them.  cgroup v2 (``memory.max``,
+    ``memory.current``, ``inactive_file``) and v1 (``memory.limit_in_bytes``, ``memory.usage_in_bytes``,
+    ``total_inactive_file``); the mounts from ``/proc/self/mountinfo``, so a container whose mount root
+    is its own cgroup reads its own limit.  None where no limit is set or nothing can be read."""
+    try:
+        cgroups = Path(proc, "self", "cgroup").read_text(encoding="ascii").splitlines()
+        mounts = Path(proc, "self", "mountinfo").read_text(encoding="ascii").splitlines()
+    except OSError:
+        return None
+    own = {}
+    for line in cgroups:
+        hierarchy, controllers, path = (line.split(":", 2) + ["", ""])[:3]
+        if hierarchy == "0" and not controllers:
+            own["cgroup2"] = path
+        elif "memory" in controllers.split(","):
+            own["cgroup"] = path
+    rooms = []
+    for line in mounts:
+        left, _, right = line.partition(" - ")
+        fields, kind = left.split(), right.split()
+        if len(fields) < 5 or len(kind) < 3 or kind[0] not in own:
+            continue
+        if kind[0] == "cgroup" and "memory" not in kind[2].split(","):
+            continue
+        v2 = kind[0] == "cgroup2"
+        root, mount, path = fields[3], fields[4], own[kind[0]]
+        inside = root == "/" or path == root or path.startswith(root.rstrip("/") + "/")
+        rel = path[len(root):] if inside else ""           # the own cgroup below the mount's root
+        parts = [p for p in rel.split("/") if p]
+        for k in range(len(parts), -1, -1):               # the own cgroup, then each ancestor
+            d = Path(mount, *parts[:k])
+            limit = _read_number(d / ("memory.max" if v2 else "memory.limit_in_bytes"))
+            usage = _read_number(d / ("memory.current" if v2 else "memory.usage_in_bytes"))
+            if limit is None or usage is None or limit >= _NO_LIMIT:
+                continue
+            reclaimable = _stat_field(d / "memory.stat", ("inactive_file",) if v2 else
+                                      ("total_inactive_file", "inactive_file"))
+            rooms.append(max(0, limit - max(0, usage - reclaimable)))
+    return min(rooms) if rooms else None
 
 
 def memory_hint(cube_bytes: int) -> str | None:
