@@ -33,6 +33,7 @@ def tiny_run(tmp_path_factory):
     return run_dir
 
 
+@pytest.mark.filterwarnings("error:.*phony_dims:UserWarning")     # a dataset without named dimensions
 def test_raw_cube_opens_in_xarray_with_named_dims(tiny_run):
     raw = tiny_run / "raw.h5"
     cube = read_raw(raw)
