@@ -253,7 +253,29 @@ def test_whole_run_and_bench_through_the_cupy_branches(tmp_path, fake_cupy):
     a, b = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("cpu", "gpu"))
     same_targets(a["targets"], b["targets"])
     out = run_gpu_bench(tiny_scenario(), repeats=1)
-    assert out["device"] == "fake cupy (numpy)" and len(out["ratios_to_fft2"]) == 8
+    assert out["device"] == "fake cupy (numpy)" and len(out["ratios_to_fft2"]) == 10
+    # what the device computed against the CPU stages on the same inputs: the figures a GPU run reports
+    for method in ("decimation", "tracking"):
+        for stage, keys in (("keystone", ("sum_f", "diff_f")), ("doppler_spectra", ("sum_z", "diff_z"))):
+            for key in keys:
+                assert out[f"gpu_vs_cpu_{method}_{stage}_{key}_db"] < -130     # numpy both sides
+        assert out[f"gpu_vs_cpu_{method}_cells_same"] is True
+        assert out[f"gpu_vs_cpu_{method}_cells_cpu"] == out[f"gpu_vs_cpu_{method}_cells_gpu"] > 20
+        assert out[f"gpu_vs_cpu_{method}_image_db"] < -120
+        for which in ("cpu", "gpu"):
+            assert out[f"chain_{which}_{method}_s"] > 0
+    assert out["host_ratios_to_fft2"]["chain_cpu_decimation"] == pytest.approx(
+        out["chain_cpu_decimation_s"] / out["host_fft2_s"])
+
+
+def test_bench_agreement_measures_what_it_names():
+    """relative_error_db against a closed form: an error of amplitude eps everywhere is 20 log10(eps)."""
+    from fwdlook_cli.report.gpu_bench import relative_error_db
+
+    ref = np.exp(1j * np.linspace(0, 7, 1000))
+    assert relative_error_db(ref * (1 + 1e-4), ref) == pytest.approx(-80.0, abs=1e-6)
+    assert relative_error_db(ref, ref) == -300.0
+    assert relative_error_db(ref + 1e-200, ref) == -300.0
 
 
 # ----------------------------------------------------------------------------------------------
