@@ -13,7 +13,7 @@ import click
 
 from . import __version__
 from .errors import BadInput
-from .options import json_option, quiet_option, set_option
+from .options import GroundMetres, json_option, quiet_option, set_option
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -127,7 +127,12 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", ke
         if keep_stages != "all":
             raise BadInput(f"{source}: --keep-stages {keep_stages}: the ISAR chain keeps every stage; allowed: all")
         _refuse_out_of_core_isar(scn, source, out_of_core)
-        return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
+        try:
+            return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
+        except BadInput as exc:         # a stage's refusal of a setting (e.g. processing.n0_pulses): the file too
+            if str(exc).startswith("processing."):
+                raise BadInput(f"{source}: {exc}") from None
+            raise
     from .forward.process import process_cube
 
     return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source,
@@ -263,8 +268,9 @@ def plan(scenario, overrides, as_json):
 @click.option("--scheduler", default="local", show_default=True, metavar="local|tcp://HOST:PORT",
               help="Where points run: 'local' (this process, or a pool of --workers processes) or the "
                    "address of a dask.distributed scheduler (pip install -e .[dask]).")
+@overwrite_option
 @quiet_option
-def sweep(sweep_file, output, workers, scheduler, quiet):
+def sweep(sweep_file, output, workers, scheduler, overwrite, quiet):
     """Grids of runs: summary table, speed-accuracy chart, stability map.
 
     Finished points (same scenario hash) are skipped on a rerun; a failed point is recorded in the
@@ -273,7 +279,7 @@ def sweep(sweep_file, output, workers, scheduler, quiet):
 
     spec = load_sweep(sweep_file)
     out = Path(output) if output else Path("runs") / f"sweep-{spec['name']}"
-    rows = run_sweep(sweep_file, out, workers=workers, quiet=quiet, scheduler=scheduler)
+    rows = run_sweep(sweep_file, out, workers=workers, quiet=quiet, scheduler=scheduler, overwrite=overwrite)
     click.echo(str(out / "summary.md"))
     failed = [r for r in rows if r.get("status") == "failed"]
     if failed:
@@ -286,7 +292,7 @@ def sweep(sweep_file, output, workers, scheduler, quiet):
 @click.argument("run_dirs", nargs=-1, required=True, metavar="RUN_DIR...")
 @click.option("-o", "--output", "output", default=None, metavar="REPORT_DIR",
               help="Report folder (default RUN_DIR/report for one run, reports/compare for several).")
-@click.option("--target", "target", nargs=2, type=float, default=None, metavar="X_M Y_M",
+@click.option("--target", "target", nargs=2, type=GroundMetres(), default=None, metavar="X_M Y_M",
               help="Ground (x, y) of the target whose range profile is drawn (default: nearest -300 1700).")
 @overwrite_option
 @quiet_option

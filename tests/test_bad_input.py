@@ -170,6 +170,14 @@ SCENARIO_CASES = [
     ("set-invalid-yaml-value", _copy_tiny, ["--set", "platform.accel_mps2=[0, 30"],
      ["platform.accel_mps2", "invalid YAML"]),
     ("set-through-a-leaf", _copy_tiny, ["--set", "radar.prf_hz.x=1"], ["radar.prf_hz", "not a mapping"]),
+    # values the chain cannot process (each ran before, with a traceback, an overflow or 24 GB)
+    ("carrier-below-half-fs", _set("radar.fc_hz", 1.0e7), [],
+     ["radar.fc_hz", "1e+07", "radar.fs_hz / 2 = 1.2e+07"]),
+    ("time-bandwidth-below-1", _set("radar.bandwidth_hz", 1.0), [],
+     ["radar.bandwidth_hz", "= 1:", "1 / radar.pulse_width_s", "time-bandwidth"]),
+    ("amplitude-overflows", _set("scene.amplitude", 1.0e300), [], ["scene.amplitude", "<= 10000"]),
+    ("name-climbs-out-of-runs", _set("name", ".."), [], ["name", "'..'", "one folder"]),
+    ("name-with-a-slash", _set("name", "../mine"), [], ["name", "one folder", "no '/'"]),
 ]
 
 

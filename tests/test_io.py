@@ -271,6 +271,87 @@ def test_plain_h5py_cube_scenario_as_dataset(tmp_path):
     assert cube.scenario_yaml == text
 
 
+def _mutate(path, name, fn):
+    with h5py.File(path, "r+") as f:
+        if name.startswith("radar."):
+            key = name.split(".", 1)[1]
+            f["radar"].attrs[key] = fn(f["radar"].attrs[key])
+        else:
+            data = fn(f[name][()])
+            del f[name]
+            f.create_dataset(name, data=data)
+
+
+def _drop_pulses(path, lo=20, hi=25):
+    """Five pulses cut out of every per-pulse dataset: a gap of six intervals in the pulse train."""
+    with h5py.File(path, "r+") as f:
+        for name in ("echo/sum", "echo/diff", "axes/slow_time_s", "axes/scan_angle_deg",
+                     "platform/position_m", "platform/velocity_mps"):
+            data = np.delete(f[name][()], np.s_[lo:hi], axis=0)
+            del f[name]
+            f.create_dataset(name, data=data)
+
+
+# (dataset or radar.attr, change, fragments the one-line message must hold)
+PHYSICS_REFUSALS = {
+    "carrier-below-band": ("radar.fc_hz", lambda v: 1.0e7, ("fc_hz = 1e+07", "fs_hz / 2 = 1.2e+07")),
+    "negative-range": ("axes/range_m", lambda r: r - 2000.0, ("/axes/range_m", "allowed: > 0 m")),
+    "scan-behind": ("axes/scan_angle_deg", lambda a: a + 400.0, ("/axes/scan_angle_deg", "below 90 deg")),
+    "beam-400-deg": ("radar.beamwidth_3db_deg", lambda v: 400.0, ("beamwidth_3db_deg = 400", "up to 90")),
+    "fs-against-range-step": ("radar.fs_hz", lambda v: 1.0e6, ("fs_hz = 1000000", "c / (2 fs_hz)", "0.001")),
+    "prf-off": ("radar.prf_hz", lambda v: v * 1.001, ("prf_hz = 1001", "sampled at 1000 Hz", "within 0.0001")),
+    "jittered-pulses": ("axes/slow_time_s", lambda t: t + 0.03 / PRF * np.cos(np.arange(len(t))),
+                        ("/axes/slow_time_s", "pulse intervals off a uniform pulse train", "at most 0.01")),
+}
+
+
+@pytest.mark.parametrize("case", sorted(PHYSICS_REFUSALS))
+def test_plain_cube_the_chain_cannot_process_is_refused(tmp_path, capsys, case):
+    """Values the chain's physics cannot use are exit 2, one line naming the file, the dataset or
+    attribute, the value and what is allowed (each of them processed with exit 0 and wrong results, or a
+    traceback, before)."""
+    path = tmp_path / "foreign.h5"
+    write_plain_cube(path)
+    name, change, fragments = PHYSICS_REFUSALS[case]
+    _mutate(path, name, change)
+    code, out, err = run_cli(["validate", path], capsys)
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    for fragment in (str(path),) + fragments:
+        assert fragment in err, (fragment, err)
+
+
+def test_plain_cube_with_dropped_pulses_is_refused(tmp_path, capsys):
+    path = tmp_path / "gap.h5"
+    write_plain_cube(path)
+    _drop_pulses(path)
+    code, _out, err = run_cli(["validate", path], capsys)
+    assert code == 2 and "no gaps or dropped pulses" in err, err
+
+
+@pytest.mark.parametrize("case", ["float32-times", "jitter-0.5%", "late-start"])
+def test_plain_cube_timing_within_tolerance_is_accepted(tmp_path, case):
+    """float32 pulse times (rounding 1e-5 of an interval here), jitter under 1 % of an interval and a
+    clock that does not start at 0 are a uniform pulse train for the chain."""
+    path = tmp_path / "timing.h5"
+    write_plain_cube(path)
+    change = {"float32-times": lambda t: (t + 100.0).astype(np.float32),
+              "jitter-0.5%": lambda t: t + 0.005 / PRF * np.cos(np.arange(len(t))),
+              "late-start": lambda t: t + 5.0}[case]
+    _mutate(path, "axes/slow_time_s", change)
+    assert read_raw(path).n_pulses == N_P
+
+
+def test_plain_cube_scenario_not_utf8_is_ignored(tmp_path, caplog):
+    """/scenario only records what made the file: undecodable bytes are said and left out."""
+    path = tmp_path / "latin1.h5"
+    write_plain_cube(path)
+    with h5py.File(path, "r+") as f:
+        f.attrs["scenario"] = np.bytes_(b"\xffname: caf\xe9")
+    with caplog.at_level("WARNING"):
+        cube = read_raw(path)
+    assert cube.scenario_yaml is None and "not UTF-8" in caplog.text
+
+
 # ----------------------------------------------------------------------------------------------
 # Atomic writes
 # ----------------------------------------------------------------------------------------------

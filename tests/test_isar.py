@@ -29,6 +29,8 @@ from fwdlook_cli.scenario.loader import load_scenario, resolve_scenario
 from fwdlook_cli.errors import BadInput
 from fwdlook_cli.io.raw import read_raw, write_raw
 
+ROOT = Path(__file__).resolve().parents[1]
+
 SCEN = Path(__file__).resolve().parents[1] / "scenarios"
 PAPER = [SCEN / "isar_theta3.yaml", SCEN / "isar_theta5.yaml"]
 
@@ -298,3 +300,43 @@ def test_figures(tmp_path):
     assert [p.name for p in paths] == ["isar_theta3_echo_before.png", "isar_theta3_echo_after.png",
                                        "isar_theta3_image.png"]
     assert all(p.stat().st_size > 0 for p in paths)
+
+
+@pytest.mark.parametrize("correction", ["none", "keystone1", "keystone2", "keystone2_n0", "keystone2_n0_est"])
+def test_every_correction_runs_from_the_command_line_and_is_reused(tmp_path, correction):
+    """Each allowed processing.correction through `fwdlook run`: every stage file written (each stage's
+    arrays on the coordinates they name: keystone2_n0_est's search grid stopped the run with a
+    traceback before its candidate axis had one), and the rerun reuses every stage."""
+    from fwdlook_cli.cli import main
+    from fwdlook_cli.scenario.isar import CORRECTIONS
+
+    assert correction in CORRECTIONS
+    run_dir = tmp_path / correction
+    args = ["run", str(ROOT / "scenarios" / "isar_theta3.yaml"), "-o", str(run_dir), "-q",
+            "--set", f"processing.correction={correction}"]
+    for _ in range(2):
+        with pytest.raises(SystemExit) as exc:
+            main(args)
+        assert exc.value.code == 0
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["scenario"]
+    from fwdlook_cli.io.stagefile import load_verified, stage_file_key
+
+    for path in sorted((run_dir / "stages").glob("*.h5")):
+        data, why = load_verified(path, stage_file_key(path))
+        assert data is not None and why is None, (path.name, why)
+
+
+def test_a_range_minimum_far_outside_the_dwell_is_refused_before_its_padding(tmp_path, capsys):
+    """n0 = -1e9 pulses asked the keystone for 47 GiB of zero padding (|1 - alpha| |m - t0| pulses each
+    side); refused in one line naming the file and the key, with the n0 that would fit."""
+    from fwdlook_cli.cli import main
+
+    scenario = ROOT / "scenarios" / "isar_theta3.yaml"
+    with pytest.raises(SystemExit) as exc:
+        main(["run", str(scenario), "-o", str(tmp_path / "r"), "-q", "--set", "processing.n0_pulses=-1e9"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and len(err.strip().splitlines()) == 1, err
+    for fragment in (str(scenario), "processing.n0_pulses", "-1e+09", "GiB", "allowed: a range minimum within"):
+        assert fragment in err, (fragment, err)
+    assert not (tmp_path / "r" / "metrics.json").exists()

@@ -159,6 +159,130 @@ def test_simulate_replaces_its_own_raw_cube(scn, tmp_path, capsys):
     assert outputs.h5_format(target) == "fwdlook-raw"
 
 
+def _foreign_raw_cube(path, software):
+    """A cube another program wrote in the raw layout: it says format = "fwdlook-raw" too."""
+    with h5py.File(path, "w") as f:
+        f.attrs["format"], f.attrs["format_version"] = "fwdlook-raw", 1
+        if software is not None:
+            f.attrs["software"] = software
+        f["echo/sum"] = np.ones((4, 3), np.complex64)
+
+
+@pytest.mark.parametrize("software", ["acme-recorder", None])
+def test_simulate_refuses_another_writers_raw_cube(scn, tmp_path, capsys, software):
+    target = tmp_path / "recorded.h5"
+    _foreign_raw_cube(target, software)
+    before = snapshot(target)
+    code, out, err = run_cli(["simulate", scn, "-o", target, "-q"], capsys)
+    assert_refused(code, out, err, target, "not a fwdlook raw cube",
+                   repr(software) if software else "another program", "--overwrite")
+    assert snapshot(target) == before and no_partials(tmp_path) == []
+
+
+def test_run_refuses_a_folder_holding_another_writers_raw_cube(scn, tmp_path, capsys):
+    d = tmp_path / "flight7"
+    d.mkdir()
+    _foreign_raw_cube(d / "raw.h5", "acme-recorder")
+    before = snapshot(d)
+    code, out, err = run_cli(["run", scn, "-o", d, "-q"], capsys)
+    assert_refused(code, out, err, d, "not a fwdlook run directory", "raw.h5")
+    assert snapshot(d) == before
+
+
+@pytest.mark.parametrize("command", ["simulate", "run", "report"])
+def test_a_dotdot_through_a_missing_folder_does_not_pass_the_guard(scn, base_run, tmp_path, capsys, monkeypatch,
+                                                                   command):
+    """`nodir/../mine` is `mine` once `nodir` is made: the guard checks that path, not the one that
+    the OS cannot resolve yet (the user's file was replaced before)."""
+    monkeypatch.chdir(tmp_path)
+    if command == "simulate":
+        Path("mine.h5").write_text("my notes\n")
+        mine, argv = Path("mine.h5"), ["simulate", scn, "-o", "nodir/../mine.h5", "-q"]
+    elif command == "run":
+        Path("mine").mkdir()
+        (Path("mine") / "metrics.json").write_text('{"my": "numbers"}')
+        mine, argv = Path("mine"), ["run", scn, "-o", "nodir/../mine", "-q"]
+    else:
+        Path("mine").mkdir()
+        (Path("mine") / "report.md").write_text("# my report\n")
+        mine, argv = Path("mine"), ["report", base_run, "-o", "nodir/../mine", "-q"]
+    before = snapshot(mine)
+    code, out, err = run_cli(argv, capsys)
+    assert_refused(code, out, err, "mine", "refusing to overwrite it")
+    assert snapshot(mine) == before and not Path("nodir").exists()
+
+
+@pytest.mark.parametrize("with_metrics", [False, True])
+def test_a_run_folder_holding_a_users_file_beside_a_cube_is_refused(scn, tiny_raw, tmp_path, capsys, with_metrics):
+    """A fwdlook raw.h5 makes a folder fwdlook's, but not the user's notes beside it: each file a run
+    would replace is checked (scenario.yaml and image.png, which carry no mark of their own, are
+    fwdlook's only beside a fwdlook metrics.json)."""
+    d = tmp_path / "flight7"
+    d.mkdir()
+    shutil.copyfile(tiny_raw, d / "raw.h5")
+    (d / "scenario.yaml").write_text("my: notes\n")
+    if with_metrics:
+        (d / "metrics.json").write_text('{"my": "numbers"}')
+    before = snapshot(d)
+    code, out, err = run_cli(["process", d / "raw.h5", "-o", d, "-q"], capsys)
+    assert_refused(code, out, err, d / "scenario.yaml", "fwdlook did not write it", "--overwrite")
+    code, out, err = run_cli(["run", scn, "-o", d, "-q"], capsys)
+    assert_refused(code, out, err, "fwdlook did not write it")
+    assert snapshot(d) == before
+
+
+def test_a_finished_run_is_rerun_in_place(scn, tmp_path, capsys):
+    d = tmp_path / "r"
+    for _ in range(2):
+        code, _, err = run_cli(["run", scn, "-o", d, "-q"], capsys)
+        assert code == 0, err
+
+
+def _tiny_sweep(tmp_path, scn):
+    path = tmp_path / "sw.yaml"
+    path.write_text(f"name: sw\nscenarios: [{scn}]\ngrid: {{processing.q: [25]}}\n")
+    return path
+
+
+@pytest.mark.parametrize("holding", ["summary.md", "summary.csv", "a regular file"])
+def test_sweep_refuses_a_users_folder(scn, tmp_path, capsys, holding):
+    sweep = _tiny_sweep(tmp_path, scn)
+    if holding == "a regular file":
+        out_dir = tmp_path / "plain"
+        out_dir.write_text("x\n")
+        fragments = ("not a directory",)
+    else:
+        out_dir = tmp_path / "mine"
+        out_dir.mkdir()
+        (out_dir / holding).write_text("mine\n")
+        fragments = (out_dir / holding, "not written by fwdlook sweep", "--overwrite")
+    before = snapshot(out_dir)
+    code, out, err = run_cli(["sweep", sweep, "-o", out_dir, "-q"], capsys)
+    assert_refused(code, out, err, *fragments)
+    assert snapshot(out_dir) == before
+
+
+def test_sweep_reruns_into_its_own_folder(scn, tmp_path, capsys):
+    sweep = _tiny_sweep(tmp_path, scn)
+    for _ in range(2):
+        code, _, err = run_cli(["sweep", sweep, "-o", tmp_path / "sw", "-q"], capsys)
+        assert code == 0, err
+    assert json.loads((tmp_path / "sw" / "summary.json").read_text())["sweep"] == "sw"
+
+
+def test_simulate_refuses_a_folders_path(scn, tmp_path, capsys):
+    code, out, err = run_cli(["simulate", scn, "-o", f"{tmp_path / 'newdir'}/", "-q"], capsys)
+    assert_refused(code, out, err, "newdir/", "ends in '/'")
+    assert not (tmp_path / "newdir").exists()
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "1e308"])
+def test_report_target_must_be_finite_metres(base_run, tmp_path, capsys, value):
+    code, out, err = run_cli(["report", base_run, "-o", tmp_path / "rt", "--target", "0", value, "-q"], capsys)
+    assert_refused(code, out, err, "--target", value, "finite number of metres")
+    assert not (tmp_path / "rt").exists()
+
+
 def _foreign_folder(tmp_path):
     d = tmp_path / "mine"
     d.mkdir()
@@ -209,13 +333,14 @@ def test_process_never_writes_over_an_input_in_the_run_dir(tiny_raw, tmp_path, c
     assert snapshot(d / "scenario.yaml") == before
 
 
-def test_report_refuses_a_users_report(base_run, tmp_path, capsys):
+@pytest.mark.parametrize("name, text", [("report.md", "# My thesis chapter\n"), ("index.html", "<p>mine</p>")])
+def test_report_refuses_a_users_report(base_run, tmp_path, capsys, name, text):
     d = tmp_path / "rep"
     d.mkdir()
-    (d / "report.md").write_text("# My thesis chapter\n")
+    (d / name).write_text(text)
     before = snapshot(d)
     code, out, err = run_cli(["report", base_run, "-o", d, "-q"], capsys)
-    assert_refused(code, out, err, d / "report.md", "not written by fwdlook", "--overwrite")
+    assert_refused(code, out, err, d / name, "not written by fwdlook", "--overwrite")
     assert snapshot(d) == before
     code, _, err = run_cli(["report", base_run, "-o", d, "-q", "--overwrite"], capsys)
     assert code == 0, err
@@ -645,6 +770,35 @@ def test_damaged_stage_is_recomputed(base_run, tiny_raw, tmp_path, capsys, damag
     assert _targets(d) == _targets(base_run)          # bit-identical recompute, not the damaged data
     code, _, err = run_cli(["process", tiny_raw, "-o", d], capsys)   # and now it is sound again
     assert code == 0 and "all 7 stages up to date (reused)" in err
+
+
+def _edit_gain(f):
+    f.attrs["coherent_gain"] = 1.0 if float(f.attrs["coherent_gain"]) != 1.0 else 2.0
+
+
+def _edit_settings(f):
+    f.attrs["settings"] = f.attrs["settings"].replace('"', "'", 2)
+
+
+def _add_attr(f):
+    f.attrs["note"] = "added by hand"
+
+
+ATTR_EDITS = {"result-edited": _edit_gain, "settings-edited": _edit_settings, "attribute-added": _add_attr}
+
+
+@pytest.mark.parametrize("edit", sorted(ATTR_EDITS))
+def test_edited_stage_attributes_are_recomputed(base_run, tiny_raw, tmp_path, capsys, edit):
+    """A stage's scalar results (the Doppler stage's coherent gain scales every peak loss) and its
+    settings are covered by the attributes' digest: edited, the stage is recomputed, not reused."""
+    d = _copy_run(base_run, tmp_path)
+    with h5py.File(d / "stages" / "06_doppler_spectra.h5", "r+") as f:
+        assert "coherent_gain" in f.attrs
+        ATTR_EDITS[edit](f)
+    code, out, err = run_cli(["process", tiny_raw, "-o", d], capsys)
+    assert code == 0, err
+    assert "06_doppler_spectra.h5 is damaged" in err and "attrs_xxh3_128" in err
+    assert _targets(d) == _targets(base_run)
 
 
 @pytest.mark.parametrize("how", ["truncated-file", "garbage", "empty-file"])

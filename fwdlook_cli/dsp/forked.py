@@ -64,8 +64,10 @@ class Pending:
 
 def _child(fn, jobs, task_fd: int, out_fd: int):
     """A forked worker: the next job index from ``task_fd`` until none is left, then (True, [(index,
-    result), ...]) or (False, the exception) pickled to ``out_fd``; never returns."""
+    result), ...]) or (False, (the failed job's index, the exception)) pickled to ``out_fd``; never
+    returns."""
     code = 0
+    i = -1
     try:
         try:
             done = []
@@ -78,9 +80,9 @@ def _child(fn, jobs, task_fd: int, out_fd: int):
             payload = pickle.dumps((True, done), protocol=pickle.HIGHEST_PROTOCOL)
         except BaseException as exc:  # noqa: BLE001 (every failure goes to the parent, which raises it)
             try:
-                payload = pickle.dumps((False, exc), protocol=pickle.HIGHEST_PROTOCOL)
+                payload = pickle.dumps((False, (i, exc)), protocol=pickle.HIGHEST_PROTOCOL)
             except Exception:  # noqa: BLE001 (an exception that does not pickle: its text)
-                payload = pickle.dumps((False, RuntimeError(f"{type(exc).__name__}: {exc}")))
+                payload = pickle.dumps((False, (i, RuntimeError(f"{type(exc).__name__}: {exc}"))))
         view = memoryview(payload)
         while view:
             view = view[os.write(out_fd, view):]
@@ -147,19 +149,22 @@ class ForkedPending:
                 statuses = self._reap(kill=False)
             finally:
                 self.limit.__exit__(None, None, None)
-            out, error = [None] * self.n_jobs, None
+            out, errors = [None] * self.n_jobs, []
             seen = 0
             for payload, status in zip(payloads, statuses):
                 if not payload:
-                    error = error or RuntimeError(f"a forked worker ended without a result (wait status {status})")
+                    errors.append((self.n_jobs, RuntimeError(f"a forked worker ended without a result "
+                                                             f"(wait status {status})")))
                     continue
                 ok, value = pickle.loads(payload)
                 if not ok:
-                    error = error or value
+                    errors.append(value)      # (job index, exception)
                     continue
                 for i, res in value:
                     out[i] = res
                     seen += 1
+            # the first failed job's exception, whichever worker ran it (as the threads' result() raises)
+            error = min(errors, key=lambda e: e[0])[1] if errors else None
             if error is None and seen != self.n_jobs:
                 error = RuntimeError(f"forked workers returned {seen} of {self.n_jobs} results")
             self.done = []

@@ -5,6 +5,20 @@ from __future__ import annotations
 import numpy as np
 
 
+def min_carrier_hz(fs_hz: float) -> float:
+    """The lowest carrier the keystone family can resample for: its scale alpha = (fc + f_r) / fc
+    (eq. 8) must stay positive over the whole range-frequency band, f_r in [-fs/2, fs/2)."""
+    return 0.5 * float(fs_hz)
+
+
+def carrier_floor_text(fc_hz: float, fs_hz: float) -> str | None:
+    """Why ``fc_hz`` is too low for ``fs_hz`` (the allowed range, for a one-line message), or None."""
+    if fc_hz > min_carrier_hz(fs_hz):
+        return None
+    return (f"must be > fs_hz / 2 = {min_carrier_hz(fs_hz):g} (the keystone's scale (fc + f_r) / fc, "
+            f"eq. 8, must stay positive over the range-frequency band +-fs/2)")
+
+
 # --------------------------------------------------------------------------- helpers
 def _as_2d(x, name="x"):
     x = np.asarray(x)

@@ -147,7 +147,10 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                            f"--out-of-core: IAA takes whole CPIs of every range cell; allowed with "
                            f"--out-of-core: fft")
     t_start = time.perf_counter()
-    src, stages, geo = build_forward_stages(cube, proc)
+    try:
+        src, stages, geo = build_forward_stages(cube, proc)
+    except BadInput as exc:       # the data's own refusals (no calibration from it) name the file too
+        raise BadInput(str(exc) if str(exc).startswith(f"{source}:") else f"{source}: {exc}") from None
     names = [st.name for st in stages]
     if from_stage is not None and from_stage not in names:
         raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")

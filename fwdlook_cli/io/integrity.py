@@ -3,8 +3,10 @@
 ``stagefile.write_stage`` stores on the root ONE JSON attribute, ``stage_datasets``: for every dataset
 its ``dtype``, ``shape``, dimension names ``dims`` and ``xxh3_128`` (the digest of its C-ordered bytes).
 Before a stage is reused, :func:`stagefile.load_verified` reads it once and checks that every declared
-dataset is there with the declared dtype and shape and that its data has the declared digest; a stage
-failing any check is recomputed, never reused (``runner.run_stages`` logs one line saying why).
+dataset is there with the declared dtype and shape and that its data has the declared digest, and that
+the root attributes (the stage's scalar results and its settings) have the digest ``attrs_xxh3_128``
+(since format 5); a stage failing any check is recomputed, never reused (``runner.run_stages`` logs one
+line saying why).
 
 The digest covers the bytes only (dtype and shape are declared and checked beside it), so a re-layout
 view (``io.stageview``: the same bytes in another shape) declares its source's digest without hashing
@@ -37,7 +39,10 @@ from .h5 import worker_pool
 
 DIGEST_ATTR = "xxh3_128"
 DATASETS_ATTR = "stage_datasets"
-STAGE_FORMAT_VERSION = 4       # 4: float32 cell positions; 3: XXH3-128 digests; 2: SHA-256 (older: stale)
+STAGE_FORMAT_VERSION = 5       # 5: the attributes' digest; 4: float32 cell positions; 3: XXH3-128 digests;
+                               # 2: SHA-256 (older: stale)
+ATTRS_DIGEST_ATTR = "attrs_xxh3_128"
+UNCOVERED_ATTRS = frozenset({"software", "software_version", "created_utc", ATTRS_DIGEST_ATTR})
 THREAD_MIN_BYTES = 1 << 18     # smaller arrays are hashed inline (a thread hand-off costs more)
 
 
@@ -66,6 +71,29 @@ def declaration(data, dims, digest_hex: str) -> dict:
     """One dataset's entry in ``stage_datasets``."""
     a = np.asarray(data) if not hasattr(data, "dtype") else data
     return {"dtype": np.dtype(a.dtype).str, "shape": list(a.shape), "dims": list(dims), DIGEST_ATTR: digest_hex}
+
+
+def _canon_attr(value):
+    """An attribute value as written (Python or numpy) and as h5py reads it back, in one JSON form."""
+    if isinstance(value, bytes):
+        return value.decode(errors="replace")
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    elif isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, (list, tuple)):
+        return [_canon_attr(v) for v in value]
+    if isinstance(value, bool):            # written as an integer by io.h5.set_attrs, as numpy bool by h5py
+        return int(value)
+    return value
+
+
+def attrs_digest(attrs) -> str:
+    """XXH3-128 of a stage file's root attributes (all but the writer's name, version and time, and
+    the digest itself): the stage's scalar results (gains, ambiguity numbers, accelerations) and its
+    settings are as much its output as its arrays, and an edited one must not be reused."""
+    canon = {str(k): _canon_attr(v) for k, v in attrs.items() if k not in UNCOVERED_ATTRS}
+    return xxhash.xxh3_128_hexdigest(json.dumps(canon, sort_keys=True, default=str).encode())
 
 
 def read_declaration(text) -> dict:

@@ -29,10 +29,12 @@ import tempfile
 from pathlib import Path
 
 from ..errors import BadInput
+from ..limits import shown
 
 RAW_FORMAT = "fwdlook-raw"
 RUN_FILES = ("scenario.yaml", "metrics.json", "image.h5", "image.png")
-REPORT_FILES = ("report.md", "images.png", "real_beam.png", "range_profiles.png", "errors.png")
+REPORT_FILES = ("report.md", "index.html", "images.png", "real_beam.png", "range_profiles.png", "errors.png")
+SWEEP_FILES = ("summary.json", "summary.csv", "summary.md", "speed_accuracy.png", "stability.png")
 REPORT_TITLE = "# fwdlook report"
 OVERWRITE_HINT = "remove it, choose another output, or pass --overwrite"
 
@@ -189,18 +191,29 @@ class FailSafeSink(io.RawIOBase):
 # ----------------------------------------------------------------------------------------------
 # What counts as fwdlook's own product
 # ----------------------------------------------------------------------------------------------
-def h5_format(path) -> str | None:
-    """Root attribute ``format`` of an HDF5 file, or None when it is not a readable HDF5 file."""
+def h5_identity(path) -> tuple[str | None, str | None] | None:
+    """(root attribute ``format``, root attribute ``software``) of an HDF5 file, either None where it is
+    absent; None when the path is not a readable HDF5 file."""
     try:
         import h5py
 
         with h5py.File(path, "r") as f:
-            fmt = f.attrs.get("format")
+            found = [f.attrs.get("format"), f.attrs.get("software")]
     except Exception:  # noqa: BLE001  (anything unreadable is simply not ours)
         return None
-    if isinstance(fmt, bytes):
-        fmt = fmt.decode(errors="replace")
-    return fmt if isinstance(fmt, str) else None
+    for i, value in enumerate(found):
+        if isinstance(value, bytes):
+            value = value.decode(errors="replace")
+        found[i] = value if isinstance(value, str) else None
+    return found[0], found[1]
+
+
+def h5_format(path) -> str | None:
+    """Root attribute ``format`` of an HDF5 file fwdlook wrote (its ``software`` attribute is
+    "fwdlook"), or None. Another program's cube in the raw layout also says ``format =
+    "fwdlook-raw"`` (CONTRACT.md section 3), so the format alone does not make a file fwdlook's."""
+    ident = h5_identity(path)
+    return ident[0] if ident is not None and ident[1] == "fwdlook" else None
 
 
 def is_fwdlook_metrics(path) -> bool:
@@ -254,18 +267,46 @@ def _refuse_inputs(target: Path, inputs, what: str) -> None:
 
 
 # ----------------------------------------------------------------------------------------------
-# The three kinds of output location
+# The kinds of output location
 # ----------------------------------------------------------------------------------------------
+def output_path(path) -> Path:
+    """``path`` as the OS will resolve it once its missing folders are made: ``nodir/../mine.h5`` is
+    ``mine.h5`` (the OS cannot resolve ``nodir/..`` before ``nodir`` exists, so a check of the path as
+    given would find nothing there and the write would land on ``mine.h5``). A '..' after an existing
+    folder is left to the OS (a symlink there goes where the link points)."""
+    p = Path(path)
+    if ".." not in p.parts:
+        return p
+    parts = p.parts
+    k = len(parts)
+    while k > 0 and not (Path(*parts[:k]).exists() or Path(*parts[:k]).is_symlink()):
+        k -= 1                                     # parts[:k]: the longest prefix that exists
+    if k == len(parts):
+        return p
+    head = Path(*parts[:k]) if k else Path(".")
+    return head / os.path.normpath(os.path.join(*parts[k:]))   # missing folders: made as real ones
+
+
 def prepare_file(path, *, inputs=(), overwrite: bool = False, kind: str = "raw") -> Path:
     """A raw-cube output file: absent, fwdlook's own raw cube, or ``overwrite``; never an input."""
-    target = Path(path)
+    if str(path).endswith(("/", os.sep)):
+        raise BadInput(f"cannot write {path}: a folder's path (it ends in '/'); expected the path of a raw "
+                       f"cube file")
+    target = output_path(path)
     _refuse_inputs(target, inputs, "raw cube output")
     if target.is_dir():
         raise BadInput(f"cannot write {target}: is a directory; expected the path of a raw cube file")
     if (target.exists() or target.is_symlink()) and not overwrite:
-        fmt = h5_format(target)
-        if fmt != RAW_FORMAT:
-            what = "not an HDF5 file" if fmt is None else f"an HDF5 file with / attribute format = {fmt[:40]!r}"
+        ident = h5_identity(target)
+        if ident is None or ident != (RAW_FORMAT, "fwdlook"):
+            if ident is None:
+                what = "permission denied" if target.exists() and not os.access(target, os.R_OK) else \
+                    "not a readable HDF5 file"
+            elif ident[1] != "fwdlook":
+                what = (f"an HDF5 file written by {shown(ident[1]) if ident[1] else 'another program'} "
+                        f"(/ attribute software), with / attribute format = {shown(ident[0])}")
+            else:
+                what = f"a fwdlook file with / attribute format = {shown(ident[0])}"
             raise BadInput(f"{target}: exists and is not a fwdlook raw cube ({what}); refusing to "
                            f"overwrite it; {OVERWRITE_HINT}")
     make_parent(target)
@@ -276,7 +317,7 @@ def prepare_file(path, *, inputs=(), overwrite: bool = False, kind: str = "raw")
 def prepare_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: bool = False) -> Path:
     """A run directory: absent, empty, fwdlook's own run, one holding none of the files a run writes,
     or ``overwrite``; an input inside it that the run would replace is refused always."""
-    d = Path(path)
+    d = output_path(path)
     if (d.exists() or d.is_symlink()) and not d.is_dir():
         raise BadInput(f"cannot write {d}: exists and is not a directory; expected a run directory")
     names = RUN_FILES + (("raw.h5",) if writes_raw else ())
@@ -289,18 +330,45 @@ def prepare_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: boo
                 if inp and Path(inp).exists() and any(_same(p, inp) for p in stages.iterdir()):
                     raise BadInput(f"{inp}: is inside {stages}, which this run rewrites; fwdlook never "
                                    f"writes over an input; choose another run directory")
+        present = [n for n in names if (d / n).exists() or (d / n).is_symlink()]
         if not overwrite and not is_fwdlook_run_dir(d):
-            present = [n for n in names if (d / n).exists() or (d / n).is_symlink()]
             if (stages.exists() or stages.is_symlink()) and any(
                     not q.name.endswith(".partial") for q in _iter_quiet(stages)):
                 present.append("stages/")
             if present:
                 raise BadInput(f"{d}: not a fwdlook run directory, and it holds {present[0]}, which a run "
                                f"would replace; refusing to overwrite it; {OVERWRITE_HINT}")
+        elif not overwrite:      # fwdlook's run: each file it would replace must be fwdlook's too
+            foreign = [n for n in present if not _run_file_is_ours(d, n)]
+            if foreign:
+                raise BadInput(f"{d / foreign[0]}: a run would replace it, and fwdlook did not write it "
+                               f"({_RUN_FILE_MARK[foreign[0]]}); refusing to overwrite it; {OVERWRITE_HINT}")
     _make_dir(d, d)
     _make_dir(d / "stages", d / "stages")
     probe_writable(d, d)
     return d
+
+
+_RUN_FILE_MARK = {
+    "metrics.json": "not a metrics.json with fwdlook_version",
+    "image.h5": "not an HDF5 file with / attributes format = fwdlook-image, software = fwdlook",
+    "raw.h5": "not an HDF5 file with / attributes format = fwdlook-raw, software = fwdlook",
+    "scenario.yaml": "no fwdlook metrics.json beside it",
+    "image.png": "no fwdlook metrics.json beside it",
+}
+
+
+def _run_file_is_ours(d: Path, name: str) -> bool:
+    """A file of a run directory that fwdlook wrote: by its own mark (metrics.json, the HDF5 files), or,
+    for the files that carry none (scenario.yaml, image.png), by the fwdlook metrics.json that a run
+    writes before them (a run removes its outputs first and writes scenario.yaml last)."""
+    if name == "metrics.json":
+        return is_fwdlook_metrics(d / name)
+    if name == "image.h5":
+        return h5_format(d / name) == "fwdlook-image"
+    if name == "raw.h5":
+        return h5_format(d / name) == RAW_FORMAT
+    return is_fwdlook_metrics(d / "metrics.json")
 
 
 def _iter_quiet(folder: Path):
@@ -310,20 +378,42 @@ def _iter_quiet(folder: Path):
         return [folder]
 
 
-def prepare_report_dir(path, *, inputs=(), overwrite: bool = False) -> Path:
-    """A report directory: absent, fwdlook's own report, one holding none of the report's files, or
-    ``overwrite``."""
-    d = Path(path)
+def _prepare_product_dir(path, files, is_ours, command: str, *, inputs=(), overwrite: bool = False) -> Path:
+    """An output folder of ``fwdlook <command>``: absent, its own (``is_ours``), one holding none of
+    ``files``, or ``overwrite``; never one of ``inputs``; made and probed before any work."""
+    d = output_path(path)
     if (d.exists() or d.is_symlink()) and not d.is_dir():
-        raise BadInput(f"cannot write {d}: exists and is not a directory; expected a report directory")
+        raise BadInput(f"cannot write {d}: exists and is not a directory; expected a {command} output folder")
     if d.is_dir():
-        for name in REPORT_FILES:
-            _refuse_inputs(d / name, inputs, f"report file {name}")
-        if not overwrite and not is_fwdlook_report(d):
-            present = [n for n in REPORT_FILES if (d / n).exists() or (d / n).is_symlink()]
+        for name in files:
+            _refuse_inputs(d / name, inputs, f"{command} file {name}")
+        if not overwrite and not is_ours(d):
+            present = [n for n in files if (d / n).exists() or (d / n).is_symlink()]
             if present:
-                raise BadInput(f"{d / present[0]}: exists and was not written by fwdlook report; refusing "
+                raise BadInput(f"{d / present[0]}: exists and was not written by fwdlook {command}; refusing "
                                f"to overwrite it; {OVERWRITE_HINT}")
     _make_dir(d, d)
     probe_writable(d, d)
     return d
+
+
+def prepare_report_dir(path, *, inputs=(), overwrite: bool = False) -> Path:
+    """A report directory: absent, fwdlook's own report, one holding none of the report's files, or
+    ``overwrite``."""
+    return _prepare_product_dir(path, REPORT_FILES, is_fwdlook_report, "report", inputs=inputs, overwrite=overwrite)
+
+
+def is_fwdlook_sweep(folder) -> bool:
+    """A folder ``fwdlook sweep`` wrote its summary into (summary.json with its sweep, grid and rows)."""
+    try:
+        with open(Path(folder) / "summary.json", "rb") as fh:
+            data = json.loads(fh.read(64 * 2**20))
+    except Exception:  # noqa: BLE001
+        return False
+    return isinstance(data, dict) and {"sweep", "grid", "rows"} <= set(data)
+
+
+def prepare_sweep_dir(path, *, overwrite: bool = False) -> Path:
+    """A sweep's output folder: absent, fwdlook's own sweep, one holding none of the summary's files,
+    or ``overwrite``."""
+    return _prepare_product_dir(path, SWEEP_FILES, is_fwdlook_sweep, "sweep", overwrite=overwrite)

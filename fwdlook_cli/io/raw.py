@@ -9,6 +9,7 @@ rejects a missing, mis-shaped, wrongly typed or non-finite dataset with one :cla
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import h5py
@@ -16,6 +17,8 @@ import numpy as np
 
 from . import backing
 from .cube import RADAR_KEYS, RawCube
+from ..dsp.geometry import C_MPS
+from ..dsp.keystone_common import carrier_floor_text
 from ..errors import BadInput
 from .describe import _plain
 from .h5 import atomic_h5, put, put_scale
@@ -143,7 +146,11 @@ def read_raw(path: str | Path) -> RawCube:
         raise BadInput(f"{source}: file not found")
     try:
         f = h5py.File(path, "r")
+    except PermissionError:
+        raise BadInput(f"{source}: permission denied; the file must be readable") from None
     except OSError:
+        if not os.access(path, os.R_OK):
+            raise BadInput(f"{source}: permission denied; the file must be readable") from None
         raise BadInput(f"{source}: not a readable HDF5 file (truncated or not HDF5)") from None
     try:
         with f:
@@ -192,6 +199,13 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     dr = np.diff(range_m)
     if np.any(dr <= 0) or np.ptp(dr) > 1e-6 * abs(dr[0]):
         raise BadInput(f"{source}: /axes/range_m: not uniformly increasing")
+    if range_m[0] <= 0:
+        raise BadInput(f"{source}: /axes/range_m: first slant range {range_m[0]:g} m; allowed: > 0 m")
+    worst_scan = float(np.max(np.abs(scan)))
+    isar = echo_diff is None or _plain(f.attrs.get("scenario_kind", "")) == "isar"   # its angle: the aspect
+    if worst_scan >= MAX_SCAN_DEG and not isar:
+        raise BadInput(f"{source}: /axes/scan_angle_deg: |angle| reaches {worst_scan:g} deg; allowed: "
+                       f"below {MAX_SCAN_DEG:g} deg off the flight axis (a forward-looking scan)")
     radar_grp = f.get("radar")
     if not isinstance(radar_grp, h5py.Group):
         raise BadInput(f"{source}: /radar: group missing")
@@ -210,10 +224,8 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     for key, value in radar_grp.attrs.items():
         if key not in radar:
             radar[key] = value.decode() if isinstance(value, bytes) else _plain(value)
-    prf_from_axis = 1.0 / float(np.median(dt))
-    if abs(prf_from_axis - radar["prf_hz"]) > 1e-6 * radar["prf_hz"]:
-        raise BadInput(f"{source}: /radar attribute prf_hz = {radar['prf_hz']:g}: /axes/slow_time_s "
-                       f"is sampled at {prf_from_axis:g} Hz")
+    _check_pulse_timing(slow_time_s, radar["prf_hz"], source)
+    _check_radar_values(radar, dr[0], source)
     antenna = _read_antenna(f, source)
     noise = {k[len("noise_"):]: _plain(v) for k, v in f["echo"].attrs.items() if k.startswith("noise_")}
     truth = None
@@ -233,11 +245,59 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     if scenario is None and isinstance(f.get("scenario"), h5py.Dataset):
         scenario = f["scenario"][()]
     if isinstance(scenario, bytes):
-        scenario = scenario.decode()
+        try:
+            scenario = scenario.decode()
+        except UnicodeDecodeError:       # informational only: said, then left out
+            log.warning(f"{source}: /scenario is not UTF-8 text; ignored (it only records what made the file)")
+            scenario = None
+    if scenario is not None and not isinstance(scenario, str):
+        scenario = None
     attrs = {k: _plain(v) for k, v in f.attrs.items() if k not in ("scenario",)}
     return RawCube(sum=echo_sum, diff=echo_diff, slow_time_s=slow_time_s, range_m=range_m,
                    scan_angle_deg=scan, position_m=position, velocity_mps=velocity, radar=radar,
                    antenna=antenna, truth=truth, scenario_yaml=scenario, noise=noise, attrs=attrs)
+
+
+MAX_SCAN_DEG = 90.0           # a forward-looking scan points ahead of the platform
+MAX_BEAMWIDTH_DEG = 90.0      # the scenario's own bound on antenna.beamwidth_3db_deg
+TIMING_JITTER_FRACTION = 0.01  # of a pulse interval: 2 pi fd dt <= 0.031 rad at the Doppler band's edge
+PRF_TOLERANCE = 1e-4          # relative: prf_hz against the slow-time axis' own mean rate
+RANGE_STEP_TOLERANCE = 1e-3   # relative: range step against c / (2 fs) (c rounded to 3e8 is 7e-4 off)
+
+
+def _check_pulse_timing(slow_time_s: np.ndarray, prf_hz: float, source: str) -> None:
+    """The chain's slow-time FFTs need uniform pulses: every pulse within 1 % of an interval of the
+    least-squares uniform grid (a dropped pulse or a gap is a whole interval), and ``prf_hz`` equal to
+    that grid's rate within 1e-4 (float32 times stay well inside both)."""
+    n = np.arange(len(slow_time_s), dtype=np.float64)
+    slope, intercept = np.polyfit(n, slow_time_s, 1)
+    interval_s = float(slope)
+    worst = float(np.max(np.abs(slow_time_s - (intercept + slope * n))))
+    if worst > TIMING_JITTER_FRACTION * interval_s:
+        k = int(np.argmax(np.abs(slow_time_s - (intercept + slope * n))))
+        raise BadInput(f"{source}: /axes/slow_time_s: pulse {k} lies {worst / interval_s:.3g} pulse intervals "
+                       f"off a uniform pulse train ({1.0 / interval_s:.9g} Hz); allowed: at most "
+                       f"{TIMING_JITTER_FRACTION:g} (uniform pulses, no gaps or dropped pulses)")
+    prf_axis_hz = 1.0 / interval_s
+    if abs(prf_axis_hz - prf_hz) > PRF_TOLERANCE * prf_hz:
+        raise BadInput(f"{source}: /radar attribute prf_hz = {prf_hz:.9g}: /axes/slow_time_s is sampled at "
+                       f"{prf_axis_hz:.9g} Hz; allowed: within {PRF_TOLERANCE:g} (relative) of that rate")
+
+
+def _check_radar_values(radar: dict, range_step_m: float, source: str) -> None:
+    """What the chain's physics needs of the /radar attributes besides being positive numbers."""
+    why = carrier_floor_text(radar["fc_hz"], radar["fs_hz"])
+    if why:
+        raise BadInput(f"{source}: /radar attribute fc_hz = {radar['fc_hz']:g}: {why}")
+    beam = radar["beamwidth_3db_deg"]
+    if beam > MAX_BEAMWIDTH_DEG:
+        raise BadInput(f"{source}: /radar attribute beamwidth_3db_deg = {beam:g}; allowed: up to "
+                       f"{MAX_BEAMWIDTH_DEG:g} deg (the sum beam's 3 dB width, as antenna.beamwidth_3db_deg)")
+    step_m = C_MPS / (2.0 * radar["fs_hz"])
+    if abs(range_step_m - step_m) > RANGE_STEP_TOLERANCE * step_m:
+        raise BadInput(f"{source}: /radar attribute fs_hz = {radar['fs_hz']:.9g}: /axes/range_m steps "
+                       f"{range_step_m:.6g} m, c / (2 fs_hz) = {step_m:.6g} m; allowed: within "
+                       f"{RANGE_STEP_TOLERANCE:g} (relative): fs_hz is the rate of the range samples")
 
 
 def _read_antenna(f: h5py.File, source: str) -> dict:

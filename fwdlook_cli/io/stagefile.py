@@ -16,8 +16,8 @@ import numpy as np
 
 from . import backing
 from .h5 import atomic_h5, set_attrs
-from .integrity import (DATASETS_ATTR, DIGEST_ATTR, STAGE_FORMAT_VERSION, declaration, digest, digest_async,
-                        read_declaration)
+from .integrity import (ATTRS_DIGEST_ATTR, DATASETS_ATTR, DIGEST_ATTR, STAGE_FORMAT_VERSION, attrs_digest,
+                        declaration, digest, digest_async, read_declaration)
 
 
 @dataclass
@@ -66,7 +66,7 @@ def _canon(value):
 
 PROVENANCE_KEYS = ("format", "stage", "config_sha256", "input_sha256", "settings", "software",
                    "software_version", "created_utc", "compute_s", "stage_datasets", "view_source",
-                   "view_source_sha256", "format_version")
+                   "view_source_sha256", "format_version", ATTRS_DIGEST_ATTR)
 
 
 def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key: str, params: dict,
@@ -133,6 +133,7 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
             declared[name] = declaration(var.data, var.dims, sha)
             out[name] = (_weak(var.data), sha)
         root[DATASETS_ATTR] = json.dumps(declared)   # integrity.py: what the file declares
+        root[ATTRS_DIGEST_ATTR] = attrs_digest({**carried, **root})
         set_attrs(f, root)
     return out
 
@@ -255,7 +256,11 @@ def load_verified(path, key: str):
             except Exception:  # noqa: BLE001
                 return None, f"root attribute {DATASETS_ATTR} missing or malformed (no declaration)"
             out = StageData()
-            for k, v in f.attrs.items():
+            found = dict(f.attrs.items())
+            if attrs_digest(found) != _text(found.get(ATTRS_DIGEST_ATTR)):
+                return None, (f"root attributes do not match their {ATTRS_DIGEST_ATTR} digest (an attribute "
+                              f"edited, added or removed)")
+            for k, v in found.items():
                 if k not in PROVENANCE_KEYS:
                     out.attrs[k] = _text(v)
             for name, want in declared.items():

@@ -115,6 +115,7 @@ def estimate_n0(data: StageData, *, half_span_lobes: float = 4.0, points_per_lob
         half, step = 2.0 * step, step / 4.0
     model = LineModel(r0, rdot, v2, t_mid)
     n0_grid = -r0 * rdot * prf / grid
+    out.add("n0_candidate", np.arange(len(grid)), ("n0_candidate",), "1", "index of the candidate")
     out.add("n0_search_pulses", n0_grid, ("n0_candidate",), "1", "n0 of each candidate of the last pass")
     out.add("n0_search_sharpness", sharp, ("n0_candidate",), "1", "image sharpness sum|I|^4/(sum|I|^2)^2")
     out.attrs.update(n0_est_pulses=model.n0_pulses(prf), n0_coarse_pulses=float(n0_coarse),

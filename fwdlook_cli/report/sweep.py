@@ -27,11 +27,15 @@ from .sweep_plan import SUMMARY_KEYS, _fmt, load_sweep  # noqa: F401  (load_swee
 
 
 def run_sweep(path: str, out_dir: str | Path, *, workers: int = 1, quiet: bool = False,
-              scheduler: str = "local") -> list[dict]:
-    """Run every point (finished ones skipped, failures recorded; ``sweep_exec``), write the summary."""
+              scheduler: str = "local", overwrite: bool = False) -> list[dict]:
+    """Run every point (finished ones skipped, failures recorded; ``sweep_exec``), write the summary.
+    The output folder is checked first (``io.outputs.prepare_sweep_dir``): a folder holding summary
+    files that fwdlook did not write is refused unless ``overwrite``."""
+    from ..io.outputs import prepare_sweep_dir
     from .sweep_exec import execute
 
     sweep = load_sweep(path)
+    out_dir = prepare_sweep_dir(out_dir, overwrite=overwrite)
     rows = execute(sweep, Path(out_dir), workers=workers, quiet=quiet, scheduler=scheduler)
     if sweep["combine"]:
         rows = combine_rows(rows, sweep)

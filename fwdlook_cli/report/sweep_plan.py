@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 
 from ..errors import BadInput
+from ..limits import shown
+from ..scenario.fields import folder_name
 from ..scenario.loader import scenario_hash
 from ..scenario.readers import read_scenario_raw, read_yaml_file
 
@@ -36,8 +38,13 @@ def load_sweep(path: str) -> dict:
     combine = raw.get("combine") or []
     if not isinstance(combine, list) or any(c not in grid for c in combine):
         raise BadInput(f"{path}: combine: expected a list of grid keys; allowed: {', '.join(grid)}")
+    name = str(raw.get("name", p.stem))
+    try:
+        folder_name(name)                 # the default output folder is runs/sweep-<name>
+    except ValueError as exc:
+        raise BadInput(f"{path}: name = {shown(name)}: {exc}") from None
     base = p.parent
-    return {"name": str(raw.get("name", p.stem)), "scenarios": [str((base / s).resolve()) for s in scen],
+    return {"name": name, "scenarios": [str((base / s).resolve()) for s in scen],
             "combine": combine, "keep_stages": bool(raw.get("keep_stages", False)),
             "set": [str(s) for s in sets], "grid": grid,
             "config": str((base / raw["config"]).resolve()) if raw.get("config") else None}

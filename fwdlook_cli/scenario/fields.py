@@ -108,6 +108,15 @@ def text(value: Any) -> str:
     return value
 
 
+def folder_name(value: Any) -> str:
+    """A scenario's name: also the folder of its default run (``runs/<name>``), so one path component."""
+    value = text(value)
+    if value.strip() in (".", "..") or any(c in value for c in "/\\\0") or len(value) > 200:
+        raise ValueError("expected a name usable as one folder: no '/', '\\' or NUL, not '.' or '..', "
+                         "at most 200 characters")
+    return value
+
+
 def vector(n: int, elem: Callable[[Any], float] = num()) -> Callable[[Any], list]:
     def check(value):
         if not isinstance(value, (list, tuple)) or len(value) != n:
@@ -158,12 +167,17 @@ def points_list(value: Any):
     return [vector(2)(p) for p in value]
 
 
+MAX_AMPLITUDE = 1.0e4   # amplitudes are relative (noise.snr_db sets the noise against the strongest);
+# 1e4 is a 1e8 m^2 RCS against a 1 m^2 one, and keeps the images' powers and fourth moments (a^4 N^4 at
+# N = 1e4 integrated pulses: 1e32) inside float32 (at 1e38 the echo itself overflowed to Inf)
+
+
 def amplitude(value: Any):
     if isinstance(value, (list, tuple)):
         if not value:
             raise ValueError("expected a positive number or a non-empty list of them")
-        return [num(0.0, lo_open=True)(v) for v in value]
-    return num(0.0, lo_open=True)(value)
+        return [num(0.0, MAX_AMPLITUDE, lo_open=True)(v) for v in value]
+    return num(0.0, MAX_AMPLITUDE, lo_open=True)(value)
 
 
 def _show(value: Any) -> str:

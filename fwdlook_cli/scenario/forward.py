@@ -8,15 +8,16 @@ import numpy as np
 
 from ..dsp.antenna import AntennaDesignError, antenna_from_scenario
 from ..dsp.geometry import platform_state, range_extent_m
+from ..dsp.keystone_common import carrier_floor_text
 from ..errors import BadInput
-from .fields import _show, Field, calibration_setting, amplitude, auto_or, boolean, choice, integer, num, optional, points_list, range_window, text, vector
+from .fields import folder_name, _show, Field, calibration_setting, amplitude, auto_or, boolean, choice, integer, num, optional, points_list, range_window, text, vector
 
 
 # ----------------------------------------------------------------------------------------------
 # The schema: every key, its default and meaning (the one documented place for defaults)
 # ----------------------------------------------------------------------------------------------
 FORWARD_SCHEMA: dict[str, Any] = {
-    "name": Field(text, "scenario", "scenario name, copied into outputs"),
+    "name": Field(folder_name, "scenario", "scenario name, copied into outputs"),
     "kind": Field(choice("forward", "isar"), "forward",
                   "forward: forward-looking scanning monopulse radar; isar: stationary radar, moving object"),
     "radar": {
@@ -217,6 +218,13 @@ def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None
     if radar["fs_hz"] < radar["bandwidth_hz"]:
         raise BadInput(f"{source}: radar.fs_hz = {radar['fs_hz']:g}: must be >= radar.bandwidth_hz "
                        f"= {radar['bandwidth_hz']:g} (complex sampling of the compressed pulse)")
+    if radar["bandwidth_hz"] * radar["pulse_width_s"] < 1.0:
+        raise BadInput(f"{source}: radar.bandwidth_hz = {radar['bandwidth_hz']:g}: must be >= 1 / "
+                       f"radar.pulse_width_s = {1.0 / radar['pulse_width_s']:g} (a time-bandwidth product of "
+                       f"at least 1: the compressed pulse no longer than the transmitted one)")
+    why = carrier_floor_text(radar["fc_hz"], radar["fs_hz"])
+    if why:
+        raise BadInput(f"{source}: radar.fc_hz = {radar['fc_hz']:g}: {why.replace('fs_hz', 'radar.fs_hz')}")
     if ant["scan_stop_deg"] <= ant["scan_start_deg"]:
         raise BadInput(f"{source}: antenna.scan_stop_deg = {ant['scan_stop_deg']:g}: must be > "
                        f"antenna.scan_start_deg = {ant['scan_start_deg']:g}")

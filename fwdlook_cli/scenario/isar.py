@@ -9,8 +9,9 @@ import math
 import numpy as np
 
 from ..dsp.geometry import C_MPS
+from ..dsp.keystone_common import carrier_floor_text
 from ..errors import BadInput
-from .fields import REQUIRED, Field, amplitude, auto_or, choice, integer, num, optional, range_window, text, vector
+from .fields import folder_name, REQUIRED, Field, amplitude, auto_or, choice, integer, num, optional, range_window, vector
 
 CORRECTIONS = ("none", "keystone1", "keystone2", "keystone2_n0", "keystone2_n0_est")
 
@@ -25,7 +26,7 @@ def _offsets(value):
 
 
 ISAR_SCHEMA: dict = {
-    "name": Field(text, "isar", "scenario name, copied into outputs"),
+    "name": Field(folder_name, "isar", "scenario name, copied into outputs"),
     "kind": Field(choice("isar"), REQUIRED, "isar: stationary radar at the origin, moving object"),
     "radar": {
         "fc_hz": Field(num(1e6, 1e12), 3.0e9, "carrier frequency f0"),
@@ -81,6 +82,10 @@ def isar_checks(scn: dict, source: str) -> None:
     if radar["fs_hz"] < radar["bandwidth_hz"]:
         raise BadInput(f"{source}: radar.fs_hz = {radar['fs_hz']:g}: must be >= radar.bandwidth_hz "
                        f"= {radar['bandwidth_hz']:g} (complex sampling of the compressed pulse)")
+    if radar["bandwidth_hz"] * radar["pulse_width_s"] < 1.0:
+        raise BadInput(f"{source}: radar.bandwidth_hz = {radar['bandwidth_hz']:g}: must be >= 1 / "
+                       f"radar.pulse_width_s = {1.0 / radar['pulse_width_s']:g} (a time-bandwidth product of "
+                       f"at least 1: the compressed pulse no longer than the transmitted one)")
     if not any(tg["velocity_mps"]):
         raise BadInput(f"{source}: target.velocity_mps = [0, 0, 0]: must be non-zero (ISAR images a "
                        f"moving object)")
@@ -105,6 +110,9 @@ def isar_checks(scn: dict, source: str) -> None:
     near, far = radar["range_window_m"] if radar["range_window_m"] != "auto" else (r.min() - reach, r.max() + reach)
     check_cube_bytes(source, f"radar.range_window_m = {radar['range_window_m']} at radar.fs_hz = "
                      f"{radar['fs_hz']:g}", (far - near) * 2.0 * radar["fs_hz"] / C_MPS + 1, len(t), channels=1, setting=None)
+    why = carrier_floor_text(radar["fc_hz"], radar["fs_hz"])    # after the size: a huge fs is first a size
+    if why:
+        raise BadInput(f"{source}: radar.fc_hz = {radar['fc_hz']:g}: {why.replace('fs_hz', 'radar.fs_hz')}")
 
 
 # ----------------------------------------------------------------------------------------------
