@@ -262,6 +262,13 @@ def test_sweep_refuses_a_users_folder(scn, tmp_path, capsys, holding):
     assert snapshot(out_dir) == before
 
 
+def test_sweep_grid_error_names_the_sweep_file_and_the_scenario(scn, tmp_path, capsys):
+    sweep = tmp_path / "sw.yaml"
+    sweep.write_text(f"name: sw\nscenarios: [{scn}]\ngrid: {{processing.qq: [25]}}\n")
+    code, out, err = run_cli(["sweep", sweep, "-o", tmp_path / "sw", "-q"], capsys)
+    assert_refused(code, out, err, sweep, "qq=25", scn, "processing.qq", "unknown key")
+
+
 def test_sweep_reruns_into_its_own_folder(scn, tmp_path, capsys):
     sweep = _tiny_sweep(tmp_path, scn)
     for _ in range(2):

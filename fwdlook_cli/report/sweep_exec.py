@@ -204,7 +204,7 @@ def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, sc
     say = (lambda *a: None) if quiet else log.info
     remote = scheduler not in (None, "", "local")
     out = out.resolve() if remote else out            # Dask workers may have another working directory
-    runs = plan_runs(sweep, out)
+    runs = plan_runs(sweep, out, source=sweep.get("source"))
     raw_dir = out / "raw"
     raw_dir.mkdir(parents=True, exist_ok=True)
     rows: list[dict | None] = [None] * len(runs)

@@ -44,7 +44,7 @@ def load_sweep(path: str) -> dict:
     except ValueError as exc:
         raise BadInput(f"{path}: name = {shown(name)}: {exc}") from None
     base = p.parent
-    return {"name": name, "scenarios": [str((base / s).resolve()) for s in scen],
+    return {"name": name, "source": str(path), "scenarios": [str((base / s).resolve()) for s in scen],
             "combine": combine, "keep_stages": bool(raw.get("keep_stages", False)),
             "set": [str(s) for s in sets], "grid": grid,
             "config": str((base / raw["config"]).resolve()) if raw.get("config") else None}
@@ -55,8 +55,9 @@ def _label(point: dict) -> str:
                     for k, v in point.items()) or "base"
 
 
-def plan_runs(sweep: dict, out_dir: Path) -> list[dict]:
-    """Every run of the sweep, resolved (raises BadInput on a bad grid value before anything runs)."""
+def plan_runs(sweep: dict, out_dir: Path, *, source: str | None = None) -> list[dict]:
+    """Every run of the sweep, resolved (raises BadInput on a bad grid value before anything runs,
+    naming the sweep file ``source`` and the point as well as the scenario)."""
     from ..scenario.overlay import resolve_with_config
 
     keys = list(sweep["grid"])
@@ -66,7 +67,12 @@ def plan_runs(sweep: dict, out_dir: Path) -> list[dict]:
         for values in itertools.product(*(sweep["grid"][k] for k in keys)):
             point = dict(zip(keys, values))
             sets = list(sweep["set"]) + [f"{k}={json.dumps(v)}" for k, v in point.items()]
-            scn = resolve_with_config(copy.deepcopy(raw), scen_path, sweep["config"], sets)
+            try:
+                scn = resolve_with_config(copy.deepcopy(raw), scen_path, sweep["config"], sets)
+            except BadInput as exc:
+                if source is None:
+                    raise
+                raise BadInput(f"{source}: the point {_label(point)} (set or grid): {exc}") from None
             sim_key = scenario_hash({k: v for k, v in scn.items() if k != "processing"})
             runs.append({"scenario": scn["name"], "scenario_path": scen_path, "point": point, "sets": sets,
                          "sim_key": sim_key, "run_dir": str(out_dir / scn["name"] / _label(point)),
