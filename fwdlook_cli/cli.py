@@ -5,6 +5,7 @@ or dataset; 1 internal fault (traceback kept).  Progress and logs go to stderr, 
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import sys
 from pathlib import Path
@@ -13,6 +14,7 @@ import click
 
 from . import __version__
 from .errors import BadInput
+from .limits import shown
 from .options import GroundMetres, json_option, quiet_option, set_option
 
 
@@ -195,15 +197,22 @@ def _out_of_core(enabled: bool, output):
 @quiet_option
 def process(source, output, config, raw, overrides, from_stage, force, overwrite, keep_stages, out_of_core, quiet):
     """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
-    from .io.outputs import prepare_run_dir
+    from .io.outputs import folder_lock, prepare_run_dir
+
+    if force and from_stage:
+        raise BadInput(f"--force with --from-stage {shown(from_stage)}: --force recomputes every stage, "
+                       f"--from-stage the stages from {shown(from_stage)} on; allowed: one of them")
+
+    held = contextlib.ExitStack()        # the run directory's lock, until the command ends
 
     def prepare(scn):
         _refuse_out_of_core_isar(scn, raw or source, out_of_core)
-        prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
+        d = prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
+        held.enter_context(folder_lock(d))
 
     from .io.quicklook import painting
 
-    with painting(), _out_of_core(out_of_core, output):   # the PNG's matplotlib in a child (io/painter.py)
+    with held, painting(), _out_of_core(out_of_core, output):   # the PNG's matplotlib in a child (io/painter.py)
         scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
         run_dir = _default_run_dir(scn, output)
         metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages, out_of_core)
@@ -224,18 +233,20 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
 def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages, out_of_core, quiet):
     """The main job: simulate (or load --raw), process and report into RUN_DIR."""
     from .io.raw import write_raw
-    from .io.outputs import prepare_run_dir
+    from .io.outputs import folder_lock, prepare_run_dir
 
     writes_raw = not raw and Path(scenario).suffix.lower() not in (".h5", ".hdf5", ".hdf")
+    held = contextlib.ExitStack()        # the run directory's lock, until the command ends
 
     def prepare(scn):
         _refuse_out_of_core_isar(scn, raw or scenario, out_of_core)
-        prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config], overwrite=overwrite,
-                        writes_raw=writes_raw)
+        d = prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config], overwrite=overwrite,
+                            writes_raw=writes_raw)
+        held.enter_context(folder_lock(d))
 
     from .io.quicklook import painting
 
-    with painting(), _out_of_core(out_of_core, output):   # the PNG's matplotlib in a child (io/painter.py)
+    with held, painting(), _out_of_core(out_of_core, output):   # the PNG's matplotlib in a child (io/painter.py)
         scn, cube = _scenario_and_cube(scenario, raw, config, overrides, quiet, before_cube=prepare)
         run_dir = _default_run_dir(scn, output)
         if writes_raw:
@@ -350,14 +361,19 @@ def validate(path, overrides):
               help="Also time the scene simulator at 1e3..1e6 scatterers (minutes; scene_sim_* keys).")
 @click.option("--backend", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True,
               help="gpu: time the GPU stages (keystone, Doppler, image cells) against one fft2 on the device.")
-def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene, backend):
+@overwrite_option
+def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene, backend, overwrite):
     """Timings measured in one process on the paper cube (ratios to one plain 2-D FFT)."""
     from .report.bench import print_bench
 
     if write_cube:
+        from .io.outputs import prepare_file
+        from .limits import check_cube_bytes
         from .report.benchtools import write_scaling_cube
 
-        write_scaling_cube(write_cube, *shape)
+        check_cube_bytes(str(write_cube), f"--shape {shape[0]} {shape[1]}", shape[1], shape[0], channels=2)
+        target = prepare_file(write_cube, overwrite=overwrite)    # never over a file fwdlook did not write
+        write_scaling_cube(target, *shape)
         click.echo(write_cube)
         return
 

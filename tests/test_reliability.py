@@ -290,6 +290,55 @@ def test_report_target_must_be_finite_metres(base_run, tmp_path, capsys, value):
     assert not (tmp_path / "rt").exists()
 
 
+@pytest.mark.parametrize("command", ["process", "run", "sweep"])
+def test_a_folder_in_use_by_another_command_is_refused(scn, tiny_raw, base_run, tmp_path, capsys, command):
+    """Two commands on one folder interleaved their files (a metrics.json of one setting beside the
+    scenario.yaml, quick look or stage files of the other); the second is now refused while the first
+    holds the folder's lock, and the folder is untouched."""
+    d = tmp_path / "busy"
+    if command == "sweep":
+        d.mkdir()
+        argv = ["sweep", _tiny_sweep(tmp_path, scn), "-o", d, "-q"]
+        what = "sweep folder in use"
+    else:
+        shutil.copytree(base_run, d)
+        argv = ([command, tiny_raw, "-o", d, "-q", "--force"] if command == "process"
+                else ["run", scn, "-o", d, "-q"])
+        what = "run directory in use"
+    with outputs.folder_lock(d):                  # another command holding it (a second open: flock conflicts)
+        before = snapshot(d)
+        code, out, err = run_cli(argv, capsys)
+        assert_refused(code, out, err, d, what, f"pid {os.getpid()}")
+        assert snapshot(d) == before
+    code, _, err = run_cli(argv, capsys)          # released: the command runs
+    assert code == 0, err
+
+
+def test_bench_write_cube_is_guarded_and_bounded(tmp_path, capsys, monkeypatch):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("precious\n")
+    before = snapshot(notes)
+    code, out, err = run_cli(["bench", "--write-cube", notes, "--shape", "32", "32"], capsys)
+    assert_refused(code, out, err, notes, "not a fwdlook raw cube", "--overwrite")
+    assert snapshot(notes) == before
+    code, out, err = run_cli(["bench", "--write-cube", tmp_path / "big.h5", "--shape", "1048576", "4096"], capsys)
+    assert_refused(code, out, err, "big.h5", "--shape 1048576 4096", "64 GiB", "4 GiB")
+    monkeypatch.setenv("FWDLOOK_MAX_CUBE_BYTES", "20000000")
+    code, out, err = run_cli(["bench", "--write-cube", tmp_path / "mid.h5", "--shape", "16384", "4096"], capsys)
+    assert_refused(code, out, err, "--shape 16384 4096", "$FWDLOOK_MAX_CUBE_BYTES")
+    assert list(tmp_path.glob("*.h5")) == []
+
+
+def test_force_and_from_stage_together_are_refused(tiny_raw, tmp_path, capsys):
+    code, out, err = run_cli(["process", tiny_raw, "-o", tmp_path / "r", "--force", "--from-stage", "regroup"], capsys)
+    assert_refused(code, out, err, "--force", "--from-stage", "one of them")
+
+
+def test_report_on_a_file_says_it_is_a_file(tiny_raw, tmp_path, capsys):
+    code, out, err = run_cli(["report", tiny_raw, "-o", tmp_path / "rr", "-q"], capsys)
+    assert_refused(code, out, err, tiny_raw, "a file, not a folder")
+
+
 def _foreign_folder(tmp_path):
     d = tmp_path / "mine"
     d.mkdir()

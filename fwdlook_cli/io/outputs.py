@@ -417,3 +417,34 @@ def prepare_sweep_dir(path, *, overwrite: bool = False) -> Path:
     """A sweep's output folder: absent, fwdlook's own sweep, one holding none of the summary's files,
     or ``overwrite``."""
     return _prepare_product_dir(path, SWEEP_FILES, is_fwdlook_sweep, "sweep", overwrite=overwrite)
+
+
+LOCK_NAME = ".fwdlook.lock"
+
+
+@contextlib.contextmanager
+def folder_lock(folder, what: str = "run directory"):
+    """Hold an exclusive advisory lock (``flock``) on ``folder/.fwdlook.lock`` for the block: a second
+    fwdlook command on the same folder is refused in one line instead of interleaving its files with
+    this one's (two runs into one folder left a metrics.json of one setting beside the scenario.yaml,
+    quick look or stage files of the other). The file stays (holding the last holder's pid): removing
+    it while another process has it open would let two processes hold two locks."""
+    import fcntl
+
+    path = Path(folder) / LOCK_NAME
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    except OSError as exc:
+        raise write_error(path, exc) from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise BadInput(f"{folder}: {what} in use by another fwdlook command (pid {holder}); wait for it "
+                           f"to finish, or choose another output") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)

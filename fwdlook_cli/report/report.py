@@ -62,7 +62,9 @@ def read_metrics(run_dir: str | Path) -> dict:
     """The run's metrics.json; BadInput (one line naming the path) when missing or malformed."""
     path = Path(run_dir) / "metrics.json"
     if not Path(run_dir).is_dir():
-        raise BadInput(f"{run_dir}: not a run directory (no such directory)")
+        what = "a file, not a folder" if Path(run_dir).exists() else "no such directory"
+        raise BadInput(f"{run_dir}: not a run directory ({what}); expected a folder written by "
+                       f"fwdlook run or process")
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:

@@ -31,15 +31,16 @@ def run_sweep(path: str, out_dir: str | Path, *, workers: int = 1, quiet: bool =
     """Run every point (finished ones skipped, failures recorded; ``sweep_exec``), write the summary.
     The output folder is checked first (``io.outputs.prepare_sweep_dir``): a folder holding summary
     files that fwdlook did not write is refused unless ``overwrite``."""
-    from ..io.outputs import prepare_sweep_dir
+    from ..io.outputs import folder_lock, prepare_sweep_dir
     from .sweep_exec import execute
 
     sweep = load_sweep(path)
     out_dir = prepare_sweep_dir(out_dir, overwrite=overwrite)
-    rows = execute(sweep, Path(out_dir), workers=workers, quiet=quiet, scheduler=scheduler)
-    if sweep["combine"]:
-        rows = combine_rows(rows, sweep)
-    write_summary(Path(out_dir), sweep, rows)
+    with folder_lock(out_dir, "sweep folder"):      # a second sweep into it is refused, not interleaved
+        rows = execute(sweep, Path(out_dir), workers=workers, quiet=quiet, scheduler=scheduler)
+        if sweep["combine"]:
+            rows = combine_rows(rows, sweep)
+        write_summary(Path(out_dir), sweep, rows)
     return rows
 
 
