@@ -219,3 +219,28 @@ def test_data_calibration_holds_at_high_snr(tmp_path, snr_db):
     iso = _isolated(m, writer.RADARS["paper"]["bandwidth_hz"], writer.RADARS["paper"]["beamwidth_deg"])
     err_a = np.array([r["azimuth_error_deg"] for r in m["targets"]])[iso]
     assert np.sqrt(np.mean(err_a**2)) <= 0.05, err_a
+
+
+def test_info_says_when_the_data_contradict_the_antenna_group(tmp_path, capsys):
+    """A difference channel of the opposite sign under an /antenna group of the usual one: `auto` takes
+    the group unchecked (processing it lost 3 of 5 points, silently); `fwdlook info` compares the
+    data's difference/sum phase with the group's and says so (a 180 deg phase flip, nothing else)."""
+    import h5py
+
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.io.raw import write_raw
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    cube, _ = simulate_scenario(load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "isolated_a50.yaml"))
+    good, flipped = tmp_path / "good.h5", tmp_path / "flipped.h5"
+    write_raw(good, cube)
+    write_raw(flipped, cube)
+    with h5py.File(flipped, "r+") as f:
+        f["echo/diff"][...] = -f["echo/diff"][...]
+    outs = {}
+    for path in (good, flipped):
+        assert _cli(["info", path]) == 0
+        outs[path] = capsys.readouterr().out
+    assert "check " not in outs[good]
+    check = [line for line in outs[flipped].splitlines() if line.strip().startswith("check")]
+    assert len(check) == 1 and "reversed" in check[0] and "180 deg" in check[0], outs[flipped]

@@ -76,6 +76,7 @@ from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
 from .dwell_fit import start_fit_region
+from .dwell_range import ground_points, iso_doppler_range
 
 log = logging.getLogger(__name__)
 
@@ -92,15 +93,6 @@ def image_angle_grid(beam_deg, beamwidth_deg, angle_step_deg):
     a0 = np.floor((np.min(beam_deg) - beamwidth_deg) / angle_step_deg) * angle_step_deg
     n_a = int(np.ceil((np.max(beam_deg) + beamwidth_deg - a0) / angle_step_deg)) + 1
     return a0 + angle_step_deg * np.arange(n_a)
-
-
-def ground_points(range_m, azimuth_deg, position_ref_m):
-    """Ground point (z = 0) at slant range ``range_m`` and azimuth ``azimuth_deg`` from p_ref: [..., 3]."""
-    p_ref = np.asarray(position_ref_m, dtype=np.float64)
-    rho = np.sqrt(np.maximum(np.asarray(range_m, dtype=np.float64) ** 2 - p_ref[2] ** 2, 0.0))
-    az = np.radians(azimuth_deg)
-    rho, az = np.broadcast_arrays(rho, az)
-    return np.stack([p_ref[0] + rho * np.sin(az), p_ref[1] + rho * np.cos(az), np.zeros_like(rho)], axis=-1)
 
 
 def pattern_weight(offset_deg, beta_per_deg2, slope_per_deg):
@@ -351,8 +343,12 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
                 dwell_half_width_deg: float = 3.2, twin_null: bool = True, twin_orders: int = 1,
                 twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5, diff_gain_db: float = 0.0,
                 diff_phase_deg: float = 0.0, boresight_offset_deg: float = 0.0,
-                fit_half_width_deg: float = 0.0) -> StageData:
+                fit_half_width_deg: float = 0.0, iso_doppler_resolution_m: float = 0.0,
+                dwell_s: float = 0.0) -> StageData:
     """Stage ``dwell_image``: the monopulse image from whole-dwell sums (module docstring).
+    ``iso_doppler_resolution_m`` > 0 (the range resolution c / 2B; ``processing.dwell_range:
+    iso_doppler``): each projected cell's range is moved along its iso-Doppler line as well
+    (:func:`iso_doppler_range`, ``dwell_s`` the dwell time).
 
     Same output variables and grid conventions as ``chain.monopulse_image`` (range at t_ref oversampled
     x ``range_oversample``, azimuth at t_ref on ``angle_step_deg`` bins, real-beam image, ground cells).
@@ -419,6 +415,11 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio_kept) / slope_per_deg
                                     + boresight_offset_deg, p_dw, p_ref)
         az = np.where(np.isfinite(az), az, angle_deg[looked][i_dir])
+        if iso_doppler_resolution_m > 0:       # processing.dwell_range: iso_doppler (steep depression)
+            r_new = iso_doppler_range(range_os[i_r], angle_deg[looked][i_dir], az, p_dw, p_ref,
+                                      vel[m_ref], lam_m=C_MPS / fc_hz, resolution_m=iso_doppler_resolution_m,
+                                      dwell_s=dwell_s)
+            i_r = np.clip(np.rint((r_new - range_os[0]) / dr).astype(np.int64), 0, n_os - 1)
         real_beam = subaperture_real_beam(data, beam, sub_pulses, range_m, angle_deg, angle_step_deg, p_ref)
     except BaseException:             # (an interrupt included) the fit's workers released, not waited for
         if finish_fit is not None:
@@ -512,7 +513,16 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
         "position_ref_m": [float(v) for v in geo["p_ref"]],
-        "fit_half_width_deg": fit_half_width_deg})]
+        "fit_half_width_deg": fit_half_width_deg, **_iso_doppler_params(cube, proc)})]
+
+
+def _iso_doppler_params(cube, proc: dict) -> dict:
+    """The dwell image's parameters for ``processing.dwell_range: iso_doppler`` (none for envelope:
+    the stage's key, and so its reuse, are those of before the option)."""
+    if proc.get("dwell_range", "envelope") != "iso_doppler":
+        return {}
+    return {"iso_doppler_resolution_m": C_MPS / (2.0 * float(cube.radar["bandwidth_hz"])),
+            "dwell_s": dwell_duration_s(cube)}
 
 
 def fit_models_antenna(cube) -> bool:

@@ -60,6 +60,13 @@ def describe_raw(path: str) -> str:
         try:
             cal = calibration_for_cube(cube, "data")
             lines.append(f"  calibration     {cal.describe()}")
+            if cube.antenna and "cube_diff_phase_deg" in cal.stats:     # the data against /antenna
+                gap = (cal.diff_phase_deg - cal.stats["cube_diff_phase_deg"] + 180.0) % 360.0 - 180.0
+                if abs(gap) > 90.0:
+                    lines.append(f"  check           the data's difference/sum phase is {gap:+.0f} deg from "
+                                 f"/antenna's: the difference channel's sign is reversed against CONTRACT.md "
+                                 f"section 3, or /antenna is wrong; process with processing.monopulse_calibration"
+                                 f" = data (auto takes /antenna unchecked)")
         except BadInput as exc:
             lines.append(f"  calibration     data: not possible ({str(exc).split(';')[0]})")
     snr = cube.noise.get("snr_db")

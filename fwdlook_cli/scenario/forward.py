@@ -132,6 +132,10 @@ FORWARD_SCHEMA: dict[str, Any] = {
                            "(forward/dwell_fit.py; about the chain's own cost again on the paper lattice; two "
                            "Gaussian beams only, extended clusters left to the image); none, the per-direction "
                            "dwell image there too (the tracking preset: joint)"),
+        "dwell_range": Field(choice("envelope", "iso_doppler"), "envelope",
+                             "imaging: dwell, where a projected cell's range comes from: envelope, the range "
+                             "of the cell; iso_doppler, moved along the cell's iso-Doppler line to the "
+                             "monopulse azimuth (steep depression: README, dwell imaging)"),
         "doppler_estimator": Field(choice("fft", "iaa"), "fft",
                                    "per-CPI Doppler estimate (imaging: cpi): fft, the zoomed DFT; iaa, the "
                                    "iterative adaptive approach (Yardibi et al. 2010) per range cell"),
