@@ -339,17 +339,27 @@ def _dwell_range_error(cube_path, slope, mode, run_dir, capsys):
     return target["range_error_m"], target["range_width_3db_m"]
 
 
-def test_iso_doppler_range_removes_the_steep_depression_bias(steep_cubes, tmp_path, capsys):
-    """At 39 deg of depression the Doppler changes by 10 Hz per metre of range (1/T_dwell = 7 Hz): a
-    dwell cell off the point's direction focuses it at another range, and the monopulse moves only its
-    azimuth. Measured: 1.18 m of range error and a 4.6 m wide peak (resolution 3.0 m) from the envelope,
-    0.02 m and 2.5 m with the cell moved along its iso-Doppler line. At 50 m height both agree."""
+def test_steep_depression_dwell_ranges(steep_cubes, tmp_path, capsys):
+    """At 39 deg of depression the sub-apertures' range phases 4 pi (|P(r) - p_j| - r) / lambda have
+    slopes up to +-0.0057 (2e-5 at 50 m of height): the dwell image's range band (1/resolution +
+    4 max|s| / lambda = 1.7 per metre) exceeds the native rate (0.4 per metre), so the image is focused on
+    the x4 range grid there. Measured before: 1.18 m of range error and a 4.6 m wide peak (resolution
+    3.0 m); now 0.13 m (the envelope) and 0.05 m (iso_doppler: the cell moved along its iso-Doppler line
+    too). At 50 m of height nothing changes, to the millimetre."""
+    from fwdlook_cli.forward.dwell_range import focus_range_oversample
+    from fwdlook_cli.io.raw import read_raw
+
     cubes, slope = steep_cubes
+    resolution_m = 299_792_458.0 / (2 * 50e6)
+    for h, want in ((50.0, 1), (1000.0, 4)):
+        cube = read_raw(cubes[h])
+        m = cube.n_pulses // 2
+        assert focus_range_oversample(cube.range_m, cube.position_m, cube.position_m[m], cube.radar["fc_hz"], 4,
+                                      resolution_m=resolution_m) == want
     err_env, width_env = _dwell_range_error(cubes[1000.0], slope, "envelope", tmp_path / "env", capsys)
     err_iso, width_iso = _dwell_range_error(cubes[1000.0], slope, "iso_doppler", tmp_path / "iso", capsys)
-    resolution_m = 299_792_458.0 / (2 * 50e6)
-    assert abs(err_env) > 0.25 * resolution_m and width_env > 1.3 * resolution_m   # the bias this removes
-    assert abs(err_iso) < 0.05 * resolution_m and width_iso < 1.0 * resolution_m
+    assert abs(err_env) < 0.1 * resolution_m and width_env < resolution_m
+    assert abs(err_iso) < 0.05 * resolution_m and width_iso < resolution_m
     low_env, _ = _dwell_range_error(cubes[50.0], slope, "envelope", tmp_path / "env50", capsys)
     low_iso, _ = _dwell_range_error(cubes[50.0], slope, "iso_doppler", tmp_path / "iso50", capsys)
     assert abs(low_env) < 0.05 and abs(low_iso - low_env) < 0.005

@@ -31,7 +31,9 @@ range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
    the dwell with the matched-filter weight w = Sigma(delta) e^{-beta delta^2} a target in that
    direction has (a Gaussian taper: low Doppler sidelobes): a back-projection whose inner sums are the
    sub-apertures.  The -r keeps the focused image smooth in range, so it is band-limited-oversampled
-   like the CPI image.
+   like the CPI image, where the depression is low; where it is steep the phases' range slopes widen
+   the image's range band beyond the native rate, and the dwell is focused on the oversampled grid
+   (``dwell_range.focus_range_oversample``).
 4. **Twins.**  With the flight along +y, theta and -theta have the same range history (mirror Doppler):
    no Doppler processing separates them, only the scan does (the beam reaches -theta before +theta).
    Where the twin lies inside the dwell and its envelope is distinct (correlation^2 < 0.9), the
@@ -76,7 +78,7 @@ from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
 from .dwell_fit import start_fit_region
-from .dwell_range import ground_points, iso_doppler_range
+from .dwell_range import dwell_duration_s, dwell_stage_params, ground_points, iso_doppler_range
 
 log = logging.getLogger(__name__)
 
@@ -344,11 +346,12 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
                 twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5, diff_gain_db: float = 0.0,
                 diff_phase_deg: float = 0.0, boresight_offset_deg: float = 0.0,
                 fit_half_width_deg: float = 0.0, iso_doppler_resolution_m: float = 0.0,
-                dwell_s: float = 0.0) -> StageData:
+                dwell_s: float = 0.0, focus_oversample: int = 1) -> StageData:
     """Stage ``dwell_image``: the monopulse image from whole-dwell sums (module docstring).
     ``iso_doppler_resolution_m`` > 0 (the range resolution c / 2B; ``processing.dwell_range:
     iso_doppler``): each projected cell's range is moved along its iso-Doppler line as well
-    (:func:`iso_doppler_range`, ``dwell_s`` the dwell time).
+    (:func:`iso_doppler_range`, ``dwell_s`` the dwell time). ``focus_oversample`` > 1: the dwell focused
+    on the range grid oversampled that many times (:func:`dwell_range.focus_range_oversample`).
 
     Same output variables and grid conventions as ``chain.monopulse_image`` (range at t_ref oversampled
     x ``range_oversample``, azimuth at t_ref on ``angle_step_deg`` bins, real-beam image, ground cells).
@@ -366,16 +369,27 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         raw = diff               # in blocks of pulses (file-backed out of core, io/backing.py)
         diff = backing.map_blocks(lambda s: (raw[s] / np.complex64(imbalance)).astype(np.complex64),
                                   raw.shape[0], raw.shape, np.complex64, raw[0].nbytes)
+    sum_in, focus_os, range_in = data["sum"], int(focus_oversample), range_m
+    if focus_os > 1 and not backing.active():    # the image is not band-limited at the native rate: focus
+        sum_in = oversample_range(sum_in, focus_os).astype(np.complex64)    # on the fine grid (from the
+        diff = oversample_range(diff, focus_os).astype(np.complex64)        # band-limited input)
+        range_in = range_m[0] + (range_m[1] - range_m[0]) / focus_os * np.arange(sum_in.shape[1])
+    else:
+        if focus_os > 1:
+            log.warning("dwell image: this geometry needs the dwell focused on the oversampled range grid, "
+                        "which --out-of-core does not do; its ranges may be biased (README, dwell imaging)")
+        focus_os = 1
     s_rot, d_rot, gain, pos_dwell, plain_gain = dwell_focus(
-        data["sum"], diff, slow_time_s=data["slow_time_s"], scan_angle_deg=beam,
-        position_m=data["position_m"], velocity_mps=vel, range_m=range_m, angle_deg=angle_deg, fc_hz=fc_hz,
+        sum_in, diff, slow_time_s=data["slow_time_s"], scan_angle_deg=beam,
+        position_m=data["position_m"], velocity_mps=vel, range_m=range_in, angle_deg=angle_deg, fc_hz=fc_hz,
         prf_hz=prf_hz,
         slope_per_deg=slope_per_deg, beta_per_deg2=beta_per_deg2, position_ref_m=p_ref,
         sub_pulses=sub_pulses, dwell_half_width_deg=dwell_half_width_deg, twin_null=twin_null,
         twin_axis_deg=twin_axis, twin_orders=twin_orders, twin_max_corr2=twin_max_corr2)
+    del sum_in
     looked = gain > 0
-    s = oversample_range(s_rot[looked], range_oversample)
-    dz = oversample_range(d_rot[looked], range_oversample)
+    s = oversample_range(s_rot[looked], range_oversample // focus_os)
+    dz = oversample_range(d_rot[looked], range_oversample // focus_os)
     dr = (range_m[1] - range_m[0]) / range_oversample
     range_os = range_m[0] + dr * np.arange(s.shape[1])
     # the power in float32 (its own precision), its exact median (dsp.imaging.median_floor: np.median's
@@ -513,16 +527,8 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
         "position_ref_m": [float(v) for v in geo["p_ref"]],
-        "fit_half_width_deg": fit_half_width_deg, **_iso_doppler_params(cube, proc)})]
+        "fit_half_width_deg": fit_half_width_deg, **dwell_stage_params(cube, proc, geo)})]
 
-
-def _iso_doppler_params(cube, proc: dict) -> dict:
-    """The dwell image's parameters for ``processing.dwell_range: iso_doppler`` (none for envelope:
-    the stage's key, and so its reuse, are those of before the option)."""
-    if proc.get("dwell_range", "envelope") != "iso_doppler":
-        return {}
-    return {"iso_doppler_resolution_m": C_MPS / (2.0 * float(cube.radar["bandwidth_hz"])),
-            "dwell_s": dwell_duration_s(cube)}
 
 
 def fit_models_antenna(cube) -> bool:
@@ -536,12 +542,3 @@ def fit_models_antenna(cube) -> bool:
     log.warning(f"processing.dwell_fit: joint models two Gaussian beams; this cube's antenna is "
                 f"{pattern or 'not declared (no /antenna)'}: the dwell image is used without the fit")
     return False
-
-
-def dwell_duration_s(cube) -> float:
-    """T_dwell: the time the scan keeps a direction inside the two-way 3 dB beam (its Doppler
-    resolution is 1/T_dwell; 0.142 s, 354 pulses, for the paper's 4.25 deg at 30 deg/s)."""
-    rate_dps = float(np.median(np.abs(np.diff(cube.scan_angle_deg)))) * cube.radar["prf_hz"]
-    t_scan = cube.n_pulses / cube.radar["prf_hz"]
-    two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
-    return min(two_way_deg / max(rate_dps, 1e-12), t_scan)
