@@ -663,3 +663,36 @@ def test_cube_without_truth_processes(tiny_raw, tmp_path, capsys):
     assert m["targets"] == [] and m["summary"]["n_targets"] == 0
     with h5py.File(tmp_path / "run" / "image.h5", "r") as f:
         assert f["image"][()].max() > 0
+
+
+def test_steep_depression_cpi_band_covers_the_range_window(tmp_path):
+    """At 1000 m of height the boresight Doppler changes by 11.6 Hz per metre of range: the CPI Doppler
+    band computed at the window's middle depression (eq. 25, phi ~ phi_0) left out points 30 m and more
+    from the middle range (each alone, in a window centred on it, was found; two points 100 m apart
+    in range: neither, 0.15 and 0.40 deg off). The band now covers the window's depressions where they
+    differ by more than a Doppler cell; the paper's windows (15 Hz across, a cell is 78 Hz) keep phi_0."""
+    import json
+    import sys
+
+    from fwdlook_cli.cli import main
+    from fwdlook_cli.forward.motion import doppler_band_depressions
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import independent_writer as writer
+
+    assert doppler_band_depressions(50.0, 1000.0, 1400.0, 2.4, [0.0, 240.0, 0.0], 18e9, 2500.0, 32) == 2.4
+    wide = doppler_band_depressions(1000.0, 1277.0, 1801.0, 40.0, [0.0, 240.0, 0.0], 18e9, 2500.0, 32)
+    assert wide == pytest.approx([33.7, 51.6], abs=0.1)
+    raw = tmp_path / "steep_pair.h5"
+    writer.write_cube(raw, "paper", [[-80.0, 1250.0], [70.0, 1150.0]], height_m=1000.0, snr_db=20.0, n_pulses=675)
+    for preset in ("decimation", "tracking"):
+        run_dir = tmp_path / preset
+        with pytest.raises(SystemExit) as exc:
+            main(["process", str(raw), "-o", str(run_dir), "-q", "-c", str(ROOT / "configs" / f"{preset}.yaml"),
+                  "--set", "processing.imaging=cpi",
+                  "--set", f"processing.monopulse_calibration={writer.true_slope_per_deg(6.0)}"])
+        assert exc.value.code == 0
+        m = json.loads((run_dir / "metrics.json").read_text())
+        assert m["summary"]["detected"] == 2, m["targets"]
+        assert max(abs(t["azimuth_error_deg"]) for t in m["targets"]) < 0.06
+        assert max(abs(t["range_error_m"]) for t in m["targets"]) < 0.15 * 3.0

@@ -30,11 +30,13 @@ from .keystone_fast import keystone_both, keystone_both_blocked
 from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, cpi_doppler_band_hz,
-                     cpi_means, fit_motion, keystone_residual_envelope_m, reference_depression_deg, unit_vector)
+                     boresight_doppler_spread_hz, cpi_means, doppler_band_depressions, fit_motion, keystone_residual_envelope_m,
+                     reference_depression_deg, unit_vector)
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData
 from .monopulse import monopulse_image   # noqa: F401 (stage 7, forward/monopulse.py; chain.monopulse_image)
+
 
 CONTEXT = ("slow_time_s", "scan_angle_deg", "position_m", "velocity_mps", "xyz")
 KEYSTONE_METHODS = ("traditional", "decimation", "tracking")
@@ -384,6 +386,8 @@ def build_forward_stages(cube, proc: dict):
     prf = cube.radar["prf_hz"]
     ambiguity = int(ambiguity_number(geo["f_dc0_hz"], prf / q))                # eq. (17), (20)
     geo.update(q=q, ambiguity_number=ambiguity)
+    geo["doppler_spread_hz"] = boresight_doppler_spread_hz(float(geo["p_ref"][2]), float(cube.range_m[0]),
+                                                           float(cube.range_m[-1]), geo["v_ref"], cube.radar["fc_hz"])
     src = StageData()
     src.add("slow_time_s", cube.slow_time_s, ("slow_time_s",), "s", "slow time")
     src.add("range_m", cube.range_m, ("range_m",), "m", "slant range")
@@ -414,7 +418,10 @@ def build_forward_stages(cube, proc: dict):
             "reference_range_m": geo["reference_range_m"]}),
         Stage("doppler_spectra", doppler_spectra, {
             "cpi": proc["cpi"], "n_doppler": proc["n_doppler"], "window": proc["doppler_window"], "fc_hz": fc,
-            "beamwidth_deg": cube.radar["beamwidth_3db_deg"], "depression_deg": geo["depression_deg"],
+            "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
+            "depression_deg": doppler_band_depressions(float(geo["p_ref"][2]), float(cube.range_m[0]),
+                                                       float(cube.range_m[-1]), geo["depression_deg"], geo["v_ref"],
+                                                       fc, prf, proc["cpi"]),
             "prf_hz": prf, "follow_speed": bool(proc["doppler_centroid"]),
             **({"estimator": "iaa"} if proc.get("doppler_estimator", "fft") == "iaa" else {})}),
         Stage("monopulse_image", monopulse_image, {

@@ -54,6 +54,16 @@ def reference_depression_deg(height_m: float, reference_range_m: float) -> float
     return float(np.degrees(np.arcsin(np.clip(height_m / reference_range_m, -1.0, 1.0))))
 
 
+def boresight_doppler_spread_hz(height_m: float, near_m: float, far_m: float, velocity_mps, fc_hz: float) -> float:
+    """How much the boresight Doppler 2 v . u(phi(r)) / lambda changes across slant ranges near..far: the
+    paper's one Doppler reference (eq. 16-17) takes phi ~ phi_0 over the window, which steep depression
+    breaks (10.4 Hz per metre at 1000 m of height and 1.5 km, 0.05 Hz per metre at 50 m)."""
+    lam = 299_792_458.0 / fc_hz
+    f = [2.0 * float(np.dot(velocity_mps, unit_vector(0.0, reference_depression_deg(height_m, r)))) / lam
+         for r in (near_m, far_m)]
+    return abs(f[1] - f[0])
+
+
 def beam_points_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m):
     """For each pulse n, the ground point on its beam axis: azimuth ``beam_deg[n]`` seen from the
     antenna *at pulse n* (the scan angle is the antenna's pointing at that pulse, CONTRACT section 3),
@@ -152,8 +162,19 @@ def cpi_doppler_band_hz(velocity_mps, beam_deg, depression_deg, fc_hz, beamwidth
     Over theta' the Doppler is A cos(theta' - psi) + C, psi the heading of the horizontal velocity,
     A = 2 |v_h| cos(phi_0) / lambda, C = -2 v_z sin(phi_0) / lambda: its extremes are the band's ends,
     or A + C (C - A) where the heading (its opposite) lies inside the band (eq. 26's second case near
-    boresight).  At least 4 Doppler resolution cells wide.
+    boresight).  At least 4 Doppler resolution cells wide (and at most the PRF).
+
+    ``depression_deg`` may be a pair [far, near]: the band then covers both depressions, for a range
+    window across which the depression, and so the Doppler, changes by more than a Doppler cell
+    (steep depression: :func:`doppler_band_depressions`).
     """
+    if np.ndim(depression_deg) == 1:
+        bands = [cpi_doppler_band_hz(velocity_mps, beam_deg, float(d), fc_hz, beamwidth_deg, prf_hz, n_cpi_pulses,
+                                     band_beamwidths) for d in depression_deg]
+        f_lo = np.minimum(bands[0][0], bands[1][0])
+        f_hi = np.maximum(bands[0][1], bands[1][1])
+        centre, width = 0.5 * (f_lo + f_hi), np.minimum(f_hi - f_lo, prf_hz)
+        return centre - width / 2, centre + width / 2
     v = np.asarray(velocity_mps, dtype=np.float64)
     lam = C_MPS / fc_hz
     half = band_beamwidths * beamwidth_deg / 2.0
@@ -176,6 +197,18 @@ def cpi_doppler_band_hz(velocity_mps, beam_deg, depression_deg, fc_hz, beamwidth
     centre = 0.5 * (f_lo + f_hi)
     width = np.clip(f_hi - f_lo, min_width, prf_hz)
     return centre - width / 2, centre + width / 2
+
+
+def doppler_band_depressions(height_m: float, near_m: float, far_m: float, reference_deg: float, velocity_mps,
+                             fc_hz: float, prf_hz: float, n_cpi_pulses: int):
+    """The depression(s) the CPI Doppler band is computed at: the reference depression phi_0 (eq. 25),
+    or [phi(far), phi(near)] where the boresight Doppler changes across the range window by more than
+    one Doppler cell PRF / cpi (at 1000 m of height a point 30 m from the window's middle range fell
+    outside the band: 22 dB of its peak lost; the paper's scenes: 15 Hz against 78 Hz, unchanged)."""
+    spread = boresight_doppler_spread_hz(height_m, near_m, far_m, velocity_mps, fc_hz)
+    if spread <= prf_hz / n_cpi_pulses:
+        return reference_deg
+    return [reference_depression_deg(height_m, far_m), reference_depression_deg(height_m, near_m)]
 
 
 def cpi_means(data, cpi: int, follow_speed: bool):
