@@ -270,11 +270,13 @@ def _check_pulse_timing(slow_time_s: np.ndarray, prf_hz: float, source: str) -> 
     least-squares uniform grid (a dropped pulse or a gap is a whole interval), and ``prf_hz`` equal to
     that grid's rate within 1e-4 (float32 times stay well inside both)."""
     n = np.arange(len(slow_time_s), dtype=np.float64)
-    slope, intercept = np.polyfit(n, slow_time_s, 1)
-    interval_s = float(slope)
-    worst = float(np.max(np.abs(slow_time_s - (intercept + slope * n))))
+    n -= n.mean()                                   # least squares in closed form (no Vandermonde matrix)
+    t_mean = float(np.mean(slow_time_s))
+    interval_s = float(np.dot(n, slow_time_s - t_mean) / np.dot(n, n))
+    residual = np.abs(slow_time_s - (t_mean + interval_s * n))
+    worst = float(np.max(residual))
     if worst > TIMING_JITTER_FRACTION * interval_s:
-        k = int(np.argmax(np.abs(slow_time_s - (intercept + slope * n))))
+        k = int(np.argmax(residual))
         raise BadInput(f"{source}: /axes/slow_time_s: pulse {k} lies {worst / interval_s:.3g} pulse intervals "
                        f"off a uniform pulse train ({1.0 / interval_s:.9g} Hz); allowed: at most "
                        f"{TIMING_JITTER_FRACTION:g} (uniform pulses, no gaps or dropped pulses)")
