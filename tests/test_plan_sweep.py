@@ -49,6 +49,19 @@ def test_plan_curvature_and_drift_at_a50():
     assert p["processing"]["range_curvature"] and p["processing"]["doppler_centroid"]
 
 
+@pytest.mark.parametrize("height_m, steep", [(50.0, False), (1000.0, True)])
+def test_plan_doppler_across_the_range_extent(height_m, steep):
+    """The boresight Doppler 2 v cos(phi(r)) / lambda across the scene's slant ranges (v along +y at
+    t_ref, no vertical speed): 7 Hz at 50 m of height, over a CPI Doppler cell (78 Hz) at 1000 m, where
+    the chain's CPI band covers the window's depressions."""
+    p = plan_for_scenario(paper("paper_fig6_a50.yaml", f"platform.height_m={height_m}"))
+    near, far = p["range_extent_m"]
+    v = 240.0 + 50.0 * np.rint(p["t_ref_s"] * 2500.0) / 2500.0          # the speed at the pulse nearest t_ref
+    expect = 2 * v * 18e9 / C_MPS * abs(np.sqrt(1 - (height_m / far) ** 2) - np.sqrt(1 - (height_m / near) ** 2))
+    assert p["doppler_range_spread_hz"] == pytest.approx(expect, rel=1e-6)
+    assert p["band_over_depressions"] is steep
+
+
 def test_plan_command_text_and_json(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["plan", str(ROOT / "scenarios" / "tiny.yaml"), "--json"])

@@ -24,10 +24,11 @@ import json
 import numpy as np
 
 from ..dsp.geometry import C_MPS, ambiguity_number
+from .motion import boresight_doppler_spread_hz
 
 
 def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf_hz, fs_hz,
-                  beamwidth_deg, reference_range_m, t_ref_s, cpi, q_candidates=None) -> dict:
+                  beamwidth_deg, reference_range_m, t_ref_s, cpi, q_candidates=None, range_extent_m=None) -> dict:
     t = np.asarray(slow_time_s, dtype=np.float64)
     half_cell_m = C_MPS / (2.0 * fs_hz) / 2.0
     height = float(position_m[0, 2])
@@ -54,6 +55,8 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         rows.append({"q": q, "ambiguity_spread": int(err.max()), "residual_walk_m": resid})
     drift_hz = float(np.ptp(f_dc - 2.0 * v_along[0] * np.cos(th) * np.cos(phi) * fc_hz / C_MPS))
     doppler_cell_hz = prf_hz / cpi
+    near, far = range_extent_m if range_extent_m is not None else (reference_range_m, reference_range_m)
+    range_spread_hz = boresight_doppler_spread_hz(height, float(near), float(far), velocity_mps[m_ref], fc_hz)
     traditional = rows[0]
     deci_ok = [r for r in rows[1:] if r["residual_walk_m"] < half_cell_m]
     if walk_m < half_cell_m:
@@ -78,6 +81,8 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         "decimation": rows,
         "doppler_centroid_drift_hz": drift_hz, "doppler_cell_hz": doppler_cell_hz,
         "needs_doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2,
+        "doppler_range_spread_hz": range_spread_hz, "range_extent_m": [float(near), float(far)],
+        "band_over_depressions": range_spread_hz > doppler_cell_hz,
         "processing": {"method": method, "q": q_best if method == "decimation" else 1,
                        "range_curvature": curvature_m >= half_cell_m,
                        "doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2},
@@ -92,7 +97,7 @@ def plan_for_cube(cube, proc: dict) -> dict:
                         fc_hz=cube.radar["fc_hz"], prf_hz=cube.radar["prf_hz"], fs_hz=cube.radar["fs_hz"],
                         beamwidth_deg=cube.radar["beamwidth_3db_deg"],
                         reference_range_m=float(0.5 * (cube.range_m[0] + cube.range_m[-1])), t_ref_s=t_ref_s,
-                        cpi=proc["cpi"])
+                        cpi=proc["cpi"], range_extent_m=(float(cube.range_m[0]), float(cube.range_m[-1])))
     return out
 
 
@@ -109,7 +114,8 @@ def plan_for_scenario(scn: dict) -> dict:
     return plan_geometry(t, pos, vel, scan_angle_deg(t, ant["scan_start_deg"], ant["scan_rate_dps"]),
                          fc_hz=radar["fc_hz"], prf_hz=radar["prf_hz"], fs_hz=radar["fs_hz"],
                          beamwidth_deg=ant["beamwidth_3db_deg"], reference_range_m=float(np.median(r)),
-                         t_ref_s=t_ref_seconds(t, scn["processing"]["t_ref"]), cpi=scn["processing"]["cpi"])
+                         t_ref_s=t_ref_seconds(t, scn["processing"]["t_ref"]), cpi=scn["processing"]["cpi"],
+                         range_extent_m=(float(np.min(r)), float(np.max(r))))
 
 
 def format_plan(plan: dict, name: str) -> str:
@@ -130,6 +136,10 @@ def format_plan(plan: dict, name: str) -> str:
         f"traditional keystone residual walk {plan['traditional_residual_walk_m']:.2f} m (eq. 19)",
         f"  Doppler drift        {plan['doppler_centroid_drift_hz']:9.1f} Hz  vs half a CPI Doppler cell "
         f"{plan['doppler_cell_hz'] / 2:.1f} Hz   {verdict(plan['needs_doppler_centroid'])} (eq. 25)",
+        f"  Doppler across range {plan['doppler_range_spread_hz']:9.1f} Hz  vs a CPI Doppler cell "
+        f"{plan['doppler_cell_hz']:.1f} Hz   "
+        + ("the CPI band covers the window's depressions (steep: motion.doppler_band_depressions)"
+           if plan["band_over_depressions"] else "ok (one depression, eq. 25)"),
         "  decimation (eq. 20): " + ", ".join(
             f"Q={r['q']}: spread {r['ambiguity_spread']}, residual {r['residual_walk_m']:.2f} m"
             for r in plan["decimation"] if r["q"] in (1, 5, 10, 20, 25, 50, 100)),
