@@ -57,7 +57,7 @@ def simulate(scenario, output, overrides, overwrite, quiet):
     from .forward.simulate import simulate_scenario
 
     scn = load_scenario(scenario, overrides)
-    prepare_file(output, inputs=[scenario], overwrite=overwrite)
+    output = prepare_file(output, inputs=[scenario], overwrite=overwrite)   # where it lands (nodir/.. resolved)
     if scn["kind"] != "forward":
         from .isar.simulate import simulate_isar_scenario  # noqa: F401  (ISAR scenario kind)
 

@@ -231,6 +231,37 @@ def test_a_run_folder_holding_a_users_file_beside_a_cube_is_refused(scn, tiny_ra
     assert snapshot(d) == before
 
 
+def test_a_dotdot_output_lands_where_it_says_and_makes_no_folder(scn, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(["simulate", scn, "-o", "nodir/../new.h5", "-q"], capsys)
+    assert code == 0, err
+    assert Path("new.h5").is_file() and not Path("nodir").exists()
+
+
+def test_a_users_stage_file_beside_a_cube_is_refused(scn, tiny_raw, tmp_path, capsys):
+    d = tmp_path / "m"
+    (d / "stages").mkdir(parents=True)
+    shutil.copyfile(tiny_raw, d / "raw.h5")
+    (d / "stages" / "01_range_fft.h5").write_text("mine\n")
+    before = snapshot(d)
+    code, out, err = run_cli(["run", scn, "-o", d, "-q"], capsys)
+    assert_refused(code, out, err, "stages/01_range_fft.h5", "fwdlook did not write it")
+    assert snapshot(d) == before
+
+
+def test_the_lock_is_never_written_through_a_symlink(base_run, tiny_raw, tmp_path, capsys):
+    d = tmp_path / "run"
+    shutil.copytree(base_run, d)
+    user = tmp_path / "userfile"
+    user.write_text("precious\n")
+    lock = d / outputs.LOCK_NAME
+    lock.unlink(missing_ok=True)
+    lock.symlink_to(user)
+    code, _, err = run_cli(["process", tiny_raw, "-o", d, "-q"], capsys)
+    assert code == 0, err
+    assert user.read_text() == "precious\n" and not lock.is_symlink()
+
+
 def test_a_finished_run_is_rerun_in_place(scn, tmp_path, capsys):
     d = tmp_path / "r"
     for _ in range(2):

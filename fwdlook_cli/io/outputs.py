@@ -340,9 +340,15 @@ def prepare_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: boo
                                f"would replace; refusing to overwrite it; {OVERWRITE_HINT}")
         elif not overwrite:      # fwdlook's run: each file it would replace must be fwdlook's too
             foreign = [n for n in present if not _run_file_is_ours(d, n)]
+            staged = [q for q in (_iter_quiet(stages) if stages.is_dir() else []) if not q.name.endswith(".partial")]
+            kinds = [h5_format(q) == "fwdlook-stage" for q in staged]
+            if not any(kinds) and not is_fwdlook_metrics(d / "metrics.json"):     # stages/ is not the run's:
+                foreign += [f"stages/{q.name}" for q in staged]                # (the run's own damaged stage
+                #                                                                 files are recomputed)
             if foreign:
+                mark = _RUN_FILE_MARK["stages/" if foreign[0].startswith("stages/") else foreign[0]]
                 raise BadInput(f"{d / foreign[0]}: a run would replace it, and fwdlook did not write it "
-                               f"({_RUN_FILE_MARK[foreign[0]]}); refusing to overwrite it; {OVERWRITE_HINT}")
+                               f"({mark}); refusing to overwrite it; {OVERWRITE_HINT}")
     _make_dir(d, d)
     _make_dir(d / "stages", d / "stages")
     probe_writable(d, d)
@@ -355,6 +361,7 @@ _RUN_FILE_MARK = {
     "raw.h5": "not an HDF5 file with / attributes format = fwdlook-raw, software = fwdlook",
     "scenario.yaml": "no fwdlook metrics.json beside it",
     "image.png": "no fwdlook metrics.json beside it",
+    "stages/": "no fwdlook stage file or metrics.json beside it",
 }
 
 
@@ -433,7 +440,9 @@ def folder_lock(folder, what: str = "run directory"):
 
     path = Path(folder) / LOCK_NAME
     try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        if path.is_symlink():               # replaced, never written through (as every output)
+            path.unlink()
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
     except OSError as exc:
         raise write_error(path, exc) from None
     try:
