@@ -345,6 +345,15 @@ def test_a_folder_in_use_by_another_command_is_refused(scn, tiny_raw, base_run, 
     assert code == 0, err
 
 
+def test_a_refused_command_leaves_no_stages_folder(scn, tmp_path, capsys):
+    d = tmp_path / "fresh"
+    d.mkdir()
+    with outputs.folder_lock(d):
+        code, out, err = run_cli(["run", scn, "-o", d, "-q"], capsys)
+        assert_refused(code, out, err, "run directory in use")
+    assert sorted(p.name for p in d.iterdir()) == [outputs.LOCK_NAME]
+
+
 def test_bench_write_cube_is_guarded_and_bounded(tmp_path, capsys, monkeypatch):
     notes = tmp_path / "notes.txt"
     notes.write_text("precious\n")

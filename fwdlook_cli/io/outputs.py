@@ -350,7 +350,8 @@ def prepare_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: boo
                 raise BadInput(f"{d / foreign[0]}: a run would replace it, and fwdlook did not write it "
                                f"({mark}); refusing to overwrite it; {OVERWRITE_HINT}")
     _make_dir(d, d)
-    _make_dir(d / "stages", d / "stages")
+    if (d / "stages").exists() and not (d / "stages").is_dir():     # (made by the runner, under the lock:
+        raise BadInput(f"cannot write {d / 'stages'}: it is not a directory")   # a refused command makes none)
     probe_writable(d, d)
     return d
 
