@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..dsp.geometry import C_MPS
 from ..errors import BadInput
 
 RATIO_TABLE_POINTS = 401
@@ -158,58 +157,8 @@ def _azimuth_deg(position_m, point_m):
     return np.degrees(np.arctan2(d[..., 0], d[..., 1]))
 
 
-# the strongest sample is at most this far over the detection threshold (the floor is raised to keep it
-# so): a lone point's cluster then spans 2 (bw/2) sqrt(12 / 6.02) = 1.4 beamwidths of scan at most, the
-# width the isolation tests below assume; at 60 dB it spanned 2.6 beamwidths, neighbouring points
-# merged and only spurious clusters were left isolated
-CLUSTER_RANGE_DB = 12.0
-SIDELOBE_SPAN_CELLS = 64      # range sidelobes are looked for this many resolution cells either side (-36 dB of the envelope)
-SIDELOBE_MARGIN = 10.0        # above the sinc envelope: two targets' sidelobes add (+6 dB), the LFM's taper
-
-
-def range_sidelobe_ceiling(p, dr_m: float, resolution_m: float):
-    """For every sample of the per-pulse powers ``p`` [pulses, range], the highest power a range sidelobe
-    of a stronger local maximum in the same pulse can have there: ``P_j min(1, M / (pi u)^2)`` with u the
-    distance in resolution cells c/(2B) and ``M = SIDELOBE_MARGIN`` over the sinc's envelope 1/(pi u)^2.
-    A local maximum under it is a sidelobe (or the two targets' sidelobes interfering), not a scatterer:
-    at high SNR these rise above any noise threshold and, near their target, made the targets fail
-    the isolation test while the sidelobe clusters passed."""
-    peaks = np.zeros_like(p)
-    inner = (p[:, 1:-1] >= p[:, :-2]) & (p[:, 1:-1] > p[:, 2:])
-    peaks[:, 1:-1] = np.where(inner, p[:, 1:-1], 0.0)
-    ceiling = np.zeros_like(p)
-    n_r = p.shape[1]
-    span = min(int(np.ceil(SIDELOBE_SPAN_CELLS * resolution_m / dr_m)), n_r - 1)
-    for k in range(1, span + 1):
-        u = k * dr_m / resolution_m
-        factor = np.float32(min(1.0, SIDELOBE_MARGIN / (np.pi * u) ** 2))
-        np.maximum(ceiling[:, k:], peaks[:, :-k] * factor, out=ceiling[:, k:])
-        np.maximum(ceiling[:, :-k], peaks[:, k:] * factor, out=ceiling[:, :-k])
-    return ceiling
-
-
-def _pulse_averaged(p, position_m, resolution_m: float, threshold_db: float):
-    """The per-pulse powers averaged over the L pulses in which a point's range moves by at most half a
-    resolution cell (L = 0.5 c/(2B) / the antenna's step per pulse: 15 for the paper), and the detection
-    threshold for that average at the single sample's false-alarm probability exp(-10^(threshold/10))
-    (the average of L exponential noise samples is Gamma(L, 1/L)): a point is then detected at about
-    10 log10(L) / 2 dB less SNR per pulse, and its power's mean, which the rest uses, is unchanged."""
-    from scipy.special import gammainccinv
-
-    step_m = float(np.median(np.linalg.norm(np.diff(np.asarray(position_m), axis=0), axis=1)))
-    n_avg = int(np.clip(np.floor(0.5 * resolution_m / max(step_m, 1e-12)), 1, max(1, p.shape[0] // 8)))
-    if n_avg < 2:
-        return p, threshold_db
-    c = np.cumsum(p, axis=0, dtype=np.float64)
-    c = np.concatenate([np.zeros((1, p.shape[1])), c])
-    lo = np.clip(np.arange(p.shape[0]) - n_avg // 2, 0, p.shape[0] - n_avg)
-    avg = ((c[lo + n_avg] - c[lo]) / n_avg).astype(np.float32)
-    p_fa = np.exp(-(10.0 ** (threshold_db / 10.0)))
-    return avg, float(10.0 * np.log10(gammainccinv(n_avg, p_fa) / n_avg))
-
-
 def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, beamwidth_deg, t_ref_index=None,
-                  threshold_db=13.0, max_scatterers=24, n_iter=4, resolution_m=None):
+                  threshold_db=13.0, max_scatterers=24, n_iter=4):
     """Strong isolated point-like returns seen across the scan, and their samples.
 
     Returns a dict of pooled per-pulse samples (``scatterer``, ``pulse``, ``offset_deg`` = delta_n,
@@ -226,18 +175,9 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     noise = float(np.percentile(p, 25.0)) / np.log(4.0 / 3.0)
     if not noise > 0:
         noise = float(np.mean(p)) * 1e-6 + 1e-30
-    # the detection on the pulse-averaged powers, from a floor at most CLUSTER_RANGE_DB + the threshold
-    # under the strongest (measured on five points of an independently written cube: all five found from
-    # 17 dB to noiseless; without the floor two at 35-40 dB and only spurious ones from 45 dB up; without
-    # the average none under 19 dB: README); the samples, their noise and weights stay the per-pulse ones
-    p_det, threshold_db = _pulse_averaged(p, position_m, dr if resolution_m is None else float(resolution_m),
-                                          threshold_db)
-    floor = max(noise, float(p_det.max()) * 10.0 ** (-(CLUSTER_RANGE_DB + threshold_db) / 10.0))
-    thr = floor * 10.0 ** (threshold_db / 10.0)
-    p = p_det
+    thr = noise * 10.0 ** (threshold_db / 10.0)
     loc = np.zeros_like(p, dtype=bool)
     loc[:, 1:-1] = (p[:, 1:-1] > thr) & (p[:, 1:-1] >= p[:, :-2]) & (p[:, 1:-1] > p[:, 2:])
-    loc &= p >= range_sidelobe_ceiling(p, dr, dr if resolution_m is None else float(resolution_m))
     n_idx, i_idx = np.nonzero(loc)
     empty = {"scatterer": np.zeros(0, int), "pulse": np.zeros(0, int), "offset_deg": np.zeros(0),
              "z": np.zeros(0, complex), "weight": np.zeros(0), "x_m": np.zeros(0), "y_m": np.zeros(0),
@@ -271,7 +211,7 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     np.minimum.at(scan_lo, lab, scan)
     np.maximum.at(scan_hi, lab, scan)
     rho_c = np.bincount(lab, weights=rho * pw, minlength=n_lab) / np.bincount(lab, weights=pw, minlength=n_lab)
-    peak_db = 10 * np.log10(peak / floor)
+    peak_db = 10 * np.log10(peak / noise)
     # a lone point stays above the threshold over 2 x (bw/2) sqrt(L / 6.02 dB), L = peak - threshold
     # (two-way Gaussian-like beam); longer: several scatterers merged
     expect = beamwidth_deg * np.sqrt(np.maximum(peak_db - threshold_db, 0.0) / 6.02)
@@ -515,11 +455,6 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
         cal.stats["effective_slope_per_deg"] = cal.slope_per_deg
         cal.stats["note"] = ("general ratio curve (tanh rejected by the model test): the amplitude imbalance "
                              "is part of the curve and not reported apart")
-    elif not sigma["slope_per_deg"] < abs(cal.slope_per_deg):
-        # at low SNR the curve's bend k and the amplitude imbalance S/k trade against each other (12 dB:
-        # k = 0.0003 +- 141 /deg, gain 62 dB): only S on the null is determined, and the image uses S there
-        cal.stats["note"] = ("the ratio curve's bend and the amplitude imbalance are not separable at this SNR "
-                             "(their uncertainties exceed them): only effective_slope_per_deg is determined")
     return cal
 
 
@@ -536,9 +471,7 @@ def calibration_for_cube(cube, setting, *, t_ref_index=None, model: str = "auto"
         return from_cube
     if setting == "auto" and from_cube is not None:
         return from_cube
-    resolution_m = C_MPS / (2.0 * float(cube.radar["bandwidth_hz"]))
     samples = point_returns(cube.sum, cube.diff, cube.range_m, cube.scan_angle_deg, cube.position_m,
-                            resolution_m=resolution_m,
                             beamwidth_deg=bw, t_ref_index=t_ref_index)
     cal = estimate_calibration(samples, beamwidth_deg=bw, model=model)
     if from_cube is not None:  # a check on the cube's own antenna
