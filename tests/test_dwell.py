@@ -363,3 +363,21 @@ def test_steep_depression_dwell_ranges(steep_cubes, tmp_path, capsys):
     low_env, _ = _dwell_range_error(cubes[50.0], slope, "envelope", tmp_path / "env50", capsys)
     low_iso, _ = _dwell_range_error(cubes[50.0], slope, "iso_doppler", tmp_path / "iso50", capsys)
     assert abs(low_env) < 0.05 and abs(low_iso - low_env) < 0.005
+
+
+def test_steep_fine_focus_with_the_joint_fit(tmp_path, capsys):
+    """fwdlook's own cube (two declared Gaussian beams: the joint fit runs) at 1000 m of height, where
+    the dwell is focused on the x4 range grid: the fit takes the native samples (it stopped with an
+    IndexError when it was handed the fine grid's) and every target is found."""
+    from fwdlook_cli.cli import main
+
+    run_dir = tmp_path / "steep"
+    with pytest.raises(SystemExit) as exc:
+        main(["run", str(ROOT / "scenarios" / "tiny.yaml"), "-o", str(run_dir), "-q", "-c",
+              str(ROOT / "configs" / "tracking.yaml"), "--set", "platform.height_m=1000"])
+    assert exc.value.code == 0, capsys.readouterr().err
+    with h5py.File(run_dir / "stages" / "06_dwell_image.h5", "r") as f:
+        settings = json.loads(f.attrs["settings"])
+    assert settings["focus_oversample"] == 4 and settings["fit_half_width_deg"] > 0
+    m = json.loads((run_dir / "metrics.json").read_text())
+    assert m["summary"]["detected"] == m["summary"]["n_targets"]

@@ -29,9 +29,9 @@ from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both, keystone_both_blocked
 from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
-from .motion import (DopplerPhaseHistory, beam_range_history_m, bulk_range_history_m, cpi_doppler_band_hz,
-                     boresight_doppler_spread_hz, cpi_means, doppler_band_depressions, fit_motion, keystone_residual_envelope_m,
-                     reference_depression_deg, unit_vector)
+from .motion import (DopplerPhaseHistory, beam_range_history_m, boresight_doppler_spread_hz,
+                     bulk_range_history_m, cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion,
+                     keystone_residual_envelope_m, reference_depression_deg, unit_vector)
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData

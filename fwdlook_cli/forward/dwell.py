@@ -369,7 +369,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         raw = diff               # in blocks of pulses (file-backed out of core, io/backing.py)
         diff = backing.map_blocks(lambda s: (raw[s] / np.complex64(imbalance)).astype(np.complex64),
                                   raw.shape[0], raw.shape, np.complex64, raw[0].nbytes)
-    sum_in, focus_os, range_in = data["sum"], int(focus_oversample), range_m
+    sum_in, focus_os, range_in, diff_native = data["sum"], int(focus_oversample), range_m, diff
     if focus_os > 1 and not backing.active():    # the image is not band-limited at the native rate: focus
         sum_in = oversample_range(sum_in, focus_os).astype(np.complex64)    # on the fine grid (from the
         diff = oversample_range(diff, focus_os).astype(np.complex64)        # band-limited input)
@@ -413,9 +413,9 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     if fit_half_width_deg > 0:       # the joint fit owns the directions near the flight axis (dwell_fit.py):
         # started here, it runs on other processes while this one projects the dwell image's cells
         in_fit = np.abs(angle_deg[looked] - twin_axis) <= fit_half_width_deg
-        p_nat = s_rot[looked][in_fit]
+        p_nat = s_rot[looked][in_fit][:, ::focus_os]       # the native range samples (the fit's grid)
         finish_fit = start_fit_region(
-            data["sum"], diff, scan_angle_deg=beam, position_m=data["position_m"], range_m=range_m,
+            data["sum"], diff_native, scan_angle_deg=beam, position_m=data["position_m"], range_m=range_m,
             profile=np.max(p_nat.real**2 + p_nat.imag**2, axis=0), level=level, axis_deg=twin_axis,
             half_width_deg=fit_half_width_deg, dwell_half_width_deg=dwell_half_width_deg,
             angle_step_deg=angle_step_deg, fc_hz=fc_hz, prf_hz=prf_hz, slope_per_deg=slope_per_deg,

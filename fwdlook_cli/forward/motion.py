@@ -58,7 +58,7 @@ def boresight_doppler_spread_hz(height_m: float, near_m: float, far_m: float, ve
     """How much the boresight Doppler 2 v . u(phi(r)) / lambda changes across slant ranges near..far: the
     paper's one Doppler reference (eq. 16-17) takes phi ~ phi_0 over the window, which steep depression
     breaks (10.4 Hz per metre at 1000 m of height and 1.5 km, 0.05 Hz per metre at 50 m)."""
-    lam = 299_792_458.0 / fc_hz
+    lam = C_MPS / fc_hz
     f = [2.0 * float(np.dot(velocity_mps, unit_vector(0.0, reference_depression_deg(height_m, r)))) / lam
          for r in (near_m, far_m)]
     return abs(f[1] - f[0])
