@@ -1,10 +1,12 @@
-"""Where a dwell cell's range belongs once the monopulse has said its azimuth
-(``processing.dwell_range: iso_doppler``; README, "Found on independent cubes").
+"""The dwell image's range at steep depression (README, "Found on independent cubes"), and the
+geometry it shares with ``dwell.py`` (ground points, the dwell time, the stage's optional parameters).
 
-At steep depression the Doppler of a ground point changes with its range (10.4 Hz per metre at 1000 m
-of height, against the dwell's 1/T_dwell = 7 Hz): a dwell cell off a point's direction and off its range
-has the point's Doppler history and focuses it; :func:`iso_doppler_range` moves the cell along its
-iso-Doppler line to the monopulse azimuth, weighed against the envelope.
+* :func:`focus_range_oversample`: where the sub-apertures' range phases widen the image's range band
+  beyond the native rate, the dwell is focused on the oversampled grid (automatic, by geometry).
+* :func:`iso_doppler_range` (``processing.dwell_range: iso_doppler``): the Doppler of a ground point
+  changes with its range (10.4 Hz per metre at 1000 m of height, against the dwell's 1/T_dwell = 7 Hz),
+  so a dwell cell off a point's direction and off its range focuses it; the cell is moved along its
+  iso-Doppler line to the monopulse azimuth, weighed against the envelope.
 """
 from __future__ import annotations
 
