@@ -118,5 +118,11 @@ def test_bench_shows_progress(capsys, monkeypatch):
     assert result["fft2_median_between_chains"] > 0
     lo, hi = sorted(result["fft2_median_before_after"] + [result["fft2_median_between_chains"]])[::2]
     assert lo <= result["fft2_s"] <= hi            # the median of all lies between the sets' medians
+    # the reference in a plain interpreter too, and every chain's ratio to it
+    from fwdlook_cli.report.bench import CLEAN_PROCESSES
+
+    assert result["fft2_clean_process_s"] > 0 and len(result["fft2_clean_process_medians"]) == 2 * CLEAN_PROCESSES
+    assert result["chain_ratios_to_clean_fft2"]["chain"] == pytest.approx(
+        result["chain_s"] / result["fft2_clean_process_s"])
     steps = [ln for ln in err.splitlines() if ln.startswith("bench [")]
     assert [s.split("]")[0] for s in steps] == [f"bench [{i}/10" for i in range(1, 11)]

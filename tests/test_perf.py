@@ -683,3 +683,18 @@ def test_a_run_imports_neither_scipy_optimize_nor_interpolate(tmp_path):
                              capture_output=True, text=True, timeout=120)
         assert res.returncode == 0, res.stderr
         assert f"exit 0 imported: {heavy}" in res.stdout, res.stdout + res.stderr
+
+
+def test_clean_process_reference_transforms_the_same_cube_without_fwdlook():
+    """bench's plain-interpreter reference (benchtools.clean_process_fft2) times the fft2 of the very
+    array it is given (sum |fft2| equal to this process's to float32 rounding), in a child that
+    imports neither fwdlook nor its allocator setting."""
+    from fwdlook_cli.report.benchtools import _CLEAN_FFT2, clean_process_fft2
+
+    rng = np.random.default_rng(9)
+    x = (rng.standard_normal((96, 40)) + 1j * rng.standard_normal((96, 40))).astype(np.complex64)
+    got = clean_process_fft2(x, repeats=3, processes=2)
+    assert len(got["times"]) == 6 and all(t > 0 for t in got["times"]) and len(got["medians"]) == 2
+    expect = float(np.abs(scipy.fft.fft2(x)).sum(dtype=np.float64))
+    assert got["abs_sum"] == pytest.approx(expect, rel=1e-5)
+    assert "fwdlook" not in _CLEAN_FFT2 and "mallopt" not in _CLEAN_FFT2

@@ -28,10 +28,11 @@ def _step(i: int, n: int, what: str) -> None:
     log.info(f"bench [{i}/{n}] {what} ({time.perf_counter() - _T0[0]:.1f} s elapsed)")
 
 
-from .benchtools import chain_peak_rss, median_time as _median_time, time_chain
+from .benchtools import chain_peak_rss, clean_process_fft2, median_time as _median_time, time_chain
 
 FFT2_REPEATS = 21          # the reference: median of at least 20 plain 2-D FFTs, before and after
 FFT2_BETWEEN = 3           # and this many before each chain run of the rounds (after one untimed)
+CLEAN_PROCESSES = 3        # plain interpreters timing the reference, before and after the chains each
 
 
 def _times(fn, repeats):
@@ -73,6 +74,8 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     scipy.fft.fft2(x, workers=-1)                          # warm-up: scipy's plan cache, pages
     fft2_times = _times(lambda: scipy.fft.fft2(x, workers=-1), FFT2_REPEATS)
     out["fft2_s"] = statistics.median(fft2_times)
+    # and in plain interpreters beside this one, before and after the chains (benchtools.clean_process_fft2)
+    clean_before = clean_process_fft2(x, FFT2_REPEATS, CLEAN_PROCESSES)
     out["simulate_s"] = _median_time(lambda: simulate_scenario(paper), repeats=3)
     out["simulate_tiny_s"] = _median_time(lambda: simulate_scenario(tiny), repeats=5)
 
@@ -190,11 +193,20 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     # two free cores against 5.6 ms on one: docs/SPEED_HISTORY.md, seventh round), which every ratio
     # above inherits while the chain keeps 1.4-1.6 cores busy; its ratio to fft2_s is that gain
     out["fft2_one_thread_s"] = statistics.median(_times(lambda: scipy.fft.fft2(x, workers=1), FFT2_REPEATS))
+    # the plain interpreter's reference: this process's allocator (one arena for every thread, set by the
+    # command line for the stages' memory) slows the fft2's worker threads; the chains' ratios to it
+    clean_after = clean_process_fft2(x, FFT2_REPEATS, CLEAN_PROCESSES)
+    clean = clean_before["times"] + clean_after["times"]
+    out["fft2_clean_process_s"] = statistics.median(clean) if clean else None
+    out["fft2_clean_process_medians"] = clean_before["medians"] + clean_after["medians"]   # one per child
     out["cube_mib"] = (cube.sum.nbytes + cube.diff.nbytes) / 2**20
     out["chain_repeats"] = chain_repeats
     _step(10, n, "done")
     out["ratios_to_fft2"] = {k[:-2]: out[k] / out["fft2_s"] for k in list(out) if k.endswith("_s")
-                             and k != "fft2_s"}
+                             and k != "fft2_s" and out[k] is not None}
+    if out["fft2_clean_process_s"]:
+        out["chain_ratios_to_clean_fft2"] = {k[:-2]: out[k] / out["fft2_clean_process_s"] for k in list(out)
+                                             if k.startswith("chain_") and k.endswith("_s")}
     return out
 
 
@@ -231,15 +243,16 @@ def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, re
         print(json.dumps(result, indent=2))
     else:
         for key, value in result.items():
-            if key == "ratios_to_fft2":
+            if key in ("ratios_to_fft2", "chain_ratios_to_clean_fft2"):
+                unit = "fft2" if key == "ratios_to_fft2" else "fft2 in a plain interpreter"
                 for k, v in value.items():
-                    print(f"  {k:<22s} {v:10.1f} x fft2")
+                    print(f"  {k:<22s} {v:10.1f} x {unit}")
             elif isinstance(value, dict):
                 for k, v in value.items():
                     print(f"{key}[{k}]".ljust(24) + f" {v:10.1f}")
             elif key.endswith("_db"):
                 print(f"{key:<24s} {value:10.1f} dB")
-            elif key.startswith("fft2_median"):          # the reference's sets, in seconds: shown in ms
+            elif key.startswith(("fft2_median", "fft2_clean_process_medians")):          # the reference's sets, in seconds: shown in ms
                 values = value if isinstance(value, list) else [value]
                 print(f"{key:<24s} " + " ".join(f"{v * 1e3:10.2f}" for v in values) + " ms")
             elif value is None or not isinstance(value, float) or not key.endswith("_s"):

@@ -182,6 +182,52 @@ def _rss_probe() -> None:
     print(json.dumps({"base": base, "hwm": peak_rss_bytes()}))
 
 
+_CLEAN_FFT2 = """
+import json, sys, time
+import numpy as np, scipy.fft
+x = np.load(sys.argv[1])
+y = scipy.fft.fft2(x, workers=-1)                     # warm-up: plan cache, pages
+times = []
+for _ in range(int(sys.argv[2])):
+    t0 = time.perf_counter()
+    scipy.fft.fft2(x, workers=-1)
+    times.append(time.perf_counter() - t0)
+print(json.dumps({"times": times, "abs_sum": float(np.abs(y).sum(dtype=np.float64))}))
+"""
+
+
+def clean_process_fft2(x, repeats: int = 21, processes: int = 1) -> dict:
+    """The reference in plain interpreters: ``processes`` children one after the other, each timing
+    ``repeats`` calls of ``scipy.fft.fft2(x, workers=-1)`` after one untimed call, with numpy and
+    scipy.fft imported and glibc's allocator as it comes.  fwdlook's command line shares one allocator
+    arena among all threads (``dsp.blas.share_one_allocator_arena``, for the stages' memory), and
+    pocketfft's worker threads then contend for it.  Measured on this machine: about 2.1 ms in most
+    plain interpreters and 3.6 ms in about one in four, 2.5-2.7 ms with the shared arena, and 3.4-3.7
+    ms in the bench's own process after its simulation (README, Speed).  Several children average over
+    that per-process spread.  Returns {"times": [s, every child's], "medians": [s, one per child],
+    "abs_sum": sum |fft2(x)| from the last child (a test checks that it is this array's transform)};
+    a child that fails adds nothing."""
+    import json
+    import subprocess
+    import sys
+
+    out = {"times": [], "medians": [], "abs_sum": None}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "x.npy"
+        np.save(path, np.ascontiguousarray(x))
+        for _ in range(max(1, int(processes))):
+            res = subprocess.run([sys.executable, "-c", _CLEAN_FFT2, str(path), str(int(repeats))],
+                                 capture_output=True, text=True, check=False)
+            try:
+                child = json.loads(res.stdout.strip().splitlines()[-1])
+            except (IndexError, ValueError):
+                continue
+            out["times"] += child["times"]
+            out["medians"].append(statistics.median(child["times"]))
+            out["abs_sum"] = child["abs_sum"]
+    return out
+
+
 # ----------------------------------------------------------------------------------------------
 # scaling series (fwdlook bench --scaling)
 # ----------------------------------------------------------------------------------------------
