@@ -117,12 +117,17 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
     return scn, cube
 
 
+def _reads_cube(source, raw) -> bool:
+    """Whether the command processes a cube read from a file (RAW.h5 as the source, or --raw)."""
+    return bool(raw) or Path(source).suffix.lower() in (".h5", ".hdf5", ".hdf")
+
+
 def _default_run_dir(scn, output):
     return Path(output) if output else Path("runs") / scn["name"]
 
 
 def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", keep_stages="all",
-             out_of_core=False):
+             out_of_core=False, from_file=False):
     if scn["kind"] == "isar":
         from .isar.process import process_isar_cube
 
@@ -137,8 +142,25 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", ke
             raise
     from .forward.process import process_cube
 
+    if from_file:
+        _check_antenna_against_data(scn, cube, source)
     return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source,
                         keep_stages=keep_stages, release_cube=True)
+
+
+def _check_antenna_against_data(scn, cube, source):
+    """A cube read from a file, processed with ``monopulse_calibration: auto`` (the /antenna group where
+    there is one): refused where the data contradict the group (``forward.calibration.
+    antenna_contradiction``: a reversed difference channel would mirror every angle, silently).  A
+    cube simulated in this process carries its own antenna and is not checked."""
+    if scn["processing"].get("monopulse_calibration", "auto") != "auto":
+        return
+    from .forward.calibration import antenna_contradiction
+
+    contradiction = antenna_contradiction(cube)
+    if contradiction:
+        raise BadInput(f"{source}: processing.monopulse_calibration = auto: {contradiction}; allowed: data "
+                       f"(calibrate from the data), cube (/antenna as it is) or a slope per degree")
 
 
 def _print_summary(metrics, run_dir, quiet):
@@ -215,7 +237,8 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
     with held, painting(), _out_of_core(out_of_core, output):   # the PNG's matplotlib in a child (io/painter.py)
         scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
         run_dir = _default_run_dir(scn, output)
-        metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages, out_of_core)
+        metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages, out_of_core,
+                           from_file=_reads_cube(source, raw))
     _print_summary(metrics, run_dir, quiet)
 
 
@@ -235,7 +258,7 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
     from .io.raw import write_raw
     from .io.outputs import folder_lock, prepare_run_dir
 
-    writes_raw = not raw and Path(scenario).suffix.lower() not in (".h5", ".hdf5", ".hdf")
+    writes_raw = not _reads_cube(scenario, raw)
     held = contextlib.ExitStack()        # the run directory's lock, until the command ends
 
     def prepare(scn):
@@ -251,7 +274,8 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
         run_dir = _default_run_dir(scn, output)
         if writes_raw:
             write_raw(run_dir / "raw.h5", cube)
-        metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages, out_of_core)
+        metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages, out_of_core,
+                           from_file=not writes_raw)
     _print_summary(metrics, run_dir, quiet)
     click.echo(str(run_dir / "metrics.json"))
 

@@ -204,9 +204,10 @@ def test_own_simulated_imbalance_is_undone_from_the_cube(tmp_path):
 
 
 def test_info_says_when_the_data_contradict_the_antenna_group(tmp_path, capsys):
-    """A difference channel of the opposite sign under an /antenna group of the usual one: `auto` takes
-    the group unchecked (processing it lost 3 of 5 points, silently); `fwdlook info` compares the
-    data's difference/sum phase with the group's and says so (a 180 deg phase flip, nothing else)."""
+    """A difference channel of the opposite sign under an /antenna group of the usual one: taking the
+    group as it is mirrors every angle (`process` refuses `auto` for it: next test); `fwdlook info`
+    compares the data's difference/sum phase with the group's and says so (a 180 deg phase flip,
+    nothing else)."""
     import h5py
 
     from fwdlook_cli.forward.simulate import simulate_scenario
@@ -226,3 +227,59 @@ def test_info_says_when_the_data_contradict_the_antenna_group(tmp_path, capsys):
     assert "check " not in outs[good]
     check = [line for line in outs[flipped].splitlines() if line.strip().startswith("check")]
     assert len(check) == 1 and "reversed" in check[0] and "180 deg" in check[0], outs[flipped]
+
+
+def test_process_refuses_auto_where_the_data_contradict_the_antenna_group(tmp_path, capsys):
+    """`fwdlook process` of a cube read from a file, with monopulse_calibration = auto: where the data's
+    difference/sum phase contradicts /antenna (here the difference channel's sign reversed), exit 2 with
+    one line naming the file, the key and the allowed values, before any output; `data` calibrates
+    from the data and places the points as the unflipped cube does; `cube` takes the group as it is
+    (the mirrored angles the user asked for); the unflipped cube processes with auto as before."""
+    import json
+
+    import h5py
+
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.io.raw import write_raw
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    cube, _ = simulate_scenario(load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "isolated_a50.yaml"))
+    good, flipped = tmp_path / "good.h5", tmp_path / "flipped.h5"
+    write_raw(good, cube)
+    write_raw(flipped, cube)
+    with h5py.File(flipped, "r+") as f:
+        f["echo/diff"][...] = -f["echo/diff"][...]
+    capsys.readouterr()
+    assert _cli(["process", flipped, "-o", tmp_path / "auto", "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(flipped) in err[0] and "processing.monopulse_calibration = auto" in err[0]
+    assert "reversed" in err[0] and "allowed: data" in err[0] and "cube" in err[0], err
+    assert not (tmp_path / "auto" / "metrics.json").exists() and not (tmp_path / "auto" / "stages").exists()
+    runs = {}
+    for tag, path, sets in (("good", good, []), ("data", flipped, ["--set", "processing.monopulse_calibration=data"]),
+                            ("cube", flipped, ["--set", "processing.monopulse_calibration=cube"])):
+        assert _cli(["process", path, "-o", tmp_path / tag, "-q", *sets]) == 0, tag
+        runs[tag] = json.loads((tmp_path / tag / "metrics.json").read_text())
+    assert runs["good"]["calibration"]["source"] == "cube" and runs["data"]["calibration"]["source"] == "data"
+    az = {tag: np.array([t["meas_azimuth_deg"] for t in m["targets"]]) for tag, m in runs.items()}
+    truth = np.array([t["true_azimuth_deg"] for t in runs["good"]["targets"]])
+    good_err = np.nanmax(np.abs(az["good"] - truth))
+    assert np.nanmax(np.abs(az["data"] - truth)) < max(2 * good_err, 0.1)      # placed as the good cube's
+    assert runs["data"]["summary"]["detected"] == runs["good"]["summary"]["detected"]
+    # `cube` keeps the group's sign against the data's: the angles mirrored about each beam axis
+    assert runs["cube"]["summary"]["rms_azimuth_error_deg"] > 3 * runs["good"]["summary"]["rms_azimuth_error_deg"]
+
+
+def test_only_cubes_read_from_files_are_checked_against_their_antenna(tmp_path, monkeypatch):
+    """The check of /antenna against the data runs for `process RAW.h5` and `run --raw`, not for a cube
+    `run` simulates itself (its antenna is the one it simulated with)."""
+    import fwdlook_cli.forward.calibration as calibration
+
+    calls = []
+    monkeypatch.setattr(calibration, "antenna_contradiction", lambda cube, cal=None: calls.append(cube) or None)
+    tiny = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
+    assert _cli(["run", tiny, "-o", tmp_path / "sim", "-q"]) == 0
+    assert calls == []
+    assert _cli(["process", tmp_path / "sim" / "raw.h5", "-o", tmp_path / "file", "-q"]) == 0
+    assert _cli(["run", tiny, "--raw", tmp_path / "sim" / "raw.h5", "-o", tmp_path / "raw", "-q"]) == 0
+    assert len(calls) == 2

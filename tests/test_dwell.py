@@ -250,11 +250,16 @@ def test_dwell_image_on_a_window_reaching_negative_ranges(tmp_path):
     middle range do not hold (the antenna moves 240 m against ranges of a few hundred metres; behind it
     cosh(k delta) reached e^26): those cells are not seen.  Every point detected within 0.3 m and 0.1
     deg (the same cube at 512 cells, all ranges physical, gives 0.02 m and 0.02 deg)."""
-    from fwdlook_cli.report.benchtools import scaling_scenario
+    from fwdlook_cli.report.benchtools import SCALING_POINTS_M, scaling_scenario
 
     path = ROOT / "scenarios" / "paper_fig6_a50.yaml"
     paper = resolve_with_config(yaml.safe_load(path.read_text()), str(path), str(ROOT / "configs" / "tracking.yaml"), [])
     scn = scaling_scenario(paper, 2500, 2048)
+    # the window centred on the scene, as the scaling series had it before it began at 400 m
+    dr = scn["radar"]["range_window_m"][1] - scn["radar"]["range_window_m"][0]
+    near = 1705.0 - 0.5 * dr
+    scn["radar"]["range_window_m"] = [near, near + dr]
+    scn["scene"]["points_m"] = SCALING_POINTS_M
     assert scn["radar"]["range_window_m"][0] < 0 and scn["processing"]["imaging"] == "dwell"
     cube, _ = simulate_scenario(scn)
     m = process_cube(cube, scn, tmp_path, quiet=True, png=False)

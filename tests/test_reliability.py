@@ -977,3 +977,24 @@ def test_shown_is_bounded_on_shared_structures():
     text = shown(x)
     assert time.perf_counter() - t0 < 0.1 and len(text) <= 60 and text.endswith("...")
     assert shown(10**5000).startswith("<integer of")
+
+
+def test_every_scaling_shape_is_a_cube_the_reader_accepts(tmp_path):
+    """The scaling series' and `bench --write-cube`'s scenarios keep every slant range positive and the
+    points inside the window at its middle (a window centred on the paper's points began at -3415 m at
+    4096 bins, and `process` refused the 16384 x 4096 memory cube); a 4096-bin cube writes and reads back."""
+    from fwdlook_cli.io.raw import read_raw
+    from fwdlook_cli.report.benchtools import PULSES, RANGE_BINS, scaling_scenario, write_scaling_cube
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    paper = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "paper_fig6_a50.yaml")
+    for n_range in RANGE_BINS:
+        for n_pulses in (PULSES[0], 16384):
+            scn = scaling_scenario(paper, n_pulses, n_range)
+            near, far = scn["radar"]["range_window_m"]
+            ranges = [np.hypot(np.hypot(x, y), paper["platform"]["height_m"]) for x, y in scn["scene"]["points_m"]]
+            assert near > paper["platform"]["height_m"] and far > near
+            assert abs(0.5 * (near + far) - np.mean(ranges)) < 30.0, (n_range, near, far, ranges)
+    write_scaling_cube(tmp_path / "wide.h5", 128, 4096, paper)
+    cube = read_raw(tmp_path / "wide.h5")
+    assert cube.range_m[0] > 0 and cube.n_range == 4096

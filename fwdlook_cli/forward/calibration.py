@@ -479,3 +479,28 @@ def calibration_for_cube(cube, setting, *, t_ref_index=None, model: str = "auto"
         cal.stats["cube_diff_gain_db"] = float(from_cube.diff_gain_db)
         cal.stats["cube_diff_phase_deg"] = float(from_cube.diff_phase_deg)
     return cal
+
+
+
+def antenna_contradiction(cube, data_calibration: Calibration | None = None) -> str | None:
+    """Where the data contradict the cube's /antenna group, what they say (else None): the difference /
+    sum phase the data give (``data_calibration``, else :func:`calibration_for_cube` with ``data``)
+    more than 90 deg from the group's ``diff_phase_deg``.  A difference channel of the opposite sign
+    is such a case (CONTRACT.md section 3 fixes the sign); under ``auto`` the group would mirror every
+    monopulse angle about the beam axis.  None where the cube has no /antenna group or the data allow
+    no calibration (no strong isolated point-like returns: nothing to check against)."""
+    if not cube.antenna or cube.diff is None:
+        return None
+    cal = data_calibration
+    if cal is None:
+        try:
+            cal = calibration_for_cube(cube, "data")
+        except BadInput:
+            return None
+    if "cube_diff_phase_deg" not in cal.stats:
+        return None
+    gap = (cal.diff_phase_deg - cal.stats["cube_diff_phase_deg"] + 180.0) % 360.0 - 180.0
+    if abs(gap) <= 90.0:
+        return None
+    return (f"the data's difference/sum phase is {gap:+.0f} deg from /antenna's: the difference channel's "
+            f"sign is reversed against CONTRACT.md section 3, or /antenna is wrong")

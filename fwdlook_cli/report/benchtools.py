@@ -239,9 +239,16 @@ SCALING_POINTS_M = [[-100.0, 1700.0], [0.0, 1730.0], [100.0, 1680.0]]
 NOT_STAGES = ("shape", "user_cpu", "system_cpu")      # a scaling row's keys that are not stage times
 
 
+SCALING_NEAR_MIN_M = 400.0   # the nearest slant range of a scaling window (the 1024-bin window's, 425 m)
+
+
 def scaling_scenario(paper: dict, n_pulses: int, n_range: int) -> dict:
     """The paper scenario with three points, ``n_pulses`` over the same 1 s scan (the PRF scales with
-    the pulse count, so the geometry stays that of the paper) and ``n_range`` range samples."""
+    the pulse count, so the geometry stays that of the paper) and ``n_range`` range samples, the
+    points in the middle of the range window.  A window centred on the paper's points (1705 m) would
+    start at a negative slant range from 2048 bins on (-855 m; -3415 m at 4096: a cube no reader
+    accepts, ``io.raw``): such a window starts at :data:`SCALING_NEAR_MIN_M` instead and the points
+    move out with its middle."""
     import copy
 
     from ..dsp.geometry import C_MPS
@@ -250,8 +257,10 @@ def scaling_scenario(paper: dict, n_pulses: int, n_range: int) -> dict:
     prf = paper["radar"]["prf_hz"] * n_pulses / 2500.0
     dr = C_MPS / (2.0 * scn["radar"]["fs_hz"])
     near = 1705.0 - 0.5 * n_range * dr
+    shift_m = max(0.0, SCALING_NEAR_MIN_M - near)
+    near += shift_m
     scn["radar"].update(prf_hz=prf, n_pulses=n_pulses, range_window_m=[near, near + (n_range - 0.5) * dr])
-    scn["scene"].update(kind="points", points_m=SCALING_POINTS_M, amplitude=1.0)
+    scn["scene"].update(kind="points", points_m=[[x, y + shift_m] for x, y in SCALING_POINTS_M], amplitude=1.0)
     return scn
 
 

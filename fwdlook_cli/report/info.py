@@ -55,18 +55,16 @@ def describe_raw(path: str) -> str:
     else:
         lines.append("  antenna         no /antenna group: the monopulse calibration comes from the data")
     if cube.diff is not None:
-        from ..forward.calibration import calibration_for_cube
+        from ..forward.calibration import antenna_contradiction, calibration_for_cube
 
         try:
             cal = calibration_for_cube(cube, "data")
             lines.append(f"  calibration     {cal.describe()}")
-            if cube.antenna and "cube_diff_phase_deg" in cal.stats:     # the data against /antenna
-                gap = (cal.diff_phase_deg - cal.stats["cube_diff_phase_deg"] + 180.0) % 360.0 - 180.0
-                if abs(gap) > 90.0:
-                    lines.append(f"  check           the data's difference/sum phase is {gap:+.0f} deg from "
-                                 f"/antenna's: the difference channel's sign is reversed against CONTRACT.md "
-                                 f"section 3, or /antenna is wrong; process with processing.monopulse_calibration"
-                                 f" = data (auto takes /antenna unchecked)")
+            contradiction = antenna_contradiction(cube, cal)             # the data against /antenna
+            if contradiction:
+                lines.append(f"  check           {contradiction}; `fwdlook process` refuses "
+                             f"processing.monopulse_calibration = auto for this cube: give data (calibrate "
+                             f"from the data) or cube (/antenna as it is)")
         except BadInput as exc:
             lines.append(f"  calibration     data: not possible ({str(exc).split(';')[0]})")
     snr = cube.noise.get("snr_db")
