@@ -158,6 +158,61 @@ def test_noise_only_cube_cannot_be_calibrated_from_data(tmp_path, capsys):
     assert "no strong isolated point-like returns" in capsys.readouterr().err
 
 
+def test_noise_chi2_is_one_for_noise_alone():
+    """The data calibration's goodness of fit (``noise_chi2_per_sample``) has expectation 1 where the
+    samples depart from the ratio curve by their noise alone: Monte Carlo of the three-tap estimator
+    (sum and difference with independent complex noise, num = sum conj(s) d, den = sum |s|^2 - 3 noise)
+    at 15 to 45 dB, 20000 pulses each (the mean's spread is about 1/sqrt(20000) = 0.007)."""
+    from fwdlook_cli.forward.calibration import noise_chi2_per_sample
+
+    rng = np.random.default_rng(3)
+    n, noise = 20000, 1.0
+
+    def cn():
+        return np.sqrt(noise / 2) * (rng.standard_normal((n, 3)) + 1j * rng.standard_normal((n, 3)))
+
+    for snr_db in (15.0, 30.0, 45.0):
+        taps = np.sqrt(10 ** (snr_db / 10)) * np.array([0.2, 1.0, 0.3])[None, :]
+        sig = taps * np.exp(1j * rng.uniform(0, 2 * np.pi, (n, 1)))
+        m = rng.uniform(-0.4, 0.4, n) * np.exp(0.3j)
+        s, d = sig + cn(), m[:, None] * sig + cn()
+        pow3 = np.sum(np.abs(s) ** 2, axis=1)
+        den = pow3 - 3 * noise
+        z = np.sum(np.conj(s) * d, axis=1) / den
+        assert abs(noise_chi2_per_sample(z, m, den, pow3, noise) - 1.0) < 0.04, snr_db
+        # a residual the curve does not hold (5 % of the ratio's span) shows above it at 45 dB
+        if snr_db == 45.0:
+            assert noise_chi2_per_sample(z + 0.02, m, den, pow3, noise) > 3.0
+
+
+FIVE_POINTS_M = [[-60.0, 1180.0], [-25.0, 1215.0], [0.0, 1195.0], [30.0, 1235.0], [65.0, 1200.0]]
+
+
+@pytest.mark.parametrize("snr_db", [25.0, 45.0, None])
+def test_data_calibration_at_high_snr_is_refused_not_wrong(tmp_path, capsys, snr_db):
+    """Five points 25-45 m apart (independent writer, paper radar, no /antenna).  At 25 dB per sample
+    the data calibration fits its samples within their noise (noise_chi2_per_sample within 0.9-1.3)
+    and gives the slope to 3 %.  At 45 dB and noiseless the returns taken for isolated points carry
+    their neighbours' range sidelobes: the fit gave slopes 26-45 % low, silently; now the residual
+    is far above the noise and `process` exits 2 in one line naming the file, the key and the
+    allowed values, with no outputs."""
+    raw = tmp_path / "five.h5"
+    info = writer.write_cube(raw, "paper", np.array(FIVE_POINTS_M), n_pulses=675, snr_db=snr_db)
+    capsys.readouterr()
+    code = _cli(["process", raw, "-o", tmp_path / "run", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    if snr_db == 25.0:
+        assert code == 0, err
+        cal = json.loads((tmp_path / "run" / "metrics.json").read_text())["calibration"]
+        assert cal["source"] == "data" and 0.9 < cal["noise_chi2_per_sample"] < 1.3
+        assert abs(cal["effective_slope_per_deg"] / info["slope_per_deg"] - 1.0) < 0.03
+        return
+    assert code == 2 and len(err) == 1, err
+    assert str(raw) in err[0] and "monopulse_calibration" in err[0] and "allowed" in err[0]
+    assert "times their noise" in err[0]
+    assert not (tmp_path / "run" / "metrics.json").exists()
+
+
 def test_calibration_from_antenna_groups():
     # the former layout (slope only): tanh with that slope
     cal = calibration_from_antenna({"squint_deg": 1.5, "monopulse_slope_per_deg": 0.2}, 6.0)

@@ -181,7 +181,8 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     n_idx, i_idx = np.nonzero(loc)
     empty = {"scatterer": np.zeros(0, int), "pulse": np.zeros(0, int), "offset_deg": np.zeros(0),
              "z": np.zeros(0, complex), "weight": np.zeros(0), "x_m": np.zeros(0), "y_m": np.zeros(0),
-             "peak_snr_db": np.zeros(0), "noise_power": noise, "n_candidates": 0, "rejected": {}}
+             "den": np.zeros(0), "pow3": np.zeros(0), "peak_snr_db": np.zeros(0), "noise_power": noise,
+             "n_candidates": 0, "rejected": {}}
     if len(n_idx) < 10:
         return empty
     m_ref = n_p // 2 if t_ref_index is None else int(t_ref_index)
@@ -289,6 +290,7 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     sc, ni, delta = j_i[good], n_i[good], d_i[good]
     weight = den[good] ** 2 / (noise * 3.0 * model_pow[good])
     return {"scatterer": sc, "pulse": ni, "offset_deg": delta, "z": z, "weight": weight,
+            "den": den[good], "pow3": pow3[good],
             "x_m": pt[:, 0], "y_m": pt[:, 1], "peak_snr_db": peak_db[keep], "noise_power": noise,
             "n_candidates": int(n_lab), "rejected": rejected}
 
@@ -365,6 +367,22 @@ def _fit_poly(delta, z, weight, params, b_j, sc, degree=5):
     return poly, chi2
 
 
+NOISE_CHI2_MAX = 1.3   # the fit's residual over its noise, per sample, above which the data calibration is refused
+
+
+def noise_chi2_per_sample(z, model_z, den, pow3, noise_power) -> float:
+    """Mean of |z - m|^2 over the noise variance of z = num/den at the model ratio m: 1 where the samples
+    depart from the curve by their noise alone.
+
+    Per pulse, r = num - m den = sum over the three taps of conj(s) (d - m s) + m (3 noise - |n_s|^2);
+    with s = S + n_s and d = m S + n_d (noise power ``noise_power`` per channel and sample) its variance
+    is noise (1 + |m|^2) (sum |S|^2 + 3 noise) = noise (1 + |m|^2) pow3, so var z = that / den^2.
+    Interference the curve does not hold (a neighbour's range sidelobes under a 'point', merged
+    scatterers, a curve of the wrong shape) adds to the residual and not to the noise."""
+    var_z = noise_power * pow3 * (1.0 + np.abs(model_z) ** 2) / den ** 2
+    return float(np.mean(np.abs(z - model_z) ** 2 / var_z))
+
+
 def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "auto") -> Calibration:
     """Fit the ratio curve, boresight offset and imbalance to the pooled point-return samples.
 
@@ -402,6 +420,16 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
     s2 = chi2_poly / max(2 * m.sum() - 7 - n_s, 1)
     drop = (chi2 - chi2_poly) / s2
     chosen = "table" if (model == "table" or (model == "auto" and drop > AUTO_TABLE_CHI2_DROP)) else "tanh"
+    # the chosen curve against the samples' own noise (README, "Monopulse calibration": refused above
+    # NOISE_CHI2_MAX, where the fit would otherwise return a wrong slope without a word)
+    curve = (np.exp(1j * phi) * poly(delta[m] - b_all[sc[m]]) if chosen == "table" else mod[m])
+    chi2_noise = noise_chi2_per_sample(z[m], curve, samples["den"][m], samples["pow3"][m], samples["noise_power"])
+    if not chi2_noise <= NOISE_CHI2_MAX:
+        raise BadInput(f"monopulse calibration from the data: the ratio samples of the {int(keep_s.sum())} returns "
+                       f"taken for isolated points miss the fitted curve by {chi2_noise:.3g} times their noise "
+                       f"(at most {NOISE_CHI2_MAX}: neighbours' range sidelobes or merged scatterers taken for "
+                       f"points, likely at high SNR); allowed: processing.monopulse_calibration = cube (with "
+                       f"/antenna) or a slope per degree")
 
     def pack(p):
         s_eff_, phi_, k_, b_ = p
@@ -431,6 +459,7 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
     stats = {"n_scatterers": int(keep_s.sum()), "n_samples": int(m.sum()),
              "effective_slope_per_deg": float(est[0]),
              "reduced_chi2": float(chi2 / dof), "model_test_chi2_drop": float(drop),
+             "noise_chi2_per_sample": chi2_noise,
              "scatterers_m": [[float(x), float(y)] for x, y, kk in zip(samples["x_m"], samples["y_m"], keep_s) if kk],
              "rejected": dict(samples.get("rejected", {}), residual=int(n_s - keep_s.sum()))}
     cal = Calibration("data", "tanh", float(est[1]), boresight_offset_deg=float(est[2]),
