@@ -17,7 +17,8 @@ azimuth without the difference channel, and ``b``, ``k``, ``g``, ``phi`` are the
 (3 or more) or from the fit's covariance.
 
 Everything here is a pure function on arrays; :func:`calibration_for_cube` picks the source that
-``processing.monopulse_calibration`` asks for.
+``processing.monopulse_calibration`` asks for.  The scatterers and their samples come from
+``forward/point_returns.py``.
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import BadInput
+from .point_returns import noise_chi2_per_sample, point_returns
 
 RATIO_TABLE_POINTS = 401
 # ``auto`` takes the general curve only when tanh misfits grossly: at SNR 20 dB the chi^2 drop measured
@@ -93,7 +95,10 @@ class Calibration:
                 f"{self.diff_gain_db:+.2f}{pm('diff_gain_db')} dB {self.diff_phase_deg:+.2f}"
                 f"{pm('diff_phase_deg')} deg")
         if "n_scatterers" in self.stats:
-            line += f" ({self.stats['n_scatterers']} scatterers, {self.stats['n_samples']} samples)"
+            line += f" ({self.stats['n_scatterers']} scatterers, {self.stats['n_samples']} samples"
+            if "noise_chi2_per_sample" in self.stats:      # 1: the samples miss the curve by their noise
+                line += f", residual {self.stats['noise_chi2_per_sample']:.2f} x noise"
+            line += ")"
         return line
 
 
@@ -143,158 +148,6 @@ def calibration_from_antenna(antenna: dict, beamwidth_deg: float) -> Calibration
 # ----------------------------------------------------------------------------------------------
 # from the data
 # ----------------------------------------------------------------------------------------------
-def _ground_point(position_m, range_m, azimuth_deg, target_height_m=0.0):
-    """Ground point at slant ``range_m`` from ``position_m`` along ground azimuth ``azimuth_deg``."""
-    dz = position_m[..., 2] - target_height_m
-    g = np.sqrt(np.maximum(np.asarray(range_m) ** 2 - dz**2, 0.0))
-    az = np.radians(azimuth_deg)
-    return np.stack([position_m[..., 0] + g * np.sin(az), position_m[..., 1] + g * np.cos(az),
-                     np.full_like(g, target_height_m)], axis=-1)
-
-
-def _azimuth_deg(position_m, point_m):
-    d = point_m - position_m
-    return np.degrees(np.arctan2(d[..., 0], d[..., 1]))
-
-
-def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, beamwidth_deg, t_ref_index=None,
-                  threshold_db=13.0, max_scatterers=24, n_iter=4):
-    """Strong isolated point-like returns seen across the scan, and their samples.
-
-    Returns a dict of pooled per-pulse samples (``scatterer``, ``pulse``, ``offset_deg`` = delta_n,
-    ``z`` = diff/sum, ``weight``) and per-scatterer ``x_m``, ``y_m``, ``peak_snr_db``, plus the
-    per-sample noise power ``noise_power``.  Targets are taken on the ground (z = 0).
-    """
-    s = np.asarray(echo_sum)
-    dz = np.asarray(echo_diff)
-    n_p, n_r = s.shape
-    dr = float(range_m[1] - range_m[0])
-    p = (s.real.astype(np.float32) ** 2 + s.imag.astype(np.float32) ** 2)
-    # noise power per sample: the lower quartile of |s|^2 is sigma^2 ln(4/3) for noise alone, and
-    # barely moved by the returns' range sidelobes (which lift the median)
-    noise = float(np.percentile(p, 25.0)) / np.log(4.0 / 3.0)
-    if not noise > 0:
-        noise = float(np.mean(p)) * 1e-6 + 1e-30
-    thr = noise * 10.0 ** (threshold_db / 10.0)
-    loc = np.zeros_like(p, dtype=bool)
-    loc[:, 1:-1] = (p[:, 1:-1] > thr) & (p[:, 1:-1] >= p[:, :-2]) & (p[:, 1:-1] > p[:, 2:])
-    n_idx, i_idx = np.nonzero(loc)
-    empty = {"scatterer": np.zeros(0, int), "pulse": np.zeros(0, int), "offset_deg": np.zeros(0),
-             "z": np.zeros(0, complex), "weight": np.zeros(0), "x_m": np.zeros(0), "y_m": np.zeros(0),
-             "den": np.zeros(0), "pow3": np.zeros(0), "peak_snr_db": np.zeros(0), "noise_power": noise,
-             "n_candidates": 0, "rejected": {}}
-    if len(n_idx) < 10:
-        return empty
-    m_ref = n_p // 2 if t_ref_index is None else int(t_ref_index)
-    p_ref = position_m[m_ref]
-    # peak range, parabolic interpolation on |s|
-    a, b, c = np.sqrt(p[n_idx, i_idx - 1]), np.sqrt(p[n_idx, i_idx]), np.sqrt(p[n_idx, i_idx + 1])
-    frac = 0.5 * (a - c) / np.where(np.abs(a - 2 * b + c) > 0, a - 2 * b + c, 1.0)
-    r_meas = range_m[0] + dr * (i_idx + np.clip(frac, -0.5, 0.5))
-    # coarse point along the beam centre: its range from the t_ref antenna barely depends on the azimuth
-    coarse = _ground_point(position_m[n_idx], r_meas, scan_angle_deg[n_idx])
-    rho = np.linalg.norm(coarse - p_ref, axis=1)
-    scan = scan_angle_deg[n_idx]
-    scan_step = beamwidth_deg / 40.0
-    from scipy import ndimage
-
-    ir = np.floor((rho - rho.min()) / dr).astype(np.int64)
-    ia = np.floor((scan - scan.min()) / scan_step).astype(np.int64)
-    grid = np.zeros((ir.max() + 1, ia.max() + 1), dtype=bool)
-    grid[ir, ia] = True
-    labels, n_lab = ndimage.label(grid, structure=np.ones((3, 3)))
-    lab = labels[ir, ia] - 1
-    counts = np.bincount(lab, minlength=n_lab)
-    pw = p[n_idx, i_idx]
-    peak = np.full(n_lab, 0.0)
-    np.maximum.at(peak, lab, pw)
-    scan_lo, scan_hi = np.full(n_lab, np.inf), np.full(n_lab, -np.inf)
-    np.minimum.at(scan_lo, lab, scan)
-    np.maximum.at(scan_hi, lab, scan)
-    rho_c = np.bincount(lab, weights=rho * pw, minlength=n_lab) / np.bincount(lab, weights=pw, minlength=n_lab)
-    peak_db = 10 * np.log10(peak / noise)
-    # a lone point stays above the threshold over 2 x (bw/2) sqrt(L / 6.02 dB), L = peak - threshold
-    # (two-way Gaussian-like beam); longer: several scatterers merged
-    expect = beamwidth_deg * np.sqrt(np.maximum(peak_db - threshold_db, 0.0) / 6.02)
-    extent = scan_hi - scan_lo
-    scan_all_lo, scan_all_hi = scan_angle_deg.min(), scan_angle_deg.max()
-    rejected = {"weak": 0, "extended": 0, "scan_edge": 0, "neighbour": 0, "residual": 0}
-    ok = np.ones(n_lab, bool)
-    weak = (counts < 16) | (peak_db < threshold_db + 6.0)
-    rejected["weak"] = int(np.sum(weak))
-    ok &= ~weak
-    extended = ok & (extent > 1.3 * expect + 4 * scan_step)
-    rejected["extended"] = int(np.sum(extended))
-    ok &= ~extended
-    edge = ok & ((scan_lo - scan_all_lo < 2 * scan_step) | (scan_all_hi - scan_hi < 2 * scan_step))
-    rejected["scan_edge"] = int(np.sum(edge))
-    ok &= ~edge
-    # any other strong return (kept or not) near in range while the beam sees both: not isolated
-    strong = np.nonzero(~weak | (peak_db > threshold_db + 3.0))[0]
-    near = np.zeros(n_lab, bool)
-    for j in np.nonzero(ok)[0]:
-        other = strong[strong != j]
-        close = (np.abs(rho_c[other] - rho_c[j]) < 4.0 * dr) & (scan_lo[other] < scan_hi[j]) \
-            & (scan_hi[other] > scan_lo[j])
-        near[j] = bool(np.any(close))
-    rejected["neighbour"] = int(np.sum(near & ok))
-    ok &= ~near
-    keep = np.nonzero(ok)[0]
-    keep = keep[np.argsort(-peak[keep])][:max_scatterers]
-    if not len(keep):
-        out = dict(empty)
-        out.update(n_candidates=int(n_lab), rejected=rejected)
-        return out
-
-    # each scatterer's first position: the median of its beam-centre points
-    n_s = len(keep)
-    pt = np.zeros((n_s, 3))
-    for j, k in enumerate(keep):
-        pt[j] = np.median(coarse[lab == k], axis=0)
-    # then sample every pulse on the scatterer's PREDICTED track (INS geometry), never on the detections
-    # (a sample kept because it is above a threshold is biased high), and put the sum-beam axis where
-    # the sum power envelope is symmetric: its power-weighted centroid in delta is zero
-    window = 0.6 * beamwidth_deg
-    pos = position_m[None, :, :]
-    taps = np.arange(-1, 2)
-    for it in range(n_iter + 1):
-        az = _azimuth_deg(pos, pt[:, None, :])                     # [n_s, n_p]
-        delta = az - scan_angle_deg[None, :]
-        r = np.linalg.norm(pt[:, None, :] - pos, axis=2)
-        idx = np.rint((r - range_m[0]) / dr).astype(np.int64)
-        inside = (np.abs(delta) < window) & (idx >= 1) & (idx < n_r - 1)
-        j_i, n_i = np.nonzero(inside)
-        cols = idx[j_i, n_i][:, None] + taps[None, :]
-        s3 = s[n_i[:, None], cols].astype(np.complex128)
-        pow3 = np.sum(np.abs(s3) ** 2, axis=1)
-        w_env = pow3 / 3.0 - noise                                  # unbiased signal power
-        d_i = delta[j_i, n_i]
-        centre = np.bincount(j_i, weights=w_env * d_i, minlength=n_s) / np.maximum(
-            np.bincount(j_i, weights=w_env, minlength=n_s), 1e-30)
-        if it == n_iter:
-            break
-        az_ref = _azimuth_deg(p_ref, pt) - centre
-        rho_j = np.linalg.norm(pt - p_ref, axis=1)
-        pt = _ground_point(np.broadcast_to(p_ref, (n_s, 3)), rho_j, az_ref)
-    # envelope model (two-way, Gaussian-like) for the weights and the sample selection: not the data
-    peak_pow = peak[keep] - noise
-    model_pow = peak_pow[j_i] * 2.0 ** (-2.0 * (2.0 * d_i / beamwidth_deg) ** 2)
-    d3 = dz[n_i[:, None], cols].astype(np.complex128)
-    num = np.sum(np.conj(s3) * d3, axis=1)
-    den = pow3 - 3.0 * noise
-    good = (model_pow > 10.0 * noise) & (den > 0.2 * pow3)
-    # z = num / den is biased at low SNR (by more than noise/den: the samples' noise is correlated), but
-    # num - m den is not (E num = m E den for the model ratio m): the fit's residual is (z - m) den,
-    # so its weight is den^2 / var(num - m den), var = noise P3 (1 + |m|^2) with P3 the model power
-    z = num[good] / den[good]
-    sc, ni, delta = j_i[good], n_i[good], d_i[good]
-    weight = den[good] ** 2 / (noise * 3.0 * model_pow[good])
-    return {"scatterer": sc, "pulse": ni, "offset_deg": delta, "z": z, "weight": weight,
-            "den": den[good], "pow3": pow3[good],
-            "x_m": pt[:, 0], "y_m": pt[:, 1], "peak_snr_db": peak_db[keep], "noise_power": noise,
-            "n_candidates": int(n_lab), "rejected": rejected}
-
-
 def _tanh_over_k(k, u):
     """tanh(k u) / k, continuous through k = 0 (where it is u)."""
     k = float(k)
@@ -367,20 +220,7 @@ def _fit_poly(delta, z, weight, params, b_j, sc, degree=5):
     return poly, chi2
 
 
-NOISE_CHI2_MAX = 1.3   # the fit's residual over its noise, per sample, above which the data calibration is refused
-
-
-def noise_chi2_per_sample(z, model_z, den, pow3, noise_power) -> float:
-    """Mean of |z - m|^2 over the noise variance of z = num/den at the model ratio m: 1 where the samples
-    depart from the curve by their noise alone.
-
-    Per pulse, r = num - m den = sum over the three taps of conj(s) (d - m s) + m (3 noise - |n_s|^2);
-    with s = S + n_s and d = m S + n_d (noise power ``noise_power`` per channel and sample) its variance
-    is noise (1 + |m|^2) (sum |S|^2 + 3 noise) = noise (1 + |m|^2) pow3, so var z = that / den^2.
-    Interference the curve does not hold (a neighbour's range sidelobes under a 'point', merged
-    scatterers, a curve of the wrong shape) adds to the residual and not to the noise."""
-    var_z = noise_power * pow3 * (1.0 + np.abs(model_z) ** 2) / den ** 2
-    return float(np.mean(np.abs(z - model_z) ** 2 / var_z))
+NOISE_CHI2_NOTE = 1.3   # the fit's residual over its noise, per sample, above which the stats carry a note
 
 
 def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "auto") -> Calibration:
@@ -388,7 +228,9 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
 
     ``model``: ``tanh`` (two Gaussian beams), ``table`` (a degree-5 curve, inverted through a monotone
     table), ``auto`` (tanh unless the general curve's chi^2 is lower by more than
-    ``AUTO_TABLE_CHI2_DROP`` in units of the residual variance).
+    ``AUTO_TABLE_CHI2_DROP`` in units of the residual variance).  The stats give the fit's residual
+    against the samples' own noise (``noise_chi2_per_sample``, :func:`noise_chi2_per_sample`) and a
+    note where it exceeds ``NOISE_CHI2_NOTE``.
     """
     sc, delta, z, w = samples["scatterer"], samples["offset_deg"], samples["z"], samples["weight"]
     n_s = int(sc.max()) + 1 if len(sc) else 0
@@ -420,16 +262,9 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
     s2 = chi2_poly / max(2 * m.sum() - 7 - n_s, 1)
     drop = (chi2 - chi2_poly) / s2
     chosen = "table" if (model == "table" or (model == "auto" and drop > AUTO_TABLE_CHI2_DROP)) else "tanh"
-    # the chosen curve against the samples' own noise (README, "Monopulse calibration": refused above
-    # NOISE_CHI2_MAX, where the fit would otherwise return a wrong slope without a word)
+    # the chosen curve against the samples' own noise: 1 where they miss it by their noise alone
     curve = (np.exp(1j * phi) * poly(delta[m] - b_all[sc[m]]) if chosen == "table" else mod[m])
     chi2_noise = noise_chi2_per_sample(z[m], curve, samples["den"][m], samples["pow3"][m], samples["noise_power"])
-    if not chi2_noise <= NOISE_CHI2_MAX:
-        raise BadInput(f"monopulse calibration from the data: the ratio samples of the {int(keep_s.sum())} returns "
-                       f"taken for isolated points miss the fitted curve by {chi2_noise:.3g} times their noise "
-                       f"(at most {NOISE_CHI2_MAX}: neighbours' range sidelobes or merged scatterers taken for "
-                       f"points, likely at high SNR); allowed: processing.monopulse_calibration = cube (with "
-                       f"/antenna) or a slope per degree")
 
     def pack(p):
         s_eff_, phi_, k_, b_ = p
@@ -462,6 +297,10 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
              "noise_chi2_per_sample": chi2_noise,
              "scatterers_m": [[float(x), float(y)] for x, y, kk in zip(samples["x_m"], samples["y_m"], keep_s) if kk],
              "rejected": dict(samples.get("rejected", {}), residual=int(n_s - keep_s.sum()))}
+    if chi2_noise > NOISE_CHI2_NOTE:
+        stats["noise_note"] = (f"the samples miss the fitted curve by {chi2_noise:.3g} times their noise: "
+                               f"interference the curve does not hold (a neighbour's return, clutter, a channel "
+                               f"fault); the uncertainties, scaled by the fit's residual, include it")
     cal = Calibration("data", "tanh", float(est[1]), boresight_offset_deg=float(est[2]),
                       diff_gain_db=float(est[3]), diff_phase_deg=float(est[4]), sigma=sigma, stats=stats)
     if chosen == "table" or not np.isfinite(est[3]):
@@ -501,7 +340,8 @@ def calibration_for_cube(cube, setting, *, t_ref_index=None, model: str = "auto"
     if setting == "auto" and from_cube is not None:
         return from_cube
     samples = point_returns(cube.sum, cube.diff, cube.range_m, cube.scan_angle_deg, cube.position_m,
-                            beamwidth_deg=bw, t_ref_index=t_ref_index)
+                            beamwidth_deg=bw, t_ref_index=t_ref_index,
+                            samples_per_resolution=float(cube.radar["fs_hz"]) / float(cube.radar["bandwidth_hz"]))
     cal = estimate_calibration(samples, beamwidth_deg=bw, model=model)
     if from_cube is not None:  # a check on the cube's own antenna
         cal.stats["cube_slope_per_deg"] = float(from_cube.slope_per_deg)
