@@ -286,11 +286,9 @@ def test_own_simulated_imbalance_is_undone_from_the_cube(tmp_path):
     assert res["imbalanced"]["calibration"]["diff_gain_db"] == 3.0
 
 
-def test_info_says_when_the_data_contradict_the_antenna_group(tmp_path, capsys):
-    """A difference channel of the opposite sign under an /antenna group of the usual one: taking the
-    group as it is mirrors every angle (`process` refuses `auto` for it: next test); `fwdlook info`
-    compares the data's difference/sum phase with the group's and says so (a 180 deg phase flip,
-    nothing else)."""
+def _good_and_flipped_cubes(tmp_path):
+    """fwdlook's isolated-point cube (with its /antenna group) written twice: as simulated, and with the
+    difference channel's sign reversed (against CONTRACT.md section 3) under the same group."""
     import h5py
 
     from fwdlook_cli.forward.simulate import simulate_scenario
@@ -303,6 +301,15 @@ def test_info_says_when_the_data_contradict_the_antenna_group(tmp_path, capsys):
     write_raw(flipped, cube)
     with h5py.File(flipped, "r+") as f:
         f["echo/diff"][...] = -f["echo/diff"][...]
+    return good, flipped
+
+
+def test_info_says_when_the_data_contradict_the_antenna_group(tmp_path, capsys):
+    """A difference channel of the opposite sign under an /antenna group of the usual one: taking the
+    group as it is mirrors every angle (`process` refuses `auto` for it: next test); `fwdlook info`
+    compares the data's difference/sum phase with the group's and says so (a 180 deg phase flip,
+    nothing else)."""
+    good, flipped = _good_and_flipped_cubes(tmp_path)
     outs = {}
     for path in (good, flipped):
         assert _cli(["info", path]) == 0
@@ -320,18 +327,7 @@ def test_process_refuses_auto_where_the_data_contradict_the_antenna_group(tmp_pa
     (the mirrored angles the user asked for); the unflipped cube processes with auto as before."""
     import json
 
-    import h5py
-
-    from fwdlook_cli.forward.simulate import simulate_scenario
-    from fwdlook_cli.io.raw import write_raw
-    from fwdlook_cli.scenario.loader import load_scenario
-
-    cube, _ = simulate_scenario(load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "isolated_a50.yaml"))
-    good, flipped = tmp_path / "good.h5", tmp_path / "flipped.h5"
-    write_raw(good, cube)
-    write_raw(flipped, cube)
-    with h5py.File(flipped, "r+") as f:
-        f["echo/diff"][...] = -f["echo/diff"][...]
+    good, flipped = _good_and_flipped_cubes(tmp_path)
     capsys.readouterr()
     assert _cli(["process", flipped, "-o", tmp_path / "auto", "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
