@@ -349,6 +349,19 @@ def test_process_refuses_auto_where_the_data_contradict_the_antenna_group(tmp_pa
     assert runs["cube"]["summary"]["rms_azimuth_error_deg"] > 3 * runs["good"]["summary"]["rms_azimuth_error_deg"]
 
 
+def test_out_of_core_skips_the_antenna_check_with_a_warning(tmp_path, caplog):
+    """`process --out-of-core` does not run the /antenna check (it would hold the sum channel's power in
+    memory, half the cube, where an out-of-core run has less than the cube): the sign-reversed cube
+    is processed as `cube` would process it, and one warning says the check was not made."""
+    import logging
+
+    _, flipped = _good_and_flipped_cubes(tmp_path)
+    with caplog.at_level(logging.WARNING):
+        assert _cli(["process", flipped, "-o", tmp_path / "ooc", "-q", "--out-of-core"]) == 0
+    warned = [r.getMessage() for r in caplog.records if "not checked against the data" in r.getMessage()]
+    assert len(warned) == 1 and str(flipped) in warned[0] and "--out-of-core" in warned[0]
+
+
 def test_only_cubes_read_from_files_are_checked_against_their_antenna(tmp_path, monkeypatch):
     """The check of /antenna against the data runs for `process RAW.h5` and `run --raw`, not for a cube
     `run` simulates itself (its antenna is the one it simulated with)."""
