@@ -156,10 +156,10 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     num = np.sum(np.conj(s3) * d3, axis=1)
     den = pow3 - 3.0 * noise
     # a point's track lies on its own range peak: the largest power within +-2.5 resolution cells is
-    # within half a cell (at least one sample) of the predicted one in every strong sample (10 dB over
-    # the noise, which moves such a peak by more than that about once in 1e4).  A track that runs
-    # through a neighbour's range sidelobes or between two points (what the detection takes for a
-    # point at high SNR) is on a peak in 0-68 % of them (README, "Monopulse calibration")
+    # within half a cell (at least one sample) of the predicted one in its strong samples (10 dB over
+    # the noise: in every one of every true point measured, 20-40 dB).  A track that runs through a
+    # neighbour's range sidelobes or between two points (what the detection takes for a point at high
+    # SNR) is on a peak in 0-68 % of them (README, "Monopulse calibration"); 90 % is asked for
     reach = max(3, int(np.ceil(2.5 * samples_per_resolution)))
     tol = max(1, int(round(0.5 * samples_per_resolution)))
     at = np.clip(idx[j_i, n_i][:, None] + np.arange(-reach, reach + 1)[None, :], 0, n_r - 1)
@@ -183,7 +183,6 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
             "den": den[good], "pow3": pow3[good],
             "x_m": pt[:, 0], "y_m": pt[:, 1], "peak_snr_db": peak_db[keep], "noise_power": noise,
             "n_candidates": int(n_lab), "rejected": rejected}
-
 
 
 def noise_chi2_per_sample(z, model_z, den, pow3, noise_power) -> float:
