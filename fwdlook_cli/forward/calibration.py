@@ -350,7 +350,6 @@ def calibration_for_cube(cube, setting, *, t_ref_index=None, model: str = "auto"
     return cal
 
 
-
 def antenna_contradiction(cube, data_calibration: Calibration | None = None) -> str | None:
     """Where the data contradict the cube's /antenna group, what they say (else None): the difference /
     sum phase the data give (``data_calibration``, else :func:`calibration_for_cube` with ``data``)
