@@ -142,15 +142,10 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", ke
             raise
     from .forward.process import process_cube
 
-    unchecked = from_file and _antenna_checked(scn, cube) and out_of_core
-    if from_file and not out_of_core:
+    if from_file:
         _check_antenna_against_data(scn, cube, source)
-    metrics = process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source,
-                           keep_stages=keep_stages, release_cube=True)
-    if unchecked:            # said once the run stands (a refused setting is the one line then)
-        log.warning(f"{source}: /antenna was not checked against the data with --out-of-core (the check holds "
-                    f"the sum channel's power in memory); a reversed difference channel would go unseen")
-    return metrics
+    return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source,
+                        keep_stages=keep_stages, release_cube=True)
 
 
 def _antenna_checked(scn, cube) -> bool:
@@ -163,9 +158,8 @@ def _check_antenna_against_data(scn, cube, source):
     """A cube read from a file, processed with ``monopulse_calibration: auto`` (the /antenna group where
     there is one): refused where the data contradict the group (``forward.calibration.
     antenna_contradiction``: a reversed difference channel would mirror every angle, silently).  A
-    cube simulated in this process carries its own antenna and is not checked.  Nor is one processed
-    ``--out-of-core`` (:func:`_process` warns): the check's memory grows with the cube (0.6-1.2 times
-    its bytes at the peak), more than an out-of-core run may have."""
+    cube simulated in this process carries its own antenna and is not checked.  Out of core too: the
+    check reads the cube in blocks of pulses (``forward/point_returns.py``), its memory bounded by them."""
     if not _antenna_checked(scn, cube):
         return
     from .forward.calibration import antenna_contradiction

@@ -349,17 +349,67 @@ def test_process_refuses_auto_where_the_data_contradict_the_antenna_group(tmp_pa
     assert runs["cube"]["summary"]["rms_azimuth_error_deg"] > 3 * runs["good"]["summary"]["rms_azimuth_error_deg"]
 
 
-def test_out_of_core_skips_the_antenna_check_with_a_warning(tmp_path, caplog):
-    """`process --out-of-core` does not run the /antenna check (it would hold the sum channel's power in
-    memory, half the cube, where an out-of-core run has less than the cube): the sign-reversed cube
-    is processed as `cube` would process it, and one warning says the check was not made."""
-    import logging
-
+def test_out_of_core_checks_the_antenna_as_in_memory(tmp_path, capsys):
+    """`process --out-of-core` makes the /antenna check too (it reads the cube in blocks of pulses):
+    the sign-reversed cube is refused with the same one line as in memory, and nothing is written."""
     _, flipped = _good_and_flipped_cubes(tmp_path)
-    with caplog.at_level(logging.WARNING):
-        assert _cli(["process", flipped, "-o", tmp_path / "ooc", "-q", "--out-of-core"]) == 0
-    warned = [r.getMessage() for r in caplog.records if "not checked against the data" in r.getMessage()]
-    assert len(warned) == 1 and str(flipped) in warned[0] and "--out-of-core" in warned[0]
+    errs = {}
+    for tag, flags in (("memory", []), ("ooc", ["--out-of-core"])):
+        capsys.readouterr()
+        assert _cli(["process", flipped, "-o", tmp_path / tag, "-q", *flags]) == 2
+        errs[tag] = capsys.readouterr().err.strip().splitlines()
+        assert not (tmp_path / tag / "metrics.json").exists() and not (tmp_path / tag / "stages").exists()
+    assert len(errs["ooc"]) == 1 and errs["ooc"] == errs["memory"], errs
+
+
+def test_the_detection_reads_the_cube_in_blocks_with_the_same_result(monkeypatch):
+    """`point_returns` holds the sum power one block of pulses at a time (what lets `--out-of-core` check
+    and calibrate a cube larger than memory): any block size gives the same scatterers and samples bit
+    for bit (7 pulses against the whole cube in one block), and its memory does not grow with the range
+    extent: three times as many range bins (noise at the cube's own level) add less than a quarter of
+    their float32 power to the peak, where holding the power whole adds all of it (and the former
+    detection about three times that)."""
+    import tracemalloc
+
+    import fwdlook_cli.forward.point_returns as pr
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    cube, _ = simulate_scenario(load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "isolated_a50.yaml"))
+    kw = dict(beamwidth_deg=float(cube.radar["beamwidth_3db_deg"]),
+              samples_per_resolution=float(cube.radar["fs_hz"]) / float(cube.radar["bandwidth_hz"]))
+    n_p, n_r = cube.sum.shape
+    args = (cube.sum, cube.diff, cube.range_m, cube.scan_angle_deg, cube.position_m)
+
+    def detect(block_pulses, *arrays):
+        monkeypatch.setattr(pr, "POWER_BLOCK_BYTES", 4 * arrays[0].shape[1] * block_pulses)
+        tracemalloc.start()
+        try:
+            return pr.point_returns(*arrays, **kw), tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+
+    whole, _ = detect(n_p, *args)
+    assert len(whole["x_m"]) >= 3 and len(whole["z"]) > 1000          # a calibration's worth of samples
+    part, narrow_peak = detect(7, *args)
+    assert part.keys() == whole.keys()
+    for key, value in whole.items():
+        if isinstance(value, dict):
+            assert part[key] == value, key
+        else:
+            assert np.asarray(part[key]).dtype == np.asarray(value).dtype and np.array_equal(part[key], value), key
+    rng = np.random.default_rng(5)
+    extra = 3 * n_r
+    sigma = np.sqrt(whole["noise_power"] / 2.0)
+
+    def widened(x):
+        noise = sigma * (rng.standard_normal((n_p, extra)) + 1j * rng.standard_normal((n_p, extra)))
+        return np.concatenate([x, noise.astype(np.complex64)], axis=1)
+
+    range_m = cube.range_m[0] + (cube.range_m[1] - cube.range_m[0]) * np.arange(n_r + extra)
+    wide, wide_peak = detect(7, widened(cube.sum), widened(cube.diff), range_m, *args[3:])
+    assert len(wide["x_m"]) == len(whole["x_m"])
+    assert wide_peak - narrow_peak < 0.25 * 4 * n_p * extra, (narrow_peak, wide_peak)
 
 
 def test_only_cubes_read_from_files_are_checked_against_their_antenna(tmp_path, monkeypatch):

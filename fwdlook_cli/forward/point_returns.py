@@ -11,6 +11,30 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..dsp.order_stats import percentile_of_blocks
+
+POWER_BLOCK_BYTES = 8 << 20    # the sum power of one block of pulses: the detection's memory, whatever the cube
+SAMPLE_VALUES = 1 << 16        # power values (whole pulses, evenly spaced) that place the noise quartile's bracket
+
+
+def _power_f32(x):
+    """|x|^2 in float32, as the detection has always computed it (the same numbers whole or in blocks)."""
+    return x.real.astype(np.float32) ** 2 + x.imag.astype(np.float32) ** 2
+
+
+def _detections(s, thr, step):
+    """Local range maxima of the sum power over ``thr`` (pulse, sample) and the power at sample - 1, at
+    it and at + 1, pulse block by pulse block (``step`` pulses): row-major, as ``np.nonzero`` of the
+    whole cube's mask."""
+    parts = []
+    for lo in range(0, s.shape[0], step):
+        p = _power_f32(s[lo:lo + step])
+        mid = p[:, 1:-1]
+        n_b, i_b = np.nonzero((mid > thr) & (mid >= p[:, :-2]) & (mid > p[:, 2:]))
+        i_b += 1
+        parts.append((n_b + lo, i_b, p[n_b, i_b - 1], p[n_b, i_b], p[n_b, i_b + 1]))
+    return [np.concatenate([part[k] for part in parts]) for k in range(5)]
+
 def _ground_point(position_m, range_m, azimuth_deg, target_height_m=0.0):
     """Ground point at slant ``range_m`` from ``position_m`` along ground azimuth ``azimuth_deg``."""
     dz = position_m[..., 2] - target_height_m
@@ -38,20 +62,24 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     Targets are taken on the ground (z = 0).  ``samples_per_resolution``: fs / B, the range samples per
     resolution cell c / (2 B), which sizes the range-peak test (a point's track lies on its own peak).
     """
-    s = np.asarray(echo_sum)
+    s = np.asarray(echo_sum)            # a file-backed cube (--out-of-core) stays a map: read in blocks
     dz = np.asarray(echo_diff)
     n_p, n_r = s.shape
     dr = float(range_m[1] - range_m[0])
-    p = (s.real.astype(np.float32) ** 2 + s.imag.astype(np.float32) ** 2)
+    # the sum power |s|^2 is never held whole (half a channel): pulse blocks of POWER_BLOCK_BYTES
+    step = max(1, POWER_BLOCK_BYTES // (4 * n_r))
+
+    def powers():
+        return (_power_f32(s[lo:lo + step]) for lo in range(0, n_p, step))
+
     # noise power per sample: the lower quartile of |s|^2 is sigma^2 ln(4/3) for noise alone, and
-    # barely moved by the returns' range sidelobes (which lift the median)
-    noise = float(np.percentile(p, 25.0)) / np.log(4.0 / 3.0)
-    if not noise > 0:
-        noise = float(np.mean(p)) * 1e-6 + 1e-30
+    # barely moved by the returns' range sidelobes (which lift the median); np.percentile's number
+    rows = np.unique(np.linspace(0, n_p - 1, min(n_p, -(-SAMPLE_VALUES // n_r))).astype(np.int64))
+    noise = float(percentile_of_blocks(powers, n_p * n_r, 25.0, _power_f32(s[rows]), np.float32)) / np.log(4.0 / 3.0)
+    if not noise > 0:                   # (noiseless data with a quarter of exact zeros)
+        noise = sum(float(np.sum(p, dtype=np.float64)) for p in powers()) / (n_p * n_r) * 1e-6 + 1e-30
     thr = noise * 10.0 ** (threshold_db / 10.0)
-    loc = np.zeros_like(p, dtype=bool)
-    loc[:, 1:-1] = (p[:, 1:-1] > thr) & (p[:, 1:-1] >= p[:, :-2]) & (p[:, 1:-1] > p[:, 2:])
-    n_idx, i_idx = np.nonzero(loc)
+    n_idx, i_idx, p_before, p_at, p_after = _detections(s, thr, step)
     empty = {"scatterer": np.zeros(0, int), "pulse": np.zeros(0, int), "offset_deg": np.zeros(0),
              "z": np.zeros(0, complex), "weight": np.zeros(0), "x_m": np.zeros(0), "y_m": np.zeros(0),
              "den": np.zeros(0), "pow3": np.zeros(0), "peak_snr_db": np.zeros(0), "noise_power": noise,
@@ -61,7 +89,7 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     m_ref = n_p // 2 if t_ref_index is None else int(t_ref_index)
     p_ref = position_m[m_ref]
     # peak range, parabolic interpolation on |s|
-    a, b, c = np.sqrt(p[n_idx, i_idx - 1]), np.sqrt(p[n_idx, i_idx]), np.sqrt(p[n_idx, i_idx + 1])
+    a, b, c = np.sqrt(p_before), np.sqrt(p_at), np.sqrt(p_after)
     frac = 0.5 * (a - c) / np.where(np.abs(a - 2 * b + c) > 0, a - 2 * b + c, 1.0)
     r_meas = range_m[0] + dr * (i_idx + np.clip(frac, -0.5, 0.5))
     # coarse point along the beam centre: its range from the t_ref antenna barely depends on the azimuth
@@ -78,7 +106,7 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     labels, n_lab = ndimage.label(grid, structure=np.ones((3, 3)))
     lab = labels[ir, ia] - 1
     counts = np.bincount(lab, minlength=n_lab)
-    pw = p[n_idx, i_idx]
+    pw = p_at
     peak = np.full(n_lab, 0.0)
     np.maximum.at(peak, lab, pw)
     scan_lo, scan_hi = np.full(n_lab, np.inf), np.full(n_lab, -np.inf)
@@ -163,7 +191,7 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     reach = max(3, int(np.ceil(2.5 * samples_per_resolution)))
     tol = max(1, int(round(0.5 * samples_per_resolution)))
     at = np.clip(idx[j_i, n_i][:, None] + np.arange(-reach, reach + 1)[None, :], 0, n_r - 1)
-    lobe = np.argmax(p[n_i[:, None], at], axis=1) - reach
+    lobe = np.argmax(_power_f32(s[n_i[:, None], at]), axis=1) - reach
     strong = den > 10.0 * noise
     n_strong = np.bincount(j_i, weights=strong, minlength=n_s)
     on_peak = np.bincount(j_i, weights=strong & (np.abs(lobe) <= tol), minlength=n_s)
