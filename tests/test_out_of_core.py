@@ -113,6 +113,68 @@ def test_the_out_of_core_chain_is_the_in_memory_chain(tiny_raw, tmp_path, monkey
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
 
 
+def test_plain_datasets_are_mapped_where_they_lie_and_others_are_not(tmp_path):
+    """`map_in_place`: a contiguous, unfiltered dataset is a read-only map of its bytes in the file (the
+    same values as reading it); chunked, compressed or not yet allocated ones are not mapped, and
+    `read_dataset` reads those as before."""
+    x = (np.arange(3000, dtype=np.float32).reshape(100, 30) + 1j).astype(np.complex64)     # 24 KB
+    with h5py.File(tmp_path / "x.h5", "w") as f:
+        f.create_dataset("plain", data=x)
+        f.create_dataset("chunked", data=x, chunks=(10, 30))
+        f.create_dataset("gzip", data=x, compression="gzip")
+        f.create_dataset("empty", shape=x.shape, dtype=x.dtype)         # never written: no storage
+    with h5py.File(tmp_path / "x.h5", "r") as f:
+        m = backing.map_in_place(f["plain"])
+        assert isinstance(m, np.memmap) and not m.flags.writeable
+        np.testing.assert_array_equal(m, x)
+        assert all(backing.map_in_place(f[k]) is None for k in ("chunked", "gzip", "empty"))
+        with backing.file_backed(tmp_path, min_bytes=0), backing.mapped_sources():
+            assert backing.read_dataset(f["plain"]).filename == str((tmp_path / "x.h5").resolve())
+            y = backing.read_dataset(f["chunked"])                # copied into a scratch file
+            assert y.filename is None and y.flags.writeable
+            np.testing.assert_array_equal(y, x)
+        assert not isinstance(backing.read_dataset(f["plain"]), np.memmap)    # only inside the context
+
+
+def test_info_holds_no_copy_of_a_cube_and_says_the_same(tmp_path, monkeypatch):
+    """`fwdlook info` reads a cube's echoes as maps: of the file itself where they are stored plainly
+    (the independent writer's contiguous datasets), else of an unnamed scratch copy (fwdlook's chunked
+    ones), and the calibration's detection reads them in blocks; its text is the in-memory
+    description's, to the character."""
+    import sys
+
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.report import info
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import independent_writer
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    cube, _ = simulate_scenario(load_scenario(os.path.join(root, "scenarios", "isolated_a50.yaml")))
+    write_raw(tmp_path / "chunked.h5", cube)
+    az = np.radians([-3.5, -2.1, -0.7, 0.7, 2.1, 3.5])
+    r = 1650.0 + 70.0 * np.arange(len(az))
+    independent_writer.write_cube(tmp_path / "plain.h5", "paper", np.column_stack([r * np.sin(az), r * np.cos(az)]),
+                                  n_pulses=650)
+    seen = {}
+    real = info._describe_cube
+
+    def describe_and_keep(path, c):
+        seen[path] = c
+        return real(path, c)
+
+    monkeypatch.setattr(info, "_describe_cube", describe_and_keep)
+    for name, mapped in (("chunked.h5", False), ("plain.h5", True)):
+        path = str(tmp_path / name)
+        in_memory = real(path, read_raw(path))
+        assert "calibration     data (" in in_memory                  # a calibration from the data
+        assert info.describe_raw(path) == in_memory
+        echo = seen[path].sum
+        assert isinstance(echo, np.memmap) and echo.nbytes >= backing.MIN_BYTES
+        assert (echo.filename == str((tmp_path / name).resolve()) and not echo.flags.writeable) == mapped, name
+
+
 def read_raw_tiny(tmp_path):
     from fwdlook_cli.forward.simulate import simulate_scenario
 

@@ -31,6 +31,7 @@ BLOCK_BYTES = 8 << 20        # the bytes a file-backed stage reads or writes per
 
 _scratch_dir: Path | None = None
 _min_bytes: int = MIN_BYTES
+_map_sources: bool = False
 
 
 def active() -> bool:
@@ -56,6 +57,36 @@ def file_backed(directory, min_bytes: int = MIN_BYTES):
         yield directory
     finally:
         _scratch_dir, _min_bytes = before
+
+
+@contextmanager
+def mapped_sources():
+    """Within the block, :func:`read_dataset` maps a large dataset stored as one plain run of bytes
+    (:func:`map_in_place`) read-only where it lies in its file, instead of reading it: no copy in memory
+    nor in a scratch file, and pages the kernel can drop at any time (they are the file's, clean)."""
+    global _map_sources
+    before, _map_sources = _map_sources, True
+    try:
+        yield
+    finally:
+        _map_sources = before
+
+
+def map_in_place(ds):
+    """A read-only ``np.memmap`` of an open HDF5 dataset's bytes in its own file, where HDF5 stores them
+    as one plain run (contiguous layout, no filter, no external storage, allocated, a plain file); else
+    None."""
+    try:
+        dcpl = ds.id.get_create_plist()
+        offset = ds.id.get_offset()
+        plain = (ds.chunks is None and offset is not None and dcpl.get_nfilters() == 0
+                 and dcpl.get_external_count() == 0 and ds.file.driver == "sec2" and ds.shape
+                 and not np.dtype(ds.dtype).hasobject)
+        if not plain:
+            return None
+        return np.memmap(ds.file.filename, dtype=ds.dtype, mode="r", offset=offset, shape=tuple(ds.shape))
+    except (AttributeError, ValueError, OSError, TypeError):
+        return None
 
 
 @contextmanager
@@ -103,10 +134,15 @@ def map_blocks(fn, n_rows: int, shape, dtype, row_bytes: int) -> np.ndarray:
 
 def read_dataset(ds):
     """All of an open HDF5 dataset (or any array-like with ``shape``, ``dtype`` and slicing): ``ds[()]``,
-    unchanged; inside :func:`file_backed`, when large, block by block of rows into a file-backed array
-    (an out-of-core run's cube and stage inputs: no copy of the whole in memory)."""
+    unchanged; inside :func:`mapped_sources`, when large and stored plainly, its bytes mapped where they
+    lie (:func:`map_in_place`); inside :func:`file_backed`, when large, block by block of rows into a
+    file-backed array (an out-of-core run's cube and stage inputs: no copy of the whole in memory)."""
     shape = tuple(ds.shape or ())
     nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(ds.dtype).itemsize
+    if _map_sources and shape and nbytes >= _min_bytes:
+        mapped = map_in_place(ds)
+        if mapped is not None:
+            return mapped
     if _scratch_dir is None or not shape or nbytes < _min_bytes or np.dtype(ds.dtype).hasobject:
         return ds[()]
     return map_blocks(lambda s: ds[s], shape[0], shape, ds.dtype, nbytes // max(1, shape[0]))

@@ -28,9 +28,20 @@ def describe(path: str) -> str:
 
 
 def describe_raw(path: str) -> str:
+    """The cube's description and a calibration from its data, with bounded memory whatever its size:
+    its echoes mapped read-only where they lie in the file (or, stored chunked or compressed, copied
+    block by block into an unnamed scratch file in the temporary directory: ``io/backing.py``), and
+    the calibration's detection reading them in blocks of pulses (``forward/point_returns.py``)."""
+    import tempfile
+
+    from ..io import backing
     from ..io.raw import read_raw
 
-    cube = read_raw(path)
+    with backing.file_backed(tempfile.gettempdir()), backing.mapped_sources():
+        return _describe_cube(path, read_raw(path))
+
+
+def _describe_cube(path: str, cube) -> str:
     r, t = cube.radar, cube.slow_time_s
     lines = [
         f"{path}: fwdlook raw cube (format_version 1)",
