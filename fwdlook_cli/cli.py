@@ -365,11 +365,13 @@ def info(path):
 def validate(path, overrides):
     """Check a scenario (YAML) or a raw cube (HDF5); exit 0 if valid, 2 if not."""
     from .scenario.loader import load_scenario, scenario_hash
+    from .io.backing import read_without_holding
     from .io.raw import read_raw
 
     p = Path(path)
     if p.suffix.lower() in (".h5", ".hdf5", ".hdf"):
-        cube = read_raw(p)
+        with read_without_holding():             # any size of cube: checked block by block, not held
+            cube = read_raw(p)
         click.echo(f"{path}: valid raw cube, {cube.n_pulses} pulses x {cube.n_range} range samples")
     else:
         scn = load_scenario(p, overrides)

@@ -136,6 +136,24 @@ def test_plain_datasets_are_mapped_where_they_lie_and_others_are_not(tmp_path):
         assert not isinstance(backing.read_dataset(f["plain"]), np.memmap)    # only inside the context
 
 
+def _isolated_cube_file(path):
+    """fwdlook's isolated-point cube written to ``path`` (8 MB a channel: over backing.MIN_BYTES)."""
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    cube, _ = simulate_scenario(load_scenario(os.path.join(root, "scenarios", "isolated_a50.yaml")))
+    write_raw(path, cube)
+    return path
+
+
+def _keep_arguments_of(monkeypatch, module, name):
+    """Replace ``module.name`` by itself recording its calls' (arguments, result) in the list returned."""
+    calls, real = [], getattr(module, name)
+    monkeypatch.setattr(module, name, lambda *args: calls.append((args, real(*args))) or calls[-1][1])
+    return calls
+
+
 def test_info_holds_no_copy_of_a_cube_and_says_the_same(tmp_path, monkeypatch):
     """`fwdlook info` reads a cube's echoes as maps: of the file itself where they are stored plainly
     (the independent writer's contiguous datasets), else of an unnamed scratch copy (fwdlook's chunked
@@ -143,36 +161,46 @@ def test_info_holds_no_copy_of_a_cube_and_says_the_same(tmp_path, monkeypatch):
     description's, to the character."""
     import sys
 
-    from fwdlook_cli.forward.simulate import simulate_scenario
     from fwdlook_cli.report import info
-    from fwdlook_cli.scenario.loader import load_scenario
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import independent_writer
 
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    cube, _ = simulate_scenario(load_scenario(os.path.join(root, "scenarios", "isolated_a50.yaml")))
-    write_raw(tmp_path / "chunked.h5", cube)
+    _isolated_cube_file(tmp_path / "chunked.h5")
     az = np.radians([-3.5, -2.1, -0.7, 0.7, 2.1, 3.5])
     r = 1650.0 + 70.0 * np.arange(len(az))
     independent_writer.write_cube(tmp_path / "plain.h5", "paper", np.column_stack([r * np.sin(az), r * np.cos(az)]),
                                   n_pulses=650)
-    seen = {}
-    real = info._describe_cube
-
-    def describe_and_keep(path, c):
-        seen[path] = c
-        return real(path, c)
-
-    monkeypatch.setattr(info, "_describe_cube", describe_and_keep)
+    in_memory = {name: info._describe_cube(str(tmp_path / name), read_raw(tmp_path / name))
+                 for name in ("chunked.h5", "plain.h5")}
+    calls = _keep_arguments_of(monkeypatch, info, "_describe_cube")
     for name, mapped in (("chunked.h5", False), ("plain.h5", True)):
-        path = str(tmp_path / name)
-        in_memory = real(path, read_raw(path))
-        assert "calibration     data (" in in_memory                  # a calibration from the data
-        assert info.describe_raw(path) == in_memory
-        echo = seen[path].sum
+        assert "calibration     data (" in in_memory[name]            # a calibration from the data
+        assert info.describe_raw(str(tmp_path / name)) == in_memory[name]
+        echo = calls[-1][0][1].sum
         assert isinstance(echo, np.memmap) and echo.nbytes >= backing.MIN_BYTES
         assert (echo.filename == str((tmp_path / name).resolve()) and not echo.flags.writeable) == mapped, name
+
+
+def test_validate_checks_a_cube_without_holding_it(tmp_path, monkeypatch, capsys):
+    """`fwdlook validate RAW.h5` reads a cube as `info` does: the echoes it checks are maps (here of a
+    scratch copy, fwdlook's cubes being chunked), the verdict the same as in memory.  Where the
+    temporary directory takes no file, they are read into memory as before, with the same verdict and
+    no word of --out-of-core."""
+    from fwdlook_cli.cli import main
+    import fwdlook_cli.io.raw as raw
+
+    path = _isolated_cube_file(tmp_path / "iso.h5")
+    calls = _keep_arguments_of(monkeypatch, raw, "read_raw")
+    (tmp_path / "not_a_dir").write_text("")
+    for tmpdir, held in ((tmp_path / "scratch", False), (tmp_path / "not_a_dir" / "sub", True)):
+        monkeypatch.setattr(backing.tempfile, "gettempdir", lambda d=str(tmpdir): d)
+        with pytest.raises(SystemExit) as exc:
+            main(["validate", str(path)])
+        out, err = capsys.readouterr()
+        assert exc.value.code in (0, None) and err == "", err
+        assert out.strip() == f"{path}: valid raw cube, 2500 pulses x 400 range samples"
+        assert isinstance(calls[-1][1].sum, np.memmap) != held, tmpdir
 
 
 def read_raw_tiny(tmp_path):

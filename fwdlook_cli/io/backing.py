@@ -17,7 +17,7 @@ too), set and restored by :func:`file_backed`.
 from __future__ import annotations
 
 import tempfile
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +70,21 @@ def mapped_sources():
         yield
     finally:
         _map_sources = before
+
+
+@contextmanager
+def read_without_holding(directory=None):
+    """For commands that only read a cube (``info``, ``validate``): its large datasets mapped where they
+    lie (:func:`mapped_sources`), else copied block by block into unnamed scratch files in
+    ``directory`` (the temporary directory by default): no array of the cube held in memory.  Where
+    that directory takes no file, the datasets that cannot be mapped are read into memory as before."""
+    with ExitStack() as stack:
+        try:
+            stack.enter_context(file_backed(tempfile.gettempdir() if directory is None else directory))
+        except BadInput:
+            pass
+        stack.enter_context(mapped_sources())
+        yield
 
 
 def map_in_place(ds):

@@ -32,12 +32,10 @@ def describe_raw(path: str) -> str:
     its echoes mapped read-only where they lie in the file (or, stored chunked or compressed, copied
     block by block into an unnamed scratch file in the temporary directory: ``io/backing.py``), and
     the calibration's detection reading them in blocks of pulses (``forward/point_returns.py``)."""
-    import tempfile
-
     from ..io import backing
     from ..io.raw import read_raw
 
-    with backing.file_backed(tempfile.gettempdir()), backing.mapped_sources():
+    with backing.read_without_holding():
         return _describe_cube(path, read_raw(path))
 
 
