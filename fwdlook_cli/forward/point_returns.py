@@ -35,6 +35,7 @@ def _detections(s, thr, step):
         parts.append((n_b + lo, i_b, p[n_b, i_b - 1], p[n_b, i_b], p[n_b, i_b + 1]))
     return [np.concatenate([part[k] for part in parts]) for k in range(5)]
 
+
 def _ground_point(position_m, range_m, azimuth_deg, target_height_m=0.0):
     """Ground point at slant ``range_m`` from ``position_m`` along ground azimuth ``azimuth_deg``."""
     dz = position_m[..., 2] - target_height_m
