@@ -189,40 +189,76 @@ FIVE_POINTS_M = [[-60.0, 1180.0], [-25.0, 1215.0], [0.0, 1195.0], [30.0, 1235.0]
 
 
 @pytest.mark.parametrize("snr_db", [25.0, 35.0, 45.0, None])
-def test_data_calibration_at_high_snr_is_refused_not_wrong(tmp_path, capsys, snr_db):
+def test_data_calibration_at_high_snr_is_right_or_refused(tmp_path, capsys, snr_db):
     """Five points 25-45 m apart (independent writer, paper radar, no /antenna).  At 25 dB per sample
     the data calibration takes three of them and fits their samples within their noise
-    (noise_chi2_per_sample within 0.9-1.3), the slope to 3 %.  From 35 dB on, the detection also takes
-    tracks through the points' range sidelobes and between them for points, and the fit gave slopes
-    10-52 % low without a word; those tracks are off their own range peak in most strong samples
-    (point_returns), so none is left and `process` exits 2 in one line naming the file, the key and
-    the allowed values, with no outputs."""
+    (noise_chi2_per_sample within 0.9-1.3), the slope to 3 %.  At 35 and 45 dB the points' range
+    sidelobes clear the detection threshold; taken for points, their tracks had chained the points into
+    groups that were rejected, or ran between them (slopes 10-52 % low, then refused).  Local maxima 10
+    dB under a stronger return within 8 resolution cells are now taken for its sidelobes: two points
+    calibrate the slope to 2 % (measured 0.4 %), and the residual over the noise, from the neighbours'
+    sidelobes under each track, is flagged (noise_note).  Noiseless, every point has neighbours within
+    the dynamic range and `process` exits 2 in one line naming the file, the key and the allowed
+    values, with no outputs."""
     raw = tmp_path / "five.h5"
     info = writer.write_cube(raw, "paper", np.array(FIVE_POINTS_M), n_pulses=675, snr_db=snr_db)
     capsys.readouterr()
     code = _cli(["process", raw, "-o", tmp_path / "run", "-q"])
     err = capsys.readouterr().err.strip().splitlines()
-    if snr_db == 25.0:
+    if snr_db is not None:
         assert code == 0, err
         cal = json.loads((tmp_path / "run" / "metrics.json").read_text())["calibration"]
-        assert cal["source"] == "data" and 0.9 < cal["noise_chi2_per_sample"] < 1.3 and "noise_note" not in cal
-        assert cal["rejected"]["not_a_point"] == 0 and cal["n_scatterers"] == 3
-        assert abs(cal["effective_slope_per_deg"] / info["slope_per_deg"] - 1.0) < 0.03
+        assert cal["source"] == "data" and cal["rejected"]["not_a_point"] == 0
+        assert abs(cal["effective_slope_per_deg"] / info["slope_per_deg"] - 1.0) < (0.03 if snr_db == 25.0 else 0.02)
+        if snr_db == 25.0:
+            assert 0.9 < cal["noise_chi2_per_sample"] < 1.3 and "noise_note" not in cal
+            assert cal["n_scatterers"] == 3
+        else:
+            assert cal["n_scatterers"] >= 2
+            assert (cal["noise_chi2_per_sample"] > 1.3) == ("noise_note" in cal)
         return
     assert code == 2 and len(err) == 1, err
     assert str(raw) in err[0] and "monopulse_calibration" in err[0] and "allowed" in err[0]
-    assert "no strong isolated point-like returns" in err[0] and "'not_a_point': 0" not in err[0], err[0]
+    assert "no strong isolated point-like returns" in err[0], err[0]
     assert not (tmp_path / "run" / "metrics.json").exists()
 
 
-def test_tracks_off_their_range_peak_are_not_points():
+def test_range_sidelobes_are_not_taken_for_points():
+    """One pulse of ideal compressed returns (unweighted: sinc sidelobes, the first at -13.3 dB), fs/B =
+    1.2, no noise, the threshold 27 dB under the strong point (13 dB over the noise of a 40 dB point):
+    two sidelobe maxima clear it, 7.5 cells from the strong point and 6.7 cells beyond the weaker.  With
+    the sidelobe test only the two points are detections, the strong one and one 8 dB weaker 6 cells
+    away; with it off, the sidelobes are detections too (the test is what removes them)."""
+    import fwdlook_cli.forward.point_returns as pr
+
+    fs_over_b, n_r = 1.2, 400
+    cells = np.arange(n_r) / fs_over_b
+    row = np.sinc(cells - 150.0) + 10 ** (-8 / 20) * np.sinc(cells - 156.0)
+    cube = np.tile(row.astype(np.complex64), (3, 1))
+    reach = int(np.ceil(pr.SIDELOBE_REACH_CELLS * fs_over_b))
+    threshold = 10 ** (-27 / 10)
+    n, i, _, power, _ = pr._detections(cube, threshold, 2, reach)
+    assert np.array_equal(n, [0, 0, 1, 1, 2, 2])
+    assert np.allclose(i / fs_over_b, np.tile([150.0, 156.0], 3), atol=0.5)
+    off = pr.SIDELOBE_DB
+    try:
+        pr.SIDELOBE_DB = np.inf
+        every = pr._detections(cube, threshold, 2, reach)[1]
+    finally:
+        pr.SIDELOBE_DB = off
+    assert set(i) < set(every) and len(every) == 3 * 4          # and the two sidelobes in each pulse
+
+
+def test_tracks_off_their_range_peak_are_not_points(monkeypatch):
     """fwdlook's own isolated-point scene (11 points, 40 m apart in range) without /antenna: at 20 dB
     every scatterer the detection keeps is on its own range peak, and the slope comes within 4 % of the
-    antenna's; at 40 dB the only 'scatterer' left was a track at (33, 1719) m, between the true points
-    (0, 1700) and (60, 1740), whose fit gave a slope 31 % low, within its noise (the residual check
-    cannot see it); it is off its range peak in 73 % of its strong samples and is dropped, and the data
-    calibration is refused."""
+    antenna's.  At 40 dB, with the sidelobe test off, the only 'scatterer' left was a track at (33,
+    1719) m, between the true points (0, 1700) and (60, 1740), whose fit gave a slope 31 % low, within
+    its noise (the residual check cannot see it); it is off its range peak in 73 % of its strong
+    samples and is dropped, and the data calibration is refused: the second line of defence.  With the
+    sidelobe test, the 40 dB cube calibrates from six points, the slope to 2 %."""
     from fwdlook_cli.errors import BadInput
+    import fwdlook_cli.forward.point_returns as pr
     from fwdlook_cli.forward.simulate import simulate_scenario
     from fwdlook_cli.scenario.loader import load_scenario
 
@@ -232,11 +268,12 @@ def test_tracks_off_their_range_peak_are_not_points():
         cube, _ = simulate_scenario(scn)
         slope = cube.antenna["monopulse_slope_per_deg"]
         cube.antenna = None
-        if snr_db == 20.0:
-            cal = calibration_for_cube(cube, "data")
-            assert cal.stats["rejected"]["not_a_point"] == 0 and cal.stats["n_scatterers"] >= 8
-            assert abs(cal.stats["effective_slope_per_deg"] / slope - 1.0) < 0.04
-        else:
+        cal = calibration_for_cube(cube, "data")
+        assert cal.stats["rejected"]["not_a_point"] == 0
+        assert abs(cal.stats["effective_slope_per_deg"] / slope - 1.0) < (0.04 if snr_db == 20.0 else 0.02)
+        assert cal.stats["n_scatterers"] >= (8 if snr_db == 20.0 else 5)
+        if snr_db == 40.0:
+            monkeypatch.setattr(pr, "SIDELOBE_DB", np.inf)
             with pytest.raises(BadInput, match="'not_a_point': 1"):
                 calibration_for_cube(cube, "data")
 

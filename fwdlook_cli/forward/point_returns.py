@@ -22,15 +22,30 @@ def _power_f32(x):
     return x.real.astype(np.float32) ** 2 + x.imag.astype(np.float32) ** 2
 
 
-def _detections(s, thr, step):
-    """Local range maxima of the sum power over ``thr`` (pulse, sample) and the power at sample - 1, at
-    it and at + 1, pulse block by pulse block (``step`` pulses): row-major, as ``np.nonzero`` of the
-    whole cube's mask."""
+# A compressed pulse's range sidelobes lie 13.3 dB (no weighting) or more (any taper) below its peak, so a
+# local maximum at least SIDELOBE_DB below a stronger return within SIDELOBE_REACH_CELLS resolution cells
+# of it, in the same pulse, is taken for that return's sidelobe, not for a point of its own (at high SNR
+# the sidelobes clear the detection threshold, and their tracks chained the points into "extended" and
+# "neighbour" groups or ran between them: README, "Monopulse calibration")
+SIDELOBE_DB = 10.0
+SIDELOBE_REACH_CELLS = 8.0
+
+
+def _detections(s, thr, step, sidelobe_reach):
+    """Local range maxima of the sum power over ``thr`` that are no sidelobe of a stronger return (within
+    ``sidelobe_reach`` samples, at least :data:`SIDELOBE_DB` below it): (pulse, sample) and the power at
+    sample - 1, at it and at + 1, pulse block by pulse block (``step`` pulses); row-major, as
+    ``np.nonzero`` of the whole cube's mask."""
+    from scipy.ndimage import maximum_filter1d
+
+    below = np.float32(10.0 ** (-SIDELOBE_DB / 10.0))
     parts = []
     for lo in range(0, s.shape[0], step):
         p = _power_f32(s[lo:lo + step])
         mid = p[:, 1:-1]
-        n_b, i_b = np.nonzero((mid > thr) & (mid >= p[:, :-2]) & (mid > p[:, 2:]))
+        strongest = maximum_filter1d(p, size=2 * sidelobe_reach + 1, axis=1, mode="nearest")[:, 1:-1]
+        strongest *= below
+        n_b, i_b = np.nonzero((mid > thr) & (mid >= p[:, :-2]) & (mid > p[:, 2:]) & (mid >= strongest))
         i_b += 1
         parts.append((n_b + lo, i_b, p[n_b, i_b - 1], p[n_b, i_b], p[n_b, i_b + 1]))
     return [np.concatenate([part[k] for part in parts]) for k in range(5)]
@@ -80,7 +95,8 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     if not noise > 0:                   # (noiseless data with a quarter of exact zeros)
         noise = sum(float(np.sum(p, dtype=np.float64)) for p in powers()) / (n_p * n_r) * 1e-6 + 1e-30
     thr = noise * 10.0 ** (threshold_db / 10.0)
-    n_idx, i_idx, p_before, p_at, p_after = _detections(s, thr, step)
+    n_idx, i_idx, p_before, p_at, p_after = _detections(
+        s, thr, step, max(1, int(np.ceil(SIDELOBE_REACH_CELLS * samples_per_resolution))))
     empty = {"scatterer": np.zeros(0, int), "pulse": np.zeros(0, int), "offset_deg": np.zeros(0),
              "z": np.zeros(0, complex), "weight": np.zeros(0), "x_m": np.zeros(0), "y_m": np.zeros(0),
              "den": np.zeros(0), "pow3": np.zeros(0), "peak_snr_db": np.zeros(0), "noise_power": noise,
