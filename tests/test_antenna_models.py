@@ -263,3 +263,32 @@ def test_the_sampled_squint_curve_is_within_its_margin_of_the_exact_one(pattern)
     exact = np.array([r / antenna._half_width_units(pattern, r) for r in rho[::5]])
     assert np.abs(q[::5] - exact).max() < 1e-5
     assert q.max() <= max_squint_deg(pattern, 2.0) + 1e-5         # max_squint_deg(bw = 2): in units of h
+
+
+def test_the_squint_curve_is_computed_in_small_blocks_with_the_same_numbers():
+    """Every command that designs an antenna computes the squint curve once (a 500 x 2001 grid): in row
+    blocks its temporaries stay under 3 MiB (the whole grid at once: about 30 MiB, numpy's allocations
+    as tracemalloc sees them), and each row is computed on its own, so any block size gives the same
+    curve bit for bit."""
+    import tracemalloc
+
+    from fwdlook_cli.dsp import antenna
+
+    curve = antenna._squint_curve.__wrapped__
+    mp = pytest.MonkeyPatch()
+    for pattern in ("gaussian2", "sinc2"):
+        tracemalloc.start()
+        try:
+            rho, q = curve(pattern)
+            peak_bytes = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak_bytes < 3 * 2**20, pattern
+        try:
+            mp.setattr(antenna, "_SQUINT_ROWS", 500)                       # the whole grid in one block
+            rho_whole, q_whole = curve(pattern)
+            mp.setattr(antenna, "_SQUINT_ROWS", 7)
+            rho_small, q_small = curve(pattern)
+        finally:
+            mp.undo()
+        assert np.array_equal(rho, rho_whole) and np.array_equal(q, q_whole) and np.array_equal(q, q_small)

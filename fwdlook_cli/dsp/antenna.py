@@ -156,17 +156,26 @@ def _half_width_units(pattern: str, rho: float) -> float:
     return float(bracketed_root(lambda x: _sum_units(pattern, x, rho) - HALF_POWER, v[i - 1], v[i], xtol=1e-14))
 
 
+_SQUINT_ROWS = 25       # rows of _squint_curve's grid per block: 400 kB per temporary
+
+
 @functools.lru_cache(maxsize=None)
 def _squint_curve(pattern: str):
     """rho grid over (0, rho_limit] and s/h = rho / v_h(rho) on it (vectorised first crossings)."""
     rho = np.linspace(1e-3, rho_limit(pattern), 500)
     v_max = rho[-1] + (6.0 if pattern == "gaussian2" else 1.0 / _SINC_X3)
     v = np.linspace(0.0, v_max, 2001)
-    sig = _sum_units(pattern, v[None, :], rho[:, None])
-    i = np.argmax(sig < HALF_POWER, axis=1)
-    s0, s1 = sig[np.arange(len(rho)), i - 1], sig[np.arange(len(rho)), i]
-    vh = v[i - 1] + (v[i] - v[i - 1]) * (s0 - HALF_POWER) / (s0 - s1)
+    vh = np.empty_like(rho)
+    # in blocks of rho rows (each row on its own: the same numbers): the whole 500 x 2001 grid at once
+    # held about 30 MiB of float64 temporaries, the high-water mark of every command's start
+    for r0 in range(0, len(rho), _SQUINT_ROWS):
+        r = rho[r0:r0 + _SQUINT_ROWS]
+        sig = _sum_units(pattern, v[None, :], r[:, None])
+        i = np.argmax(sig < HALF_POWER, axis=1)
+        s0, s1 = sig[np.arange(len(r)), i - 1], sig[np.arange(len(r)), i]
+        vh[r0:r0 + len(r)] = v[i - 1] + (v[i] - v[i - 1]) * (s0 - HALF_POWER) / (s0 - s1)
     return rho, rho / vh
+
 
 
 def max_squint_deg(pattern: str, beamwidth_3db_deg: float) -> float:
