@@ -46,8 +46,11 @@ overwrite_option = click.option("--overwrite", is_flag=True,
 @click.option("-o", "--output", "output", required=True, help="Raw cube HDF5 to write.")
 @set_option
 @overwrite_option
+@click.option("--out-of-core", "out_of_core", is_flag=True,
+              help="Synthesise the echoes into unnamed scratch files beside the output instead of memory "
+                   "(forward-looking scenarios): cubes larger than the machine's memory; the same file.")
 @quiet_option
-def simulate(scenario, output, overrides, overwrite, quiet):
+def simulate(scenario, output, overrides, overwrite, out_of_core, quiet):
     """Synthesise the range-compressed sum/difference echo cube of SCENARIO.yaml."""
     import time
 
@@ -55,20 +58,23 @@ def simulate(scenario, output, overrides, overwrite, quiet):
     from .io.raw import write_raw
     from .io.outputs import prepare_file
     from .forward.simulate import simulate_scenario
+    from .io.backing import SIMULATE_X_CUBE
 
     scn = load_scenario(scenario, overrides)
+    _refuse_out_of_core_isar(scn, scenario, out_of_core)
     output = prepare_file(output, inputs=[scenario], overwrite=overwrite)   # where it lands (nodir/.. resolved)
-    if scn["kind"] != "forward":
-        from .isar.simulate import simulate_isar_scenario  # noqa: F401  (ISAR scenario kind)
+    with _out_of_core(out_of_core, output):    # the scratch files' folder: the output's own
+        if scn["kind"] != "forward":
+            from .isar.simulate import simulate_isar_scenario  # noqa: F401  (ISAR scenario kind)
 
-        cube, stats = simulate_isar_scenario(scn)
-    else:
-        t0 = time.perf_counter()
-        cube, stats = simulate_scenario(scn)
-        _log(quiet, f"simulate: {cube.n_pulses} pulses x {cube.n_range} range samples, "
-                    f"{stats.n_pairs_kept}/{stats.n_pairs} target-pulse pairs above the gain "
-                    f"threshold, {time.perf_counter() - t0:.2f} s")
-    write_raw(output, cube)
+            cube, stats = simulate_isar_scenario(scn)
+        else:
+            t0 = time.perf_counter()
+            cube, stats = simulate_scenario(scn, in_memory_x_cube=SIMULATE_X_CUBE, source=scenario)
+            _log(quiet, f"simulate: {cube.n_pulses} pulses x {cube.n_range} range samples, "
+                        f"{stats.n_pairs_kept}/{stats.n_pairs} target-pulse pairs above the gain "
+                        f"threshold, {time.perf_counter() - t0:.2f} s")
+        write_raw(output, cube)
     _log(quiet, f"wrote {output}")
 
 
@@ -110,8 +116,9 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
             cube, _ = simulate_isar_scenario(scn)
         else:
             from .forward.simulate import simulate_scenario
+            from .io.backing import IN_MEMORY_X_CUBE
 
-            cube, stats = simulate_scenario(scn)
+            cube, stats = simulate_scenario(scn, in_memory_x_cube=IN_MEMORY_X_CUBE, source=source)
             _log(quiet, f"simulate: {cube.n_pulses} x {cube.n_range}, {stats.n_pairs_kept}/{stats.n_pairs} "
                         f"target-pulse pairs above the gain threshold")
     return scn, cube

@@ -75,3 +75,24 @@ def test_isar_cube_noise_in_band_at_the_stated_snr():
     sigma = cube.noise["sigma"]
     assert sigma == pytest.approx(10 ** (-15 / 20))
     check(cube.sum.astype(np.complex128) - clean.sum, sigma, 360.0e6, 300.0e6)
+
+
+@pytest.mark.parametrize("n_pulses,n_range,block_pulses", [(400, 280, 7), (333, 77, 1), (64, 4096, 5),
+                                                             (50, 280, 1000)])
+def test_noise_added_in_pulse_blocks_is_the_whole_draw_bit_for_bit(n_pulses, n_range, block_pulses):
+    """``add_band_limited_noise`` adds the noise block by block of pulses (the simulator's, so that a cube
+    larger than memory gets its noise without cube-sized temporaries): the generator's draws are one
+    sequence and each pulse is filtered on its own, so any block size adds the same numbers as one
+    draw of the whole, and leaves the generator where the whole draw leaves it (the difference channel
+    draws next)."""
+    from fwdlook_cli.dsp.noise import add_band_limited_noise
+
+    fs, b, sigma = 60e6, 50e6, 0.3
+    echo = np.random.default_rng(1).standard_normal((n_pulses, 2 * n_range)).astype(np.float32).view(np.complex64)
+    whole, blocked = echo.copy(), echo.copy()
+    rng_whole, rng_blocked = np.random.default_rng(9), np.random.default_rng(9)
+    whole += band_limited_noise(rng_whole, n_pulses, n_range, sigma=sigma, fs_hz=fs, bandwidth_hz=b)
+    add_band_limited_noise(rng_blocked, blocked, sigma=sigma, fs_hz=fs, bandwidth_hz=b,
+                           block_bytes=8 * n_range * block_pulses)
+    np.testing.assert_array_equal(blocked, whole)
+    assert rng_blocked.bit_generator.state == rng_whole.bit_generator.state

@@ -266,6 +266,39 @@ def test_a_cube_too_big_for_memory_is_told_about_out_of_core(tiny_raw, tmp_path,
     assert not [r for r in caplog.records if "--out-of-core" in r.getMessage()]
 
 
+def test_a_scene_too_big_to_simulate_in_memory_is_told_about_out_of_core(tmp_path, monkeypatch, capsys):
+    """``simulate`` of a scene whose cube (with its blocks, 1.1 cubes) would not fit the memory available
+    warns once before simulating, naming the scenario file and --out-of-core; ``run`` warns where its
+    whole in-memory chain (3 cubes) would not fit; neither warns when it fits or out of core."""
+    from fwdlook_cli.cli import main
+    from fwdlook_cli.scenario.loader import load_scenario
+    from fwdlook_cli.forward.simulate import simulate_scenario
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    tiny_yaml = os.path.join(root, "scenarios", "tiny.yaml")
+    cube, _ = simulate_scenario(load_scenario(tiny_yaml))
+    cube_bytes = cube.sum.nbytes + cube.diff.nbytes
+
+    def warnings_of(*argv, available):
+        monkeypatch.setattr(backing, "memory_available_bytes", lambda: available)
+        with pytest.raises(SystemExit) as exc:
+            main([str(a) for a in argv])
+        err = capsys.readouterr().err
+        assert exc.value.code in (0, None), err
+        return [line for line in err.splitlines() if "--out-of-core holds it" in line]
+
+    for i, (available, command, expected) in enumerate((
+            (int(1.5 * cube_bytes), "simulate", 0), (int(1.05 * cube_bytes), "simulate", 1),
+            (int(4.0 * cube_bytes), "run", 0), (int(2.0 * cube_bytes), "run", 1))):
+        argv = (("simulate", tiny_yaml, "-o", tmp_path / f"c{i}.h5") if command == "simulate"
+                else ("run", tiny_yaml, "-o", tmp_path / f"r{i}", "--keep-stages", "none"))
+        hints = warnings_of(*argv, available=available)
+        assert len(hints) == expected, (command, available, hints)
+        assert all(tiny_yaml in h and ("simulating and processing" in h) == (command == "run") for h in hints)
+    assert warnings_of("simulate", tiny_yaml, "-o", tmp_path / "ooc.h5", "--out-of-core",
+                       available=int(0.5 * cube_bytes)) == []
+
+
 # ----------------------------------------------------------------------------------------------
 # the memory available under a cgroup limit (a container's, a batch job's)
 # ----------------------------------------------------------------------------------------------
@@ -333,3 +366,42 @@ def test_no_cgroup_information_leaves_the_kernel_estimate(tmp_path):
     assert backing.cgroup_room_bytes(str(proc)) is None
     assert backing.memory_available_bytes(str(proc)) == 2048 * 1024
     assert backing.memory_available_bytes(str(tmp_path / "nothing")) is None
+
+
+def test_simulation_out_of_core_writes_the_in_memory_cube(tmp_path, capsys):
+    """``simulate --out-of-core`` (and ``run --out-of-core``, which simulates inside the same context)
+    synthesises both channels into scratch maps, pulse block by pulse block, the noise too: the raw
+    file's echoes are the in-memory simulation's bit for bit, nothing is left beside the output, and an
+    ISAR scenario (simulated in memory) is refused in one line before any work."""
+    from fwdlook_cli.cli import main
+    from fwdlook_cli.forward.simulate import simulate_scenario
+
+    scn = tiny_scenario(noise={"snr_db": 20.0, "seed": 3})
+    with backing.file_backed(tmp_path, min_bytes=1024):
+        cube, _ = simulate_scenario(scn)
+        assert isinstance(cube.sum, np.memmap) and isinstance(cube.diff, np.memmap)
+    in_memory, _ = simulate_scenario(scn)
+    assert not isinstance(in_memory.sum, np.memmap)
+    np.testing.assert_array_equal(cube.sum, in_memory.sum)
+    np.testing.assert_array_equal(cube.diff, in_memory.diff)
+
+    def run(*argv):
+        with pytest.raises(SystemExit) as exc:
+            main([str(a) for a in argv])
+        return exc.value.code, capsys.readouterr().err
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    tiny_yaml = os.path.join(root, "scenarios", "tiny.yaml")
+    for flag in ((), ("--out-of-core",)):
+        out = tmp_path / f"cube{len(flag)}" / "raw.h5"
+        out.parent.mkdir()
+        code, err = run("simulate", tiny_yaml, "-o", out, "-q", *flag)
+        assert code in (0, None), err
+        assert sorted(os.listdir(out.parent)) == ["raw.h5"]
+    with h5py.File(tmp_path / "cube0" / "raw.h5") as a, h5py.File(tmp_path / "cube1" / "raw.h5") as b:
+        for name in ("echo/sum", "echo/diff"):
+            np.testing.assert_array_equal(a[name][()], b[name][()])
+    code, err = run("simulate", os.path.join(root, "scenarios", "isar_theta3.yaml"), "-o", tmp_path / "isar.h5",
+                    "--out-of-core", "-q")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "ISAR chain runs in memory" in err
+    assert not (tmp_path / "isar.h5").exists()

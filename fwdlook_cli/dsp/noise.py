@@ -37,3 +37,20 @@ def band_limited_noise(rng: np.random.Generator, n_pulses: int, n_range: int, *,
     gain = np.float32(sigma / np.sqrt(2.0) * np.sqrt(n_range / max(int(mask.sum()), 1)))
     spec *= (mask * gain).astype(np.float32)[None, :]
     return scipy.fft.ifft(spec, axis=1, workers=-1, overwrite_x=True).astype(np.complex64, copy=False)
+
+
+NOISE_BLOCK_BYTES = 8 << 20     # white draws per block of pulses (:func:`add_band_limited_noise`)
+
+
+def add_band_limited_noise(rng: np.random.Generator, echo, *, sigma: float, fs_hz: float, bandwidth_hz: float,
+                           block_bytes: int = NOISE_BLOCK_BYTES) -> None:
+    """``echo += band_limited_noise(rng, *echo.shape, ...)`` in blocks of pulses, in place: the same
+    numbers bit for bit (the generator's draws are a sequence, each pulse is filtered on its own), with
+    temporaries of ``block_bytes`` instead of three cube-sized arrays, and ``echo`` may be file-backed
+    (``io.backing``: a cube larger than memory)."""
+    n_pulses, n_range = echo.shape
+    step = max(1, int(block_bytes) // (8 * max(1, n_range)))
+    for p0 in range(0, n_pulses, step):
+        p1 = min(n_pulses, p0 + step)
+        echo[p0:p1] += band_limited_noise(rng, p1 - p0, n_range, sigma=sigma, fs_hz=fs_hz,
+                                          bandwidth_hz=bandwidth_hz)

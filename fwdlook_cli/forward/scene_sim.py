@@ -51,7 +51,8 @@ import scipy.fft
 from ..dsp.antenna import MonopulseAntenna, bracketed_root
 from ..dsp.geometry import C_MPS
 from ..dsp.pulse import TABLE_OVERSAMPLE, CompressedPulse
-from ..dsp.noise import band_limited_noise
+from ..dsp.noise import add_band_limited_noise
+from ..io import backing
 
 
 @dataclass(frozen=True)
@@ -199,8 +200,10 @@ def simulate_scene_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, a
     if method == "nufft" and not np.isclose(fs_hz, pulse.fs_hz, rtol=1e-9):
         method = "direct"                  # the kernel table's step is tied to the pulse's own fs
 
-    echo_sum = np.zeros((n_p, n_r), np.complex64)
-    echo_diff = np.zeros((n_p, n_r), np.complex64)
+    # file-backed inside io.backing.file_backed (--out-of-core: a cube larger than memory, its pulse
+    # blocks written into the scratch file's pages), zeros either way (a new file reads as zeros)
+    echo_sum, echo_diff = (backing.empty((n_p, n_r), np.complex64) if backing.active()
+                           else np.zeros((n_p, n_r), np.complex64) for _ in range(2))
     guard = 2 * half + 4
     seg = scipy.fft.next_fast_len(n_r + 2 * guard)
     blk = max(1, min(int(block_pulses), n_p))
@@ -320,9 +323,9 @@ def simulate_scene_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, a
         echo_diff *= np.complex64(10.0 ** (diff_gain_db / 20.0) * np.exp(1j * np.radians(diff_phase_deg)))
     if noise_sigma > 0.0:                       # the same draws, in the same order, as simulate_echo
         rng = np.random.default_rng(seed)
-        for echo in (echo_sum, echo_diff):      # band-limited to |f_r| <= B/2 like the echo (dsp/noise.py)
-            echo += band_limited_noise(rng, n_p, n_r, sigma=noise_sigma, fs_hz=pulse.fs_hz,
-                                       bandwidth_hz=pulse.bandwidth_hz)
+        for echo in (echo_sum, echo_diff):      # band-limited to |f_r| <= B/2 like the echo (dsp/noise.py),
+            add_band_limited_noise(rng, echo, sigma=noise_sigma, fs_hz=pulse.fs_hz,     # in pulse blocks
+                                   bandwidth_hz=pulse.bandwidth_hz)
     stats = SimulationStats(n_pairs=int(len(tgt)) * n_p, n_pairs_kept=int(kept_total), kernel_samples=width,
                             samples_written=int(kept_total) * width)
     return echo_sum, echo_diff, stats

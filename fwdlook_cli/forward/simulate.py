@@ -24,6 +24,7 @@ the in-band SNR.
 """
 from __future__ import annotations
 
+import logging
 
 import numpy as np
 
@@ -117,10 +118,15 @@ def antenna_group(antenna, diff_gain_db=0.0, diff_phase_deg=0.0) -> dict:
     return out
 
 
-def simulate_scenario(scn: dict):
-    """Simulate a resolved forward-looking scenario: returns (RawCube, SimulationStats)."""
+def simulate_scenario(scn: dict, *, in_memory_x_cube: float | None = None, source: str | None = None):
+    """Simulate a resolved forward-looking scenario: returns (RawCube, SimulationStats).
+
+    ``in_memory_x_cube``: where given, the memory the caller's in-memory work needs in cubes
+    (``io.backing.memory_hint``); a cube that would not fit logs one warning naming ``source`` and
+    ``--out-of-core`` before it is simulated."""
     from ..scenario.loader import dump_scenario, scenario_hash
     from ..io.cube import RawCube
+    from ..io import backing
 
     radar, ant = scn["radar"], scn["antenna"]
     slow_time_s, position_m, velocity_mps, targets_m, amps = scene_geometry(scn)
@@ -134,6 +140,11 @@ def simulate_scenario(scn: dict):
         near, far = radar["range_window_m"]
         dr = C_MPS / (2.0 * radar["fs_hz"])
         range_m = near + dr * np.arange(int(np.floor((far - near) / dr)) + 1)
+    if in_memory_x_cube is not None:
+        hint = backing.memory_hint(2 * 8 * len(slow_time_s) * len(range_m), in_memory_x_cube,
+                                   "simulating" if in_memory_x_cube <= backing.SIMULATE_X_CUBE else "simulating and processing")
+        if hint:                                       # said before the work that may not fit
+            logging.getLogger(__name__).warning(f"{source or scn['name']}: {hint}")
     sigma = noise_sigma_for(scn["noise"]["snr_db"], amps)
     echo_sum, echo_diff, stats = simulate_scene_echo(   # scene_sim.py: gated pairs only, any scene size
         slow_time_s, position_m, beam_deg, range_m, targets_m, amps, fc_hz=radar["fc_hz"],

@@ -26,6 +26,7 @@ from ..errors import BadInput
 from ..limits import gib
 
 IN_MEMORY_X_CUBE = 3.0       # an in-memory run's peak above its base, in cubes (README: Memory, CPI imaging)
+SIMULATE_X_CUBE = 1.1        # simulating alone: the cube and blocks of 32 pulses (README: --out-of-core)
 MIN_BYTES = 1 << 20          # smaller arrays stay in memory (the page cache would hold them anyway)
 BLOCK_BYTES = 8 << 20        # the bytes a file-backed stage reads or writes per block
 
@@ -259,12 +260,14 @@ def cgroup_room_bytes(proc: str = "/proc") -> int | None:
     return min(rooms) if rooms else None
 
 
-def memory_hint(cube_bytes: int) -> str | None:
+def memory_hint(cube_bytes: int, x_cube: float = IN_MEMORY_X_CUBE, doing: str = "processing") -> str | None:
     """One line for a cube that an in-memory run would likely not fit (None when it fits, when
-    :func:`file_backed` is on, or when the available memory is unknown)."""
+    :func:`file_backed` is on, or when the available memory is unknown).  ``x_cube``: what the work
+    needs in memory, in cubes (:data:`IN_MEMORY_X_CUBE` for the chain, :data:`SIMULATE_X_CUBE` to
+    simulate alone); ``doing``: the work, as the line names it."""
     available = None if active() else memory_available_bytes()
-    need = IN_MEMORY_X_CUBE * cube_bytes
+    need = x_cube * cube_bytes
     if available is None or need <= available:
         return None
-    return (f"processing this {gib(cube_bytes)} cube in memory needs about {gib(need)} and {gib(available)} "
+    return (f"{doing} this {gib(cube_bytes)} cube in memory needs about {gib(need)} and {gib(available)} "
             f"is available: --out-of-core holds it in scratch files instead")

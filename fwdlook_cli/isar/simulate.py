@@ -78,10 +78,10 @@ def simulate_isar_scenario(scn: dict):
     echo = echo.astype(np.complex64)
     sigma = noise_sigma_for(scn["noise"]["snr_db"], amps)
     if sigma > 0.0:
-        from ..dsp.noise import band_limited_noise
+        from ..dsp.noise import add_band_limited_noise
 
         rng = np.random.default_rng(scn["noise"]["seed"])     # band-limited to |f| <= B/2 (noise.py)
-        echo += band_limited_noise(rng, n_p, n_r, sigma=sigma, fs_hz=fs, bandwidth_hz=radar["bandwidth_hz"])
+        add_band_limited_noise(rng, echo, sigma=sigma, fs_hz=fs, bandwidth_hz=radar["bandwidth_hz"])
 
     p_ref = pos0[0][None, :] + vel[None, :] * slow_time_s[:, None]
     los_az = np.degrees(np.arctan2(p_ref[:, 0], p_ref[:, 1]))
