@@ -118,7 +118,8 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
             from .forward.simulate import simulate_scenario
             from .io.backing import IN_MEMORY_X_CUBE
 
-            cube, stats = simulate_scenario(scn, in_memory_x_cube=IN_MEMORY_X_CUBE, source=source)
+            cube, stats = simulate_scenario(scn, in_memory_x_cube=IN_MEMORY_X_CUBE, doing="simulating and processing",
+                                            source=source)
             _log(quiet, f"simulate: {cube.n_pulses} x {cube.n_range}, {stats.n_pairs_kept}/{stats.n_pairs} "
                         f"target-pulse pairs above the gain threshold")
     return scn, cube

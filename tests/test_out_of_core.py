@@ -405,3 +405,23 @@ def test_simulation_out_of_core_writes_the_in_memory_cube(tmp_path, capsys):
                     "--out-of-core", "-q")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "ISAR chain runs in memory" in err
     assert not (tmp_path / "isar.h5").exists()
+
+
+def test_simulated_pulses_no_target_reaches_are_zeros_out_of_core_too(tmp_path, monkeypatch):
+    """The simulator writes only the pulse blocks a target reaches, into arrays that must start at zero:
+    inside ``--out-of-core`` a channel under ``MIN_BYTES`` stays in memory, and there it must be zeros,
+    not whatever ``np.empty`` returns (poisoned here: NaN), as it is file-backed (a new file) or not."""
+    from fwdlook_cli.forward.simulate import simulate_scenario
+
+    scn = tiny_scenario(noise={"snr_db": None})
+    scn["scene"]["points_m"] = [scn["scene"]["points_m"][0]]
+    scn["antenna"].update(scan_start_deg=-30.0, scan_stop_deg=30.0)       # the point seen part of the scan
+    expected, _ = simulate_scenario(scn)
+    quiet = ~np.any(expected.sum != 0, axis=1)
+    assert quiet.any() and not quiet.all()                                # blocks no target reaches
+    monkeypatch.setattr(backing.empty, "__kwdefaults__", {"fill": lambda shape, dtype: np.full(shape, np.nan, dtype)})
+    for min_bytes in (1 << 40, 1024):                                     # in memory, then file-backed
+        with backing.file_backed(tmp_path, min_bytes=min_bytes):
+            cube, _ = simulate_scenario(scn)
+        np.testing.assert_array_equal(cube.sum, expected.sum)
+        np.testing.assert_array_equal(cube.diff, expected.diff)

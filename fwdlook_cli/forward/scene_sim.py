@@ -200,10 +200,9 @@ def simulate_scene_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, a
     if method == "nufft" and not np.isclose(fs_hz, pulse.fs_hz, rtol=1e-9):
         method = "direct"                  # the kernel table's step is tied to the pulse's own fs
 
-    # file-backed inside io.backing.file_backed (--out-of-core: a cube larger than memory, its pulse
-    # blocks written into the scratch file's pages), zeros either way (a new file reads as zeros)
-    echo_sum, echo_diff = (backing.empty((n_p, n_r), np.complex64) if backing.active()
-                           else np.zeros((n_p, n_r), np.complex64) for _ in range(2))
+    # zeros (a block no target reaches is not written), file-backed inside io.backing.file_backed
+    # (--out-of-core: a cube larger than memory, its pulse blocks written into the scratch file's pages)
+    echo_sum, echo_diff = backing.zeros((n_p, n_r), np.complex64), backing.zeros((n_p, n_r), np.complex64)
     guard = 2 * half + 4
     seg = scipy.fft.next_fast_len(n_r + 2 * guard)
     blk = max(1, min(int(block_pulses), n_p))

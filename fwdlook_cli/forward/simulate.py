@@ -118,12 +118,13 @@ def antenna_group(antenna, diff_gain_db=0.0, diff_phase_deg=0.0) -> dict:
     return out
 
 
-def simulate_scenario(scn: dict, *, in_memory_x_cube: float | None = None, source: str | None = None):
+def simulate_scenario(scn: dict, *, in_memory_x_cube: float | None = None, doing: str = "simulating",
+                      source: str | None = None):
     """Simulate a resolved forward-looking scenario: returns (RawCube, SimulationStats).
 
-    ``in_memory_x_cube``: where given, the memory the caller's in-memory work needs in cubes
-    (``io.backing.memory_hint``); a cube that would not fit logs one warning naming ``source`` and
-    ``--out-of-core`` before it is simulated."""
+    ``in_memory_x_cube``: where given, the memory the caller's in-memory work (``doing``, as the line
+    names it) needs in cubes (``io.backing.memory_hint``); a cube that would not fit logs one warning
+    naming ``source`` and ``--out-of-core`` before it is simulated."""
     from ..scenario.loader import dump_scenario, scenario_hash
     from ..io.cube import RawCube
     from ..io import backing
@@ -141,8 +142,7 @@ def simulate_scenario(scn: dict, *, in_memory_x_cube: float | None = None, sourc
         dr = C_MPS / (2.0 * radar["fs_hz"])
         range_m = near + dr * np.arange(int(np.floor((far - near) / dr)) + 1)
     if in_memory_x_cube is not None:
-        hint = backing.memory_hint(2 * 8 * len(slow_time_s) * len(range_m), in_memory_x_cube,
-                                   "simulating" if in_memory_x_cube <= backing.SIMULATE_X_CUBE else "simulating and processing")
+        hint = backing.memory_hint(2 * 8 * len(slow_time_s) * len(range_m), in_memory_x_cube, doing)
         if hint:                                       # said before the work that may not fit
             logging.getLogger(__name__).warning(f"{source or scn['name']}: {hint}")
     sigma = noise_sigma_for(scn["noise"]["snr_db"], amps)

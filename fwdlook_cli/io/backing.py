@@ -116,18 +116,25 @@ def in_memory():
         _scratch_dir = before
 
 
-def empty(shape, dtype) -> np.ndarray:
+def empty(shape, dtype, *, fill=np.empty) -> np.ndarray:
     """``np.empty(shape, dtype)``, file-backed inside :func:`file_backed` when it is large enough
-    (its contents are then zeros, as a new file's are)."""
+    (its contents are then zeros, as a new file's are).  ``fill``: what makes the in-memory array
+    (:func:`zeros` passes ``np.zeros``)."""
     shape = tuple(int(n) for n in (shape if np.ndim(shape) else (shape,)))
     dtype = np.dtype(dtype)
     nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
     if _scratch_dir is None or nbytes < _min_bytes or nbytes == 0:
-        return np.empty(shape, dtype)
+        return fill(shape, dtype)
     with tempfile.TemporaryFile(dir=_scratch_dir, prefix=".fwdlook-scratch-") as f:
         f.truncate(nbytes)
         # the map holds the file open (its own descriptor): the file lives as long as the array
         return np.memmap(f, dtype=dtype, mode="r+", shape=shape)
+
+
+def zeros(shape, dtype) -> np.ndarray:
+    """``np.zeros(shape, dtype)``, file-backed inside :func:`file_backed` when it is large enough (a new
+    file reads as zeros): an array that is filled in parts, some never written."""
+    return empty(shape, dtype, fill=np.zeros)
 
 
 def rows_per_block(row_bytes: int, block_bytes: int | None = None) -> int:
