@@ -2,9 +2,13 @@
 # The GPU backend's checks in one short run (issue 11, item 5), for a machine with CuPy and a CUDA
 # device but no package registry: the lent device machine (docs: README, "GPU backend").  It uses the
 # machine's own python3 and packages (numpy, scipy, h5py, click, pyyaml, matplotlib, threadpoolctl,
-# xxhash, CuPy, pytest, hypothesis) with this checkout on PYTHONPATH: nothing is installed.
+# xxhash, CuPy, pytest, hypothesis) with this checkout on PYTHONPATH.  What that machine lacks
+# (ducc0, the image's fused range oversampling) travels as wheels in .whl/ (git-ignored), fetched here
+# for its Python (3.12) and installed there into a scratch folder, nothing into its own environment:
 #
-#   bash scripts/gpu_check.sh [OUT_DIR]        (default: $OUT, else gpu_check/)
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+#       --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 -d .whl ducc0==0.42.0
+#   bash scripts/gpu_check.sh [OUT_DIR]        (default: $OUT, else gpu_check/; the device tool: carry .whl)
 #
 # Writes to OUT_DIR: versions.txt (python, numpy, scipy, CuPy, the device), gpu_tests.log (the GPU
 # tests: with a device none of the CuPy tests may skip), gpu_bench.json (`fwdlook bench --backend gpu
@@ -18,6 +22,11 @@ here=$(cd "$(dirname "$0")/.." && pwd)
 export PYTHONPATH="$here${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 PYTHONDONTWRITEBYTECODE=1
 py=${PYTHON:-python3}
 cd "$here" || exit 2
+if compgen -G ".whl/*.whl" >/dev/null; then      # the carried wheels, into a scratch site folder
+  site=$(mktemp -d)
+  "$py" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target "$site" .whl/*.whl || exit 2
+  export PYTHONPATH="$PYTHONPATH:$site"
+fi
 
 {
   "$py" - <<'EOF'

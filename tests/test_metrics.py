@@ -11,7 +11,7 @@ from scipy.signal import resample
 from scipy.signal.windows import hamming
 
 from fwdlook_cli.dsp.profile import ideal_sinc_islr_db, ideal_sinc_pslr_db, profile_metrics
-from fwdlook_cli.dsp.peaks import image_peak_2d, interpolate_peak, oversample_profile
+from fwdlook_cli.dsp.peaks import image_peak_2d, interpolate_peak, oversample_profile, oversample_range
 
 C_MPS = 299_792_458.0
 B_HZ = 100e6  # pulse bandwidth
@@ -85,6 +85,47 @@ def test_oversample_rejects_bad_factor(factor):
 def test_oversample_rejects_empty():
     with pytest.raises(ValueError, match="empty"):
         oversample_profile(np.array([]), 2)
+
+
+# --- oversample_range: the fused form over rows (ducc0), against the two above ------------------
+
+def _rows_by_profile(x, factor):
+    """oversample_profile (numpy.fft, complex128) of every row: the independent reference."""
+    flat = np.asarray(x, dtype=np.complex128).reshape(-1, x.shape[-1])
+    return np.array([oversample_profile(row, factor) for row in flat]).reshape(x.shape[:-1] + (-1,))
+
+
+@pytest.mark.parametrize("shape", [(7, 280), (3, 5, 33), (4, 1), (5, 2), (6, 64)])
+@pytest.mark.parametrize("factor", [1, 2, 3, 4])
+def test_fused_range_oversampling_is_the_zero_padded_spectrum(shape, factor):
+    """dsp.peaks.oversample_range (one fused resampling per row) gives oversample_profile's numbers,
+    the Nyquist bin of an even n split, to the float32 rounding of its complex64 input (a few eps32
+    x log2 n relative to the peak), and scipy.signal.resample's; the native samples come back."""
+    rng = np.random.default_rng(sum(shape) * 10 + factor)
+    x = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
+    y = oversample_range(x, factor)
+    ref = _rows_by_profile(x, factor)
+    assert y.dtype == np.complex64 and y.shape == shape[:-1] + (shape[-1] * factor,)
+    assert np.max(np.abs(y - ref)) <= 2e-6 * np.max(np.abs(ref))
+    np.testing.assert_allclose(resample(x.astype(np.complex128), shape[-1] * factor, axis=-1), ref,
+                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(y[..., ::factor], x, rtol=0, atol=2e-6 * np.max(np.abs(x)))
+
+
+def test_fused_range_oversampling_of_real_double_strided_and_empty_rows():
+    rng = np.random.default_rng(3)
+    real = rng.standard_normal((3, 40)).astype(np.float32)
+    y = oversample_range(real, 4)                              # complex64 out, imaginary part zero
+    assert y.dtype == np.complex64 and np.max(np.abs(y.imag)) < 1e-6
+    assert np.max(np.abs(y - _rows_by_profile(real, 4))) < 2e-6 * np.max(np.abs(real))
+    double = rng.standard_normal((4, 30)) + 1j * rng.standard_normal((4, 30))
+    np.testing.assert_allclose(oversample_range(double, 5), _rows_by_profile(double, 5), rtol=0, atol=1e-13)
+    strided = (rng.standard_normal((6, 80)) + 1j * rng.standard_normal((6, 80))).astype(np.complex64)[::2, ::2]
+    assert np.max(np.abs(oversample_range(strided, 4) - _rows_by_profile(strided, 4))) < 1e-5
+    assert oversample_range(np.zeros((0, 16), np.complex64), 4).shape == (0, 64)
+    assert oversample_range(double, 1) is double                # factor 1: the input itself
+    with pytest.raises(ValueError, match="factor"):
+        oversample_range(double, 0)
 
 
 # --- interpolate_peak / image_peak_2d --------------------------------------------------------

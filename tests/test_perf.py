@@ -18,7 +18,8 @@ import scipy.fft
 
 from fwdlook_cli.cli import main
 from fwdlook_cli.dsp.blas import batched_matmul, batched_matmul_each
-from fwdlook_cli.dsp.imaging import azimuth_at_t_ref_cells, float32_floor, kept_cells, median_floor, power_f32
+from fwdlook_cli.dsp.imaging import (azimuth_at_t_ref_cells, float32_floor, kept_cells, median_floor, oversample_profiles,
+                                     power_f32)
 from fwdlook_cli.dsp.keystone import keystone_dft
 from fwdlook_cli.dsp.keystone_common import OuterPhasors, _cis, cis_outer
 from fwdlook_cli.dsp.keystone_czt import KeystonePlan
@@ -207,7 +208,10 @@ def test_outer_phasor_tables_give_every_column_block_the_same_numbers():
 # monopulse cells: rows oversampled only where a cell can pass, floor on the native samples
 # ----------------------------------------------------------------------------------------------
 def reference_cells(sum_z, diff_z, floor, factor, threshold_db, dynamic_range_db, max_ratio):
-    s, d = oversample_range(sum_z, factor), oversample_range(diff_z, factor)
+    # every row oversampled by numpy's FFTs in complex128 (dsp.imaging.oversample_profiles), the
+    # selection in float32 as the stage's: an implementation that shares none of the stage's transforms
+    s, d = (oversample_profiles(z.reshape(-1, z.shape[-1]), factor).reshape(z.shape[:-1] + (-1,))
+            for z in (sum_z, diff_z))
     power = (s.real**2 + s.imag**2).astype(np.float32)
     ratio = (d.real * s.real + d.imag * s.imag) / np.maximum(power, 1e-30)
     peak = power.reshape(power.shape[0], -1).max(axis=1)

@@ -18,7 +18,8 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-import scipy.fft
+
+from .peaks import oversample_range
 
 
 def power_f32(z):
@@ -80,22 +81,9 @@ def median_floor(power, axis_cells):
 
 
 def oversample_rows(x, factor: int, workers: int = -1):
-    """Band-limited oversampling of the last axis of ``x`` [rows, n] by FFT zero-padding (amplitudes
-    kept); the same arithmetic as :func:`dsp.peaks.oversample_range`, one padded buffer."""
-    if factor == 1:
-        return np.array(x)
-    n = x.shape[-1]
-    m = n * factor
-    # X/n forward and an unscaled inverse: ifft_m(factor X) of the zero-padded spectrum, the scale
-    # folded into the transforms (no pass over the padded buffer for it, nor a zeroing of all of it)
-    spec = scipy.fft.fft(x, axis=-1, workers=workers, norm="forward")
-    pad = np.empty(spec.shape[:-1] + (m,), dtype=spec.dtype)
-    half = n // 2
-    pad[..., : n - half] = spec[..., : n - half]
-    pad[..., n - half: m - half] = 0
-    pad[..., m - half:] = spec[..., n - half:]
-    del spec
-    return scipy.fft.ifft(pad, axis=-1, workers=workers, overwrite_x=True, norm="forward")
+    """Band-limited oversampling of the last axis of ``x`` [rows, n], amplitudes kept: a new array
+    (:func:`dsp.peaks.oversample_range`, one fused pass per row)."""
+    return np.array(x) if factor == 1 else oversample_range(x, factor, workers=workers)
 
 
 BLOCK_CELLS = 1 << 20       # oversampled cells per block: temporaries of a few MB, reused from the heap

@@ -27,17 +27,21 @@ def _power(xp, z):
 
 
 def oversample_range(xp, x, factor: int):
-    """Band-limited oversampling of the last axis by FFT zero-padding, amplitudes kept: bins below
-    n - n//2 at the start, the top n//2 bins (the Nyquist bin of an even n among them) at the end."""
+    """Band-limited oversampling of the last axis by FFT zero-padding, amplitudes kept, the Nyquist
+    bin of an even n split between +n/2 and -n/2 (the CPU's :func:`dsp.peaks.oversample_range`)."""
     if factor == 1:
         return x.copy()
     fx, kw = fft_module(xp), fft_kwargs(xp)
     n = x.shape[-1]
-    half = n // 2
+    m = n * factor
+    lo = (n + 1) // 2                                      # bins 0 .. lo-1 at the start
     spec = fx.fft(x, axis=-1, norm="forward", **kw)        # X/n, then an unscaled inverse (as the CPU's)
-    pad = xp.zeros(spec.shape[:-1] + (n * factor,), dtype=spec.dtype)
-    pad[..., : n - half] = spec[..., : n - half]
-    pad[..., n * factor - half:] = spec[..., n - half:]
+    pad = xp.zeros(spec.shape[:-1] + (m,), dtype=spec.dtype)
+    pad[..., :lo] = spec[..., :lo]
+    pad[..., m - (n - lo):] = spec[..., lo:]
+    if n % 2 == 0 and n > 0:                               # the Nyquist bin: half at +n/2, half at -n/2
+        pad[..., m - n // 2] *= 0.5
+        pad[..., n // 2] = pad[..., m - n // 2]
     del spec
     return fx.ifft(pad, axis=-1, overwrite_x=True, norm="forward", **kw)
 

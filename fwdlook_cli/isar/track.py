@@ -1,32 +1,14 @@
 """Per-pulse peak range track of a range-compressed echo and its migration span."""
 from __future__ import annotations
 
-import numpy as np
-import scipy.fft as sfft
 import math
+
+import numpy as np
+
+from ..dsp.peaks import oversample_range
 
 SPAN_SMOOTH_PULSES = 32        # running mean of the per-pulse peak range before max - min
 TRACK_OVERSAMPLE = 4           # band-limited oversampling of each pulse's range profile
-
-
-def _oversample_rows(x, factor):
-    """Band-limited oversampling of every row (axis 1), as metrics.oversample_profile row by row."""
-    x = np.asarray(x)
-    n = x.shape[1]
-    m = n * factor
-    spec = sfft.fft(x, axis=1, workers=-1)
-    padded = np.zeros((x.shape[0], m), dtype=np.complex64 if x.dtype == np.complex64 else np.complex128)
-    if n % 2:
-        half = (n + 1) // 2
-        padded[:, :half] = spec[:, :half]
-        padded[:, m - (n - half):] = spec[:, half:]
-    else:
-        half = n // 2
-        padded[:, :half] = spec[:, :half]
-        padded[:, m - half + 1:] = spec[:, half + 1:]
-        padded[:, half] += 0.5 * spec[:, half]
-        padded[:, m - half] += 0.5 * spec[:, half]
-    return sfft.ifft(padded, axis=1, workers=-1, overwrite_x=True) * factor
 
 
 def peak_track(echo_rc, factor=TRACK_OVERSAMPLE, gate=None):
@@ -36,7 +18,7 @@ def peak_track(echo_rc, factor=TRACK_OVERSAMPLE, gate=None):
     ``gate = (lo, hi)`` range samples if given) refined by a three-point parabola on log power.
     Returns (position in range samples [n_pulses], peak power).
     """
-    fine = _oversample_rows(echo_rc, factor)
+    fine = oversample_range(np.asarray(echo_rc), factor)      # every pulse's range profile
     p = (fine.real.astype(np.float64) ** 2 + fine.imag.astype(np.float64) ** 2)
     del fine
     m = p.shape[1]

@@ -13,8 +13,8 @@ What the chain cannot avoid, for the paper cube (both channels, complex64), stag
 * ``doppler_spectra``: the zoom DFT, one (n_doppler x cpi) by (cpi x n_r) product per CPI and channel, the
   two channels side by side as the stage runs them (``dsp.blas.batched_matmul_each``).
 * ``monopulse_image``: band-limited range oversampling of both channels, one FFT of n_r and one inverse
-  FFT of n_r x range_oversample per Doppler row (at 20 dB SNR nearly every row can hold a cell:
-  ``dsp.imaging``).
+  FFT of n_r x range_oversample per Doppler row, fused row by row as the stage runs them
+  (``dsp.peaks.oversample_range``; at 20 dB SNR nearly every row can hold a cell: ``dsp.imaging``).
 * stage files: each written stage's bytes copied to the page cache once (``ndarray.tofile``) and
   hashed once (XXH3-128, the integrity digest: ``io.integrity``); the outputs the resume guarantee needs.
 
@@ -32,6 +32,7 @@ import numpy as np
 import scipy.fft
 
 from ..dsp.blas import batched_matmul_each
+from ..dsp.peaks import oversample_range
 from ..io.integrity import digest
 
 
@@ -95,13 +96,8 @@ def chain_floor(n_pulses: int, n_range: int, *, method: str, q: int = 1, cpi: in
     x = cube[: n_cpi * cpi].reshape(n_cpi, cpi, n_range)
     out["doppler_spectra_s"] = _median_s(lambda: batched_matmul_each(e, (x, x)), repeats)
     rows = _noise((n_cpi * n_doppler, n_range), rng)
-    pad = np.zeros((n_cpi * n_doppler, n_range * range_oversample), np.complex64)
-
-    def oversample():
-        scipy.fft.fft(rows, axis=1, workers=-1)
-        scipy.fft.ifft(pad, axis=1, workers=-1)
-
-    out["monopulse_image_s"] = 2 * _median_s(oversample, repeats)
+    # the range oversampling as the image stage runs it (fused: dsp.peaks.oversample_range)
+    out["monopulse_image_s"] = 2 * _median_s(lambda: oversample_range(rows, range_oversample), repeats)
     cube_bytes = 2 * cube.nbytes
     spectra_bytes = 2 * n_cpi * n_doppler * n_range * 8
     # written stages: range_fft, keystone, range_curvature (cubes), doppler_spectra (spectra);
