@@ -86,7 +86,7 @@ def oversample_rows(x, factor: int, workers: int = -1):
     return np.array(x) if factor == 1 else oversample_range(x, factor, workers=workers)
 
 
-BLOCK_CELLS = 1 << 20       # oversampled cells per block: temporaries of a few MB, reused from the heap
+BLOCK_CELLS = 1 << 19       # oversampled cells per block (all threads): temporaries of a few MB, reused from the heap
 
 
 def kept_cells(sum_z, diff_z, *, range_oversample: int, threshold_db: float, dynamic_range_db: float,
