@@ -702,3 +702,23 @@ def test_clean_process_reference_transforms_the_same_cube_without_fwdlook():
     expect = float(np.abs(scipy.fft.fft2(x)).sum(dtype=np.float64))
     assert got["abs_sum"] == pytest.approx(expect, rel=1e-5)
     assert "fwdlook" not in _CLEAN_FFT2 and "mallopt" not in _CLEAN_FFT2
+
+
+def test_the_bench_records_what_its_figures_depend_on():
+    """``environment()`` (in every bench's JSON): the computing libraries' versions as imported here,
+    the cores this process may use and the processor; all strings."""
+    import os
+
+    import ducc0
+    import h5py
+
+    from fwdlook_cli import __version__
+    from fwdlook_cli.report.benchtools import environment
+
+    env = environment()
+    assert all(isinstance(v, str) and v for v in env.values())
+    assert env["fwdlook"] == __version__ and env["numpy"] == np.__version__
+    assert env["scipy"] == scipy.__version__ and env["ducc0"] == ducc0.__version__
+    assert env["h5py"] == h5py.version.version
+    assert int(env["cores"]) == len(os.sched_getaffinity(0))
+    assert {"python", "hdf5", "machine", "cpu", "blas"} <= set(env)

@@ -28,7 +28,7 @@ def _step(i: int, n: int, what: str) -> None:
     log.info(f"bench [{i}/{n}] {what} ({time.perf_counter() - _T0[0]:.1f} s elapsed)")
 
 
-from .benchtools import chain_peak_rss, clean_process_fft2, median_time as _median_time, time_chain
+from .benchtools import chain_peak_rss, clean_process_fft2, environment, median_time as _median_time, time_chain
 
 FFT2_REPEATS = 21          # the reference: median of at least 20 plain 2-D FFTs, before and after
 FFT2_BETWEEN = 3           # and this many before each chain run of the rounds (after one untimed)
@@ -201,6 +201,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     out["fft2_clean_process_medians"] = clean_before["medians"] + clean_after["medians"]   # one per child
     out["cube_mib"] = (cube.sum.nbytes + cube.diff.nbytes) / 2**20
     out["chain_repeats"] = chain_repeats
+    out["environment"] = environment()
     _step(10, n, "done")
     out["ratios_to_fft2"] = {k[:-2]: out[k] / out["fft2_s"] for k in list(out) if k.endswith("_s")
                              and k != "fft2_s" and out[k] is not None}
@@ -249,7 +250,7 @@ def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, re
                     print(f"  {k:<22s} {v:10.1f} x {unit}")
             elif isinstance(value, dict):
                 for k, v in value.items():
-                    print(f"{key}[{k}]".ljust(24) + f" {v:10.1f}")
+                    print(f"{key}[{k}]".ljust(24) + (f" {v:10.1f}" if isinstance(v, float) else f" {v}"))
             elif key.endswith("_db"):
                 print(f"{key:<24s} {value:10.1f} dB")
             elif key.startswith(("fft2_median", "fft2_clean_process_medians")):          # the reference's sets, in seconds: shown in ms

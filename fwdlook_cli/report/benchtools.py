@@ -16,6 +16,45 @@ from pathlib import Path
 import numpy as np
 
 
+def environment() -> dict:
+    """What a bench's figures depend on besides the code: the versions of the libraries that compute
+    (pocketfft is scipy's, the fused oversampling ducc0's, the Doppler zoom's products the BLAS), the
+    processor and the cores this process may use.  Strings, for the JSON."""
+    import os
+    import platform
+
+    import h5py
+    import scipy
+
+    from .. import __version__
+
+    env = {"fwdlook": __version__, "python": platform.python_version(), "numpy": np.__version__,
+           "scipy": scipy.__version__, "h5py": h5py.version.version, "hdf5": h5py.version.hdf5_version,
+           "machine": platform.machine()}
+    try:
+        import ducc0
+
+        env["ducc0"] = ducc0.__version__
+    except ImportError:                     # pragma: no cover (a core dependency)
+        env["ducc0"] = "missing"
+    affinity = getattr(os, "sched_getaffinity", None)
+    env["cores"] = str(len(affinity(0)) if affinity else os.cpu_count())
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            models = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
+        env["cpu"] = models[0] if models else platform.processor() or "unknown"
+    except OSError:
+        env["cpu"] = platform.processor() or "unknown"
+    try:
+        from threadpoolctl import threadpool_info
+
+        blas = [f"{p.get('internal_api')} {p.get('version')}" for p in threadpool_info() if p.get("user_api") == "blas"]
+        env["blas"] = ", ".join(sorted(set(blas))) or "none found"
+    except Exception:                       # noqa: BLE001  pragma: no cover (informational only)
+        env["blas"] = "unknown"
+    return env
+
+
 def median_time(fn, repeats=5):
     """Median wall time of ``repeats`` calls of ``fn`` (s)."""
     times = []
@@ -317,6 +356,7 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
     if plot_path is not None:
         _plot_scaling(result, Path(plot_path))
         result["plot"] = str(plot_path)
+    result["environment"] = environment()
     return result
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dsp.xp import fft_module, get_xp, is_numpy, synchronize, to_device
+from .benchtools import environment
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 FFT2_REPEATS = 21
@@ -83,7 +84,10 @@ def run_gpu_bench(scenario=SCENARIOS / "paper_fig6_a50.yaml", repeats: int = 5, 
     xp = get_xp(backend)                         # BadInput (exit 2) without CuPy or a device
     scn = load_scenario(scenario) if not isinstance(scenario, dict) else scenario
     cube, _ = simulate_scenario(scn)
-    out = {"backend": backend, "device": _device_name(xp), "cube_shape": list(cube.sum.shape)}
+    out = {"backend": backend, "device": _device_name(xp), "cube_shape": list(cube.sum.shape),
+           "environment": environment()}
+    if not is_numpy(xp):
+        out["environment"]["cupy"] = str(getattr(xp, "__version__", "unknown"))
     fft2_times = _device_times(xp, partial(fft_module(xp).fft2, to_device(cube.sum, xp, np.complex64)),
                                FFT2_REPEATS)       # the reference: the cube's sum channel on the device
     out["fft2_repeats"] = len(fft2_times)
