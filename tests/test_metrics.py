@@ -123,6 +123,8 @@ def test_fused_range_oversampling_of_real_double_strided_and_empty_rows():
     strided = (rng.standard_normal((6, 80)) + 1j * rng.standard_normal((6, 80))).astype(np.complex64)[::2, ::2]
     assert np.max(np.abs(oversample_range(strided, 4) - _rows_by_profile(strided, 4))) < 1e-5
     assert oversample_range(np.zeros((0, 16), np.complex64), 4).shape == (0, 64)
+    swapped = strided.astype(strided.dtype.newbyteorder(">"))     # a big-endian file's array as read
+    np.testing.assert_array_equal(oversample_range(swapped, 4), oversample_range(strided, 4))
     assert oversample_range(double, 1) is double                # factor 1: the input itself
     with pytest.raises(ValueError, match="factor"):
         oversample_range(double, 0)

@@ -265,6 +265,8 @@ def oversample_range(x, factor: int, workers: int = -1):
     x = np.asarray(x)
     if not np.iscomplexobj(x):
         x = x.astype(np.result_type(x.dtype, np.complex64))
+    elif not x.dtype.isnative:                 # a big-endian file's array, read as it lies: ducc0 takes
+        x = x.astype(x.dtype.newbyteorder("="))  # the machine's byte order only
     if factor == 1:
         return x
     n = x.shape[-1]
