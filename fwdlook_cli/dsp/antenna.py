@@ -177,7 +177,6 @@ def _squint_curve(pattern: str):
     return rho, rho / vh
 
 
-
 def max_squint_deg(pattern: str, beamwidth_3db_deg: float) -> float:
     """The largest squint with which two beams of this family can form the sum beam."""
     rho, q = _squint_curve(pattern)

@@ -80,12 +80,6 @@ def median_floor(power, axis_cells):
     return out
 
 
-def oversample_rows(x, factor: int, workers: int = -1):
-    """Band-limited oversampling of the last axis of ``x`` [rows, n], amplitudes kept: a new array
-    (:func:`dsp.peaks.oversample_range`, one fused pass per row)."""
-    return np.array(x) if factor == 1 else oversample_range(x, factor, workers=workers)
-
-
 BLOCK_CELLS = 1 << 19       # oversampled cells per block (all threads): temporaries of a few MB, reused from the heap
 
 
@@ -155,7 +149,7 @@ def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: floa
     row_max = p0.max(axis=2)                                         # [cpi, doppler]
     rows = np.flatnonzero(row_max.reshape(-1) >= level_lo.repeat(n_dop) * 10 ** (-margin_db / 10))
     row_cpi = rows // n_dop
-    s = oversample_rows(sum_z.reshape(-1, n_r)[rows], range_oversample, workers=fft_workers)
+    s = oversample_range(sum_z.reshape(-1, n_r)[rows], range_oversample, workers=fft_workers)
     power = power_f32(s)
     # exact oversampled peak per CPI from the selected rows (the peak row is always among them)
     peak = np.zeros(n_cpi)
@@ -175,7 +169,7 @@ def kept_cells_block(sum_z, diff_z, *, range_oversample: int, threshold_db: floa
     new_row[:1] = True
     np.not_equal(i_row[1:], i_row[:-1], out=new_row[1:])
     hit = i_row[new_row]
-    d = oversample_rows(diff_z.reshape(-1, n_r)[rows[hit]], range_oversample, workers=fft_workers)
+    d = oversample_range(diff_z.reshape(-1, n_r)[rows[hit]], range_oversample, workers=fft_workers)
     at = np.cumsum(new_row)                 # each cell's flat index in d: (its hit row) n_os + i_r, one
     at -= 1                                 # 1-D take (a 2-D fancy index of the two arrays costs
     at *= n_os                              # about ten times as much here)

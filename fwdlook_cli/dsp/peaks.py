@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import math
 import numbers
-import os
 
 import ducc0
 import numpy as np
+
+from .blas import worker_threads
 
 __all__ = ["oversample_profile", "oversample_range", "interpolate_peak", "image_peak_2d"]
 
@@ -243,12 +244,6 @@ def image_peak_2d(image_power, i, j):
     return i + di, j + dj, float(peak)
 
 
-def _cores() -> int:
-    """The cores this process may run on (scipy.fft's ``workers=-1``)."""
-    affinity = getattr(os, "sched_getaffinity", None)
-    return len(affinity(0)) if affinity else (os.cpu_count() or 1)
-
-
 def oversample_range(x, factor: int, workers: int = -1):
     """Band-limited oversampling of the last (range) axis by ``factor`` (amplitudes kept: the native
     samples come back at every ``factor``-th output sample), complex output of ``x``'s precision.
@@ -259,8 +254,9 @@ def oversample_range(x, factor: int, workers: int = -1):
     The three steps run fused, row by row while the row is in the cache, in
     ``ducc0.fft.convolve_axis`` (a unit impulse as its kernel: a resampling alone), with no padded
     spectrum in memory: about half the time of a forward FFT, a padded copy and an inverse FFT of the
-    whole block (README, Speed).  ``workers``: threads, as scipy.fft's (-1: every core this process
-    may use)."""
+    whole block (README, Speed).  ``workers``: threads (-1: :func:`dsp.blas.worker_threads`, the
+    cores this process may use as the stages' pools take them, ``FWDLOOK_THREADS`` and a sweep
+    worker's ``OMP_NUM_THREADS`` obeyed)."""
     factor = _check_factor(factor)
     x = np.asarray(x)
     if not np.iscomplexobj(x):
@@ -275,5 +271,5 @@ def oversample_range(x, factor: int, workers: int = -1):
     out = np.empty(x.shape[:-1] + (n * factor,), dtype=x.dtype)
     if out.size == 0:
         return out
-    threads = _cores() if workers == -1 else int(workers)
+    threads = worker_threads() if workers == -1 else int(workers)
     return ducc0.fft.convolve_axis(x, out, x.ndim - 1, impulse, nthreads=threads)

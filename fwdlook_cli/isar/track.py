@@ -18,7 +18,7 @@ def peak_track(echo_rc, factor=TRACK_OVERSAMPLE, gate=None):
     ``gate = (lo, hi)`` range samples if given) refined by a three-point parabola on log power.
     Returns (position in range samples [n_pulses], peak power).
     """
-    fine = oversample_range(np.asarray(echo_rc), factor)      # every pulse's range profile
+    fine = oversample_range(echo_rc, factor)      # every pulse's range profile
     p = (fine.real.astype(np.float64) ** 2 + fine.imag.astype(np.float64) ** 2)
     del fine
     m = p.shape[1]
