@@ -396,7 +396,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     # number); the ratio only at the cells over the level, as float32 numerator over the float64 power
     # (the numbers of the whole-image float64 arrays, three of them 8 bytes a cell, no longer made)
     power32 = s.real**2 + s.imag**2
-    floor = float(median_floor(power32.reshape(1, -1), power32.size)[0])
+    floor = float(median_floor(power32.reshape(1, -1), power32.size, row_length=power32.shape[-1])[0])
     level = max(floor * 10 ** (threshold_db / 10), float(power32.max()) * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
     over = np.flatnonzero(power32 > float32_floor(level))              # power > level, exactly
