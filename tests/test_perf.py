@@ -170,6 +170,25 @@ def test_taylor_history_equals_the_spline_at_the_resampled_times(tracking_case):
     assert np.max(np.abs(history_phase_shifted(derivs, dt) - exact)) < 1e-8
 
 
+def test_remodulation_phase_as_one_matrix_product_equals_the_spline(tracking_case):
+    """The tracking keystone's remodulation phase (cycles) as one [pulses, 6] x [6, columns] product
+    (Taylor terms and the CZT's output chirp as outer products) against the spline itself evaluated at
+    the resampled times, plus the plan's own output chirp: within 1e-10 cycles at phases of 3e3 cycles
+    (only rounding; the quartic piece is its own Taylor series)."""
+    from fwdlook_cli.forward.keystone_fast import history_taylor, remodulation_cycles
+
+    c = tracking_case
+    plan = KeystonePlan(c["p"], c["alpha"], t0_index=c["t0"])
+    derivs = history_taylor(c["hist"], c["t"])
+    got = remodulation_cycles(derivs, c["t0"][0], c["alpha"], c["scale"], c["prf"], *plan.post_cycles_f0_factors())
+    dt = np.subtract.outer(np.arange(c["p"], dtype=float), c["t0"]) * ((c["alpha"] - 1) / c["prf"])
+    exact = c["hist"].phase_rad(c["t"][:, None] + dt) * c["scale"] / (2 * np.pi) + plan.post_cycles_f0()
+    assert np.max(np.abs(exact)) > 100.0
+    assert np.max(np.abs(got - exact)) < 1e-10
+    rows, cols = plan.post_cycles_f0_factors()
+    np.testing.assert_array_equal(np.outer(rows, cols), plan.post_cycles_f0())
+
+
 @pytest.mark.parametrize("order", ["fft", "shuffled", "off_grid", "short"])
 def test_outer_phasors_equal_the_direct_exponential(order):
     """exp(j rate f) from two tables on the frequency grid (fftfreq order: a rotation; shuffled: a

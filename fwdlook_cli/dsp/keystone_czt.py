@@ -193,6 +193,13 @@ class KeystonePlan:
         base = (self._alpha_unique / self.n_slow) * (self._c_min * m + 0.5 * m**2)
         return base if self._alpha_inverse is None else base[:, self._alpha_inverse]
 
+    def post_cycles_f0_factors(self):
+        """:meth:`post_cycles_f0` as its two factors, (rows [n_slow], columns [n_cols]): the phase is
+        ``rows[m] * columns[k]``, ``(c_min m + m^2 / 2) * alpha_k / n`` (for a caller that builds its
+        phase as a matrix product)."""
+        m = np.arange(self.n_slow, dtype=np.float64)
+        return self._c_min * m + 0.5 * m**2, self.alpha / self.n_slow
+
     def __call__(self, x, *, ambiguity=0, post=None):
         """Keystone `x` (``[n_slow, n_cols]``) with Doppler ambiguity number(s) `ambiguity`.
 
