@@ -111,6 +111,9 @@ def test_bench_shows_progress(capsys, monkeypatch):
     for key in ("chain_s", "chain_tracking_s", "chain_dwell_s", "chain_dwell_nofit_s"):
         assert result[key] > 0
     assert result["chain_dwell_over_tracking"] > 0 and result["chain_repeats"] == 3
+    # each CPI chain over its own floor (the transforms and stage bytes alone, same process)
+    for method, key in (("decimation", "chain_s"), ("tracking", "chain_tracking_s")):
+        assert result[f"chain_{method}_over_floor"] == pytest.approx(result[key] / result[f"floor_{method}_total_s"])
     # the reference sampled before, between (before each of the 3 x 6 chain runs) and after the chains
     from fwdlook_cli.report.bench import FFT2_BETWEEN, FFT2_REPEATS
 

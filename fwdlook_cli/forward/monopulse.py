@@ -72,15 +72,19 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
         offset = offset + boresight_offset_deg
         beam = beam_all[i_cpi]
         az_ref, gx, gy = azimuth_at_t_ref_cells(range_os[i_r], beam + offset, pos_all, p_ref, index=i_cpi)
-        w = power_kept.astype(np.float64)
         ok = np.isfinite(az_ref)
-        a_idx = np.rint((az_ref[ok] - a0) / angle_step_deg).astype(np.int64)
+        if not ok.all():              # a cell with no ground point at its range (rare): left out
+            az_ref, gx, gy, power_kept, i_r = az_ref[ok], gx[ok], gy[ok], power_kept[ok], i_r[ok]
+        a_idx = np.rint((az_ref - a0) / angle_step_deg).astype(np.int64)
+        flat = i_r * n_a
+        flat += a_idx
+        w = power_kept.astype(np.float64)
         inside = (a_idx >= 0) & (a_idx < n_a)
-        flat = i_r[ok][inside] * n_a + a_idx[inside]
+        if not inside.all():
+            flat, w = flat[inside], w[inside]
         # the cells' ground positions and power kept in float32 (1 mm at 10 km, the image's own
         # precision): half the bytes of the stage file's cell arrays and of their memory
-        return c0, rb_rows, (gx[ok].astype(np.float32), gy[ok].astype(np.float32), power_kept[ok], flat,
-                             w[ok][inside])
+        return c0, rb_rows, (gx.astype(np.float32), gy.astype(np.float32), power_kept, flat, w)
 
     select = dict(range_oversample=range_oversample, threshold_db=threshold_db,
                   dynamic_range_db=dynamic_range_db, ratio_bounds=bounds, diff_gain_db=diff_gain_db,
