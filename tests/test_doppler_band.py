@@ -93,3 +93,79 @@ def test_heading_inside_the_beam_gives_the_maximum_doppler():
     width = max(top - low, 4 * PRF / CPI)
     assert 0.5 * (lo[0] + hi[0]) == pytest.approx(0.5 * (top + low), abs=1e-6)
     assert hi[0] - lo[0] == pytest.approx(width, abs=1e-6)
+
+
+@pytest.mark.parametrize("theta, expected_cells", [(20.0, None), (0.0, 16), (80.0, None)])
+def test_auto_doppler_cells_sample_the_widest_band_at_four_per_resolution_cell(theta, expected_cells):
+    """``processing.n_doppler: auto`` against the closed form: forward flight at 240 m/s, the beam at
+    theta, depression phi: the band is 2 v cos(phi) (cos(theta - h) - cos(theta + h)) / lambda
+    = 4 v cos(phi) sin(theta) sin(h) / lambda (h half the 3 dB beamwidth), at least 4 resolution cells
+    PRF / cpi: ceil(4 cpi band / PRF) cells (16 on boresight, where the band is the 4-cell minimum)."""
+    from fwdlook_cli.forward.motion import auto_doppler_cells
+
+    v, phi, n_cpi = 240.0, 3.0, 3
+    m = n_cpi * CPI
+    data = {"slow_time_s": np.arange(m) / PRF, "scan_angle_deg": np.full(m, theta),
+            "velocity_mps": np.tile([0.0, v, 0.0], (m, 1))}
+    band = 4.0 * v * np.cos(np.radians(phi)) * np.sin(np.radians(theta)) * np.sin(np.radians(BW / 2)) / LAM
+    band = min(max(band, 4.0 * PRF / CPI), PRF)
+    want = int(np.ceil(4.0 * CPI * band / PRF - 1e-9))
+    assert expected_cells is None or want == expected_cells
+    got = auto_doppler_cells(data, cpi=CPI, follow_speed=True, depression_deg=phi, fc_hz=FC, beamwidth_deg=BW,
+                             prf_hz=PRF)
+    assert got == want
+    # a scan: the widest CPI band sets the one count of every CPI
+    scan = dict(data, scan_angle_deg=np.repeat([0.0, theta, -0.5 * theta], CPI))
+    assert auto_doppler_cells(scan, cpi=CPI, follow_speed=True, depression_deg=phi, fc_hz=FC, beamwidth_deg=BW,
+                              prf_hz=PRF) == max(want, 16)
+
+
+def test_auto_doppler_cells_of_a_band_of_the_whole_prf():
+    """Where the band reaches the PRF (fast flight, wide beam) auto gives 4 cells per resolution cell over
+    it: 4 cpi cells."""
+    from fwdlook_cli.forward.motion import auto_doppler_cells
+
+    m = 2 * CPI
+    data = {"slow_time_s": np.arange(m) / PRF, "scan_angle_deg": np.full(m, 60.0),
+            "velocity_mps": np.tile([0.0, 600.0, 0.0], (m, 1))}
+    assert auto_doppler_cells(data, cpi=CPI, follow_speed=True, depression_deg=3.0, fc_hz=FC, beamwidth_deg=30.0,
+                              prf_hz=PRF) == 4 * CPI
+
+
+def test_n_doppler_auto_in_the_chain_is_the_stages_own_band(tmp_path):
+    """On the paper cube (a = 50) auto resolves to the Doppler stage's own widest band, 926.5 Hz = 11.9
+    resolution cells of 78.1 Hz: 48 cells; the stage runs with them, metrics.json reports them, fwdlook
+    plan predicts them, and the default stays 64."""
+    import json
+
+    from fwdlook_cli.forward.chain import build_forward_stages
+    from fwdlook_cli.forward.process import process_cube
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    scn = load_scenario(root / "scenarios" / "paper_fig6_a50.yaml", overrides=["processing.n_doppler=auto"])
+    cube, _ = simulate_scenario(scn)
+    src, stages, geo = build_forward_stages(cube, scn["processing"])
+    data = src
+    for st in stages:
+        data = st.fn(data, **st.params)
+        if st.name == "doppler_spectra":
+            break
+    n = st.params["n_doppler"]
+    assert n == geo["n_doppler"] == 48 and data["sum_z"].shape[1] == n
+    f_z = data["doppler_hz"]                                   # cell centres (i + 1/2) band / n from f_lo
+    widest = float(np.max((f_z[:, -1] - f_z[:, 0]) * n / (n - 1)))
+    cpi, prf = scn["processing"]["cpi"], cube.radar["prf_hz"]
+    assert widest == pytest.approx(926.5, abs=0.5)
+    assert n == int(np.ceil(4 * widest * cpi / prf - 1e-9))
+    # fwdlook plan predicts the same band and count, from the scenario alone and from the cube
+    from fwdlook_cli.forward.plan import plan_for_cube, plan_for_scenario
+
+    for plan in (plan_for_scenario(scn), plan_for_cube(cube, scn["processing"])):
+        assert plan["n_doppler_auto"] == 48 and plan["doppler_band_widest_hz"] == pytest.approx(widest, rel=1e-3)
+    m = process_cube(cube, scn, tmp_path / "auto", png=False, quiet=True)
+    assert m["params"]["n_doppler"] == 48
+    assert json.loads((tmp_path / "auto" / "metrics.json").read_text())["params"]["n_doppler"] == 48
+    default = load_scenario(root / "scenarios" / "paper_fig6_a50.yaml")
+    assert default["processing"]["n_doppler"] == 64

@@ -46,6 +46,7 @@ def test_dwell_images_the_tiny_scene(tmp_path):
     assert max(abs(r["range_error_m"]) for r in rows) < half_cell
     assert max(abs(r["azimuth_error_deg"]) for r in rows) < 0.6
     assert m["params"]["imaging"] == "dwell"
+    assert m["params"]["n_doppler"] is None              # no CPI Doppler stage: no zoomed cells
 
 
 def _two_points_at_5_deg(imaging, tmp_path):

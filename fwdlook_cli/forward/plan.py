@@ -24,7 +24,8 @@ import json
 import numpy as np
 
 from ..dsp.geometry import C_MPS, ambiguity_number
-from .motion import boresight_doppler_spread_hz
+from .motion import (auto_doppler_cells, boresight_doppler_spread_hz, cpi_doppler_band_hz, cpi_means,
+                     doppler_band_depressions)
 
 
 def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf_hz, fs_hz,
@@ -57,6 +58,16 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
     doppler_cell_hz = prf_hz / cpi
     near, far = range_extent_m if range_extent_m is not None else (reference_range_m, reference_range_m)
     range_spread_hz = boresight_doppler_spread_hz(height, float(near), float(far), velocity_mps[m_ref], fc_hz)
+    # the widest CPI Doppler band of the scan, as the Doppler stage computes it (eq. 25-26; over the
+    # window's depressions where they differ by more than a cell), and processing.n_doppler: auto for it
+    band_depressions = doppler_band_depressions(height, float(near), float(far), float(np.degrees(phi)),
+                                                velocity_mps[m_ref], fc_hz, prf_hz, cpi)
+    inputs = {"slow_time_s": t, "scan_angle_deg": np.asarray(scan_deg, dtype=np.float64),
+              "velocity_mps": np.asarray(velocity_mps, dtype=np.float64)}
+    _, _, beam_c, vel_c = cpi_means(inputs, cpi, True)
+    f_lo, f_hi = cpi_doppler_band_hz(vel_c, beam_c, band_depressions, fc_hz, beamwidth_deg, prf_hz, cpi)
+    n_doppler_auto = auto_doppler_cells(inputs, cpi=cpi, follow_speed=True, depression_deg=band_depressions,
+                                        fc_hz=fc_hz, beamwidth_deg=beamwidth_deg, prf_hz=prf_hz)
     traditional = rows[0]
     deci_ok = [r for r in rows[1:] if r["residual_walk_m"] < half_cell_m]
     if walk_m < half_cell_m:
@@ -83,6 +94,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         "needs_doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2,
         "doppler_range_spread_hz": range_spread_hz, "range_extent_m": [float(near), float(far)],
         "band_over_depressions": range_spread_hz > doppler_cell_hz,
+        "doppler_band_widest_hz": float(np.max(f_hi - f_lo, initial=0.0)), "n_doppler_auto": n_doppler_auto,
         "processing": {"method": method, "q": q_best if method == "decimation" else 1,
                        "range_curvature": curvature_m >= half_cell_m,
                        "doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2},
@@ -140,6 +152,9 @@ def format_plan(plan: dict, name: str) -> str:
         f"{plan['doppler_cell_hz']:.1f} Hz   "
         + ("the CPI band covers the window's depressions (steep: motion.doppler_band_depressions)"
            if plan["band_over_depressions"] else "ok (one depression, eq. 25)"),
+        f"  Doppler band         {plan['doppler_band_widest_hz']:9.1f} Hz  widest CPI band, "
+        f"{plan['doppler_band_widest_hz'] / plan['doppler_cell_hz']:.1f} CPI Doppler cells: processing.n_doppler "
+        f"auto gives {plan['n_doppler_auto']} (4 per cell)",
         "  decimation (eq. 20): " + ", ".join(
             f"Q={r['q']}: spread {r['ambiguity_spread']}, residual {r['residual_walk_m']:.2f} m"
             for r in plan["decimation"] if r["q"] in (1, 5, 10, 20, 25, 50, 100)),
