@@ -101,7 +101,10 @@ def test_auto_doppler_cells_sample_the_widest_band_at_four_per_resolution_cell(t
     theta, depression phi: the band is 2 v cos(phi) (cos(theta - h) - cos(theta + h)) / lambda
     = 4 v cos(phi) sin(theta) sin(h) / lambda (h half the 3 dB beamwidth), at least 4 resolution cells
     PRF / cpi: ceil(4 cpi band / PRF) cells (16 on boresight, where the band is the 4-cell minimum)."""
-    from fwdlook_cli.forward.motion import auto_doppler_cells
+    from fwdlook_cli.forward.motion import auto_doppler_cells, widest_cpi_band_hz
+
+    def auto(data, **kw):
+        return auto_doppler_cells(widest_cpi_band_hz(data, **kw), cpi=CPI, prf_hz=PRF)
 
     v, phi, n_cpi = 240.0, 3.0, 3
     m = n_cpi * CPI
@@ -111,25 +114,25 @@ def test_auto_doppler_cells_sample_the_widest_band_at_four_per_resolution_cell(t
     band = min(max(band, 4.0 * PRF / CPI), PRF)
     want = int(np.ceil(4.0 * CPI * band / PRF - 1e-9))
     assert expected_cells is None or want == expected_cells
-    got = auto_doppler_cells(data, cpi=CPI, follow_speed=True, depression_deg=phi, fc_hz=FC, beamwidth_deg=BW,
-                             prf_hz=PRF)
+    got = auto(data, cpi=CPI, follow_speed=True, depression_deg=phi, fc_hz=FC, beamwidth_deg=BW, prf_hz=PRF)
     assert got == want
     # a scan: the widest CPI band sets the one count of every CPI
     scan = dict(data, scan_angle_deg=np.repeat([0.0, theta, -0.5 * theta], CPI))
-    assert auto_doppler_cells(scan, cpi=CPI, follow_speed=True, depression_deg=phi, fc_hz=FC, beamwidth_deg=BW,
-                              prf_hz=PRF) == max(want, 16)
+    assert auto(scan, cpi=CPI, follow_speed=True, depression_deg=phi, fc_hz=FC, beamwidth_deg=BW,
+                prf_hz=PRF) == max(want, 16)
 
 
 def test_auto_doppler_cells_of_a_band_of_the_whole_prf():
     """Where the band reaches the PRF (fast flight, wide beam) auto gives 4 cells per resolution cell over
     it: 4 cpi cells."""
-    from fwdlook_cli.forward.motion import auto_doppler_cells
+    from fwdlook_cli.forward.motion import auto_doppler_cells, widest_cpi_band_hz
 
     m = 2 * CPI
     data = {"slow_time_s": np.arange(m) / PRF, "scan_angle_deg": np.full(m, 60.0),
             "velocity_mps": np.tile([0.0, 600.0, 0.0], (m, 1))}
-    assert auto_doppler_cells(data, cpi=CPI, follow_speed=True, depression_deg=3.0, fc_hz=FC, beamwidth_deg=30.0,
-                              prf_hz=PRF) == 4 * CPI
+    band = widest_cpi_band_hz(data, cpi=CPI, follow_speed=True, depression_deg=3.0, fc_hz=FC, beamwidth_deg=30.0,
+                              prf_hz=PRF)
+    assert band == pytest.approx(PRF) and auto_doppler_cells(band, cpi=CPI, prf_hz=PRF) == 4 * CPI
 
 
 def test_n_doppler_auto_in_the_chain_is_the_stages_own_band(tmp_path):

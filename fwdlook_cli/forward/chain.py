@@ -31,7 +31,7 @@ from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history_m, boresight_doppler_spread_hz,
                      bulk_range_history_m, cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion,
-                     keystone_residual_envelope_m, reference_depression_deg, unit_vector)
+                     keystone_residual_envelope_m, reference_depression_deg, unit_vector, widest_cpi_band_hz)
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData
@@ -388,14 +388,16 @@ def build_forward_stages(cube, proc: dict):
     geo.update(q=q, ambiguity_number=ambiguity)
     geo["doppler_spread_hz"] = boresight_doppler_spread_hz(float(geo["p_ref"][2]), float(cube.range_m[0]),
                                                            float(cube.range_m[-1]), geo["v_ref"], cube.radar["fc_hz"])
-    band_depressions = doppler_band_depressions(float(geo["p_ref"][2]), float(cube.range_m[0]), float(cube.range_m[-1]),
-                                                geo["depression_deg"], geo["v_ref"], cube.radar["fc_hz"], prf, proc["cpi"])
+    band_depressions = doppler_band_depressions(float(geo["p_ref"][2]), float(cube.range_m[0]),
+                                                float(cube.range_m[-1]), geo["depression_deg"], geo["v_ref"],
+                                                cube.radar["fc_hz"], prf, proc["cpi"])
     geo["n_doppler"] = proc["n_doppler"]
     if geo["n_doppler"] == "auto":       # the widest CPI band at 4 cells per resolution cell (motion.py)
-        geo["n_doppler"] = auto_doppler_cells(
+        widest_hz = widest_cpi_band_hz(
             {"slow_time_s": cube.slow_time_s, "scan_angle_deg": cube.scan_angle_deg, "velocity_mps": cube.velocity_mps},
             cpi=proc["cpi"], follow_speed=bool(proc["doppler_centroid"]), depression_deg=band_depressions,
             fc_hz=cube.radar["fc_hz"], beamwidth_deg=cube.radar["beamwidth_3db_deg"], prf_hz=prf)
+        geo["n_doppler"] = auto_doppler_cells(widest_hz, cpi=proc["cpi"], prf_hz=prf)
     src = StageData()
     src.add("slow_time_s", cube.slow_time_s, ("slow_time_s",), "s", "slow time")
     src.add("range_m", cube.range_m, ("range_m",), "m", "slant range")

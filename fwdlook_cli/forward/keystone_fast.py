@@ -41,8 +41,8 @@ def remodulation_cycles(derivs, t0_index: float, alpha, scale, prf_hz: float, ch
     of Psi about each pulse is a sum of outer products, ``sum_n Psi_n(m) u_m^n / n! * beta_k^n`` with
     ``u_m = m - t0`` and ``beta_k = (alpha_k - 1) / PRF``, and so is the output chirp: the whole phase
     is one [n_pulses, 6] x [6, n_cols] float64 matrix product instead of a Horner pass per order over
-    every element (:func:`history_phase_shifted`; the same sum, rounded in another order: 1e-12 cycles
-    at phases of 1e4 cycles)."""
+    every element (:func:`history_phase_shifted`; the same sum, rounded in another order: about 2e-12
+    cycles from the spline at phases of 3e3 cycles, as the Horner form)."""
     p = derivs[0].shape[0]
     u = np.arange(p, dtype=np.float64) - float(t0_index)
     alpha = np.asarray(alpha, dtype=np.float64)

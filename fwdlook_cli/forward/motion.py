@@ -230,19 +230,23 @@ def cpi_means(data, cpi: int, follow_speed: bool):
 AUTO_CELLS_PER_RESOLUTION = 4       # processing.n_doppler: auto, zoomed cells per CPI resolution cell
 
 
-def auto_doppler_cells(data, *, cpi: int, follow_speed: bool, depression_deg, fc_hz: float, beamwidth_deg: float,
-                       prf_hz: float, band_beamwidths: float = 1.0,
+def widest_cpi_band_hz(data, *, cpi: int, follow_speed: bool, depression_deg, fc_hz: float, beamwidth_deg: float,
+                       prf_hz: float, band_beamwidths: float = 1.0) -> float:
+    """The widest CPI Doppler band of the scan (Hz): :func:`cpi_doppler_band_hz` of every CPI, as the
+    Doppler stage computes it from ``data``'s slow time, scan angle and INS velocity (:func:`cpi_means`)."""
+    _, _, beam_c, vel = cpi_means(data, cpi, follow_speed)
+    f_lo, f_hi = cpi_doppler_band_hz(vel, beam_c, depression_deg, fc_hz, beamwidth_deg, prf_hz, cpi, band_beamwidths)
+    return float(np.max(f_hi - f_lo, initial=0.0))
+
+
+def auto_doppler_cells(band_hz: float, *, cpi: int, prf_hz: float,
                        per_resolution_cell: float = AUTO_CELLS_PER_RESOLUTION) -> int:
-    """``processing.n_doppler: auto``: the zoomed Doppler cells per CPI that sample the widest CPI band of
-    the scan (:func:`cpi_doppler_band_hz` of every CPI, as the Doppler stage computes it from ``data``'s
-    slow time, scan angle and INS velocity) at ``per_resolution_cell`` cells per native resolution cell
-    PRF / cpi: ``ceil(per_resolution_cell * cpi * widest band / PRF)``, 4 to 4096.
+    """``processing.n_doppler: auto``: the zoomed Doppler cells per CPI that sample a band of ``band_hz``
+    (the scan's widest, :func:`widest_cpi_band_hz`) at ``per_resolution_cell`` cells per native
+    resolution cell PRF / cpi: ``ceil(per_resolution_cell * cpi * band / PRF)``, 4 to 4096.
 
     A band of B Hz holds B cpi / PRF resolution cells; a point midway between two zoomed cells loses
     sinc^2(1 / (2 per_resolution_cell)) of its peak (rectangular window): 0.22 dB at 4 per cell,
     0.91 dB at 2.  One count serves every CPI (the spectra are one array), so the widest band sets it:
     16 cells for a band of the 4-cell minimum, 4 cpi for a band of the whole PRF (steep depression)."""
-    _, _, beam_c, vel = cpi_means(data, cpi, follow_speed)
-    f_lo, f_hi = cpi_doppler_band_hz(vel, beam_c, depression_deg, fc_hz, beamwidth_deg, prf_hz, cpi, band_beamwidths)
-    widest_cells = float(np.max(f_hi - f_lo, initial=0.0)) * cpi / prf_hz
-    return int(min(4096, max(4, np.ceil(per_resolution_cell * widest_cells - 1e-9))))
+    return int(min(4096, max(4, np.ceil(per_resolution_cell * float(band_hz) * cpi / prf_hz - 1e-9))))

@@ -24,8 +24,7 @@ import json
 import numpy as np
 
 from ..dsp.geometry import C_MPS, ambiguity_number
-from .motion import (auto_doppler_cells, boresight_doppler_spread_hz, cpi_doppler_band_hz, cpi_means,
-                     doppler_band_depressions)
+from .motion import auto_doppler_cells, boresight_doppler_spread_hz, doppler_band_depressions, widest_cpi_band_hz
 
 
 def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf_hz, fs_hz,
@@ -62,12 +61,10 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
     # window's depressions where they differ by more than a cell), and processing.n_doppler: auto for it
     band_depressions = doppler_band_depressions(height, float(near), float(far), float(np.degrees(phi)),
                                                 velocity_mps[m_ref], fc_hz, prf_hz, cpi)
-    inputs = {"slow_time_s": t, "scan_angle_deg": np.asarray(scan_deg, dtype=np.float64),
-              "velocity_mps": np.asarray(velocity_mps, dtype=np.float64)}
-    _, _, beam_c, vel_c = cpi_means(inputs, cpi, True)
-    f_lo, f_hi = cpi_doppler_band_hz(vel_c, beam_c, band_depressions, fc_hz, beamwidth_deg, prf_hz, cpi)
-    n_doppler_auto = auto_doppler_cells(inputs, cpi=cpi, follow_speed=True, depression_deg=band_depressions,
-                                        fc_hz=fc_hz, beamwidth_deg=beamwidth_deg, prf_hz=prf_hz)
+    widest_hz = widest_cpi_band_hz({"slow_time_s": t, "scan_angle_deg": np.asarray(scan_deg, dtype=np.float64),
+                                    "velocity_mps": np.asarray(velocity_mps, dtype=np.float64)},
+                                   cpi=cpi, follow_speed=True, depression_deg=band_depressions, fc_hz=fc_hz,
+                                   beamwidth_deg=beamwidth_deg, prf_hz=prf_hz)
     traditional = rows[0]
     deci_ok = [r for r in rows[1:] if r["residual_walk_m"] < half_cell_m]
     if walk_m < half_cell_m:
@@ -94,7 +91,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         "needs_doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2,
         "doppler_range_spread_hz": range_spread_hz, "range_extent_m": [float(near), float(far)],
         "band_over_depressions": range_spread_hz > doppler_cell_hz,
-        "doppler_band_widest_hz": float(np.max(f_hi - f_lo, initial=0.0)), "n_doppler_auto": n_doppler_auto,
+        "doppler_band_widest_hz": widest_hz, "n_doppler_auto": auto_doppler_cells(widest_hz, cpi=cpi, prf_hz=prf_hz),
         "processing": {"method": method, "q": q_best if method == "decimation" else 1,
                        "range_curvature": curvature_m >= half_cell_m,
                        "doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2},
