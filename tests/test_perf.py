@@ -67,9 +67,14 @@ def reference_tracking(c, implementation):
     return y[:, :n], y[:, n:]
 
 
+@pytest.mark.parametrize("origins", ["one", "per_column"])
 @pytest.mark.parametrize("implementation", ["czt", "dft"])
-def test_shared_chirp_tracking_keystone_matches_the_direct_formula(tracking_case, implementation):
-    c = tracking_case
+def test_shared_chirp_tracking_keystone_matches_the_direct_formula(tracking_case, implementation, origins):
+    """One time origin (the chain's q = 1: the remodulation phase as one matrix product) and a time
+    origin per column (the element-wise Taylor form) against the spline evaluated directly."""
+    c = dict(tracking_case)
+    if origins == "per_column":
+        c["t0"] = c["t0"] + np.linspace(-3.0, 3.0, c["t0"].size)
     ys, yd = keystone_both(c["xs"], c["xd"], alpha=c["alpha"], t0_index=c["t0"], implementation=implementation,
                            ambiguity=0, tracking=(c["hist"], c["t"], c["prf"], c["scale"]))
     rs, rd = reference_tracking(c, implementation)

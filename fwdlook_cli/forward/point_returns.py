@@ -11,15 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..dsp.imaging import power_f32          # |x|^2 in float32 (the same numbers whole or in blocks)
 from ..dsp.order_stats import percentile_of_blocks
 
 POWER_BLOCK_BYTES = 8 << 20    # the sum power of one block of pulses: the detection's memory, whatever the cube
 SAMPLE_VALUES = 1 << 16        # power values (whole pulses, evenly spaced) that place the noise quartile's bracket
-
-
-def _power_f32(x):
-    """|x|^2 in float32, as the detection has always computed it (the same numbers whole or in blocks)."""
-    return x.real.astype(np.float32) ** 2 + x.imag.astype(np.float32) ** 2
 
 
 # A compressed pulse's range sidelobes lie 13.3 dB (no weighting) or more (any taper) below its peak, so a
@@ -41,7 +37,7 @@ def _detections(s, thr, step, sidelobe_reach):
     below = np.float32(10.0 ** (-SIDELOBE_DB / 10.0))
     parts = []
     for lo in range(0, s.shape[0], step):
-        p = _power_f32(s[lo:lo + step])
+        p = power_f32(s[lo:lo + step])
         mid = p[:, 1:-1]
         strongest = maximum_filter1d(p, size=2 * sidelobe_reach + 1, axis=1, mode="nearest")[:, 1:-1]
         strongest *= below
@@ -93,12 +89,12 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     step = max(1, POWER_BLOCK_BYTES // (4 * n_r))
 
     def powers():
-        return (_power_f32(s[lo:lo + step]) for lo in range(0, n_p, step))
+        return (power_f32(s[lo:lo + step]) for lo in range(0, n_p, step))
 
     # noise power per sample: the lower quartile of |s|^2 is sigma^2 ln(4/3) for noise alone, and
     # barely moved by the returns' range sidelobes (which lift the median); np.percentile's number
     rows = np.unique(np.linspace(0, n_p - 1, min(n_p, -(-SAMPLE_VALUES // n_r))).astype(np.int64))
-    noise = float(percentile_of_blocks(powers, n_p * n_r, 25.0, _power_f32(s[rows]), np.float32)) / np.log(4.0 / 3.0)
+    noise = float(percentile_of_blocks(powers, n_p * n_r, 25.0, power_f32(s[rows]), np.float32)) / np.log(4.0 / 3.0)
     if not noise > 0:                   # (noiseless data with a quarter of exact zeros)
         noise = sum(float(np.sum(p, dtype=np.float64)) for p in powers()) / (n_p * n_r) * 1e-6 + 1e-30
     thr = noise * 10.0 ** (threshold_db / 10.0)
@@ -216,7 +212,7 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     reach = max(3, int(np.ceil(2.5 * samples_per_resolution)))
     tol = max(1, int(round(0.5 * samples_per_resolution)))
     at = np.clip(idx[j_i, n_i][:, None] + np.arange(-reach, reach + 1)[None, :], 0, n_r - 1)
-    lobe = np.argmax(_power_f32(s[n_i[:, None], at]), axis=1) - reach
+    lobe = np.argmax(power_f32(s[n_i[:, None], at]), axis=1) - reach
     strong = den > 10.0 * noise
     n_strong = np.bincount(j_i, weights=strong, minlength=n_s)
     on_peak = np.bincount(j_i, weights=strong & (np.abs(lobe) <= tol), minlength=n_s)
