@@ -111,6 +111,9 @@ def test_bench_shows_progress(capsys, monkeypatch):
     for key in ("chain_s", "chain_tracking_s", "chain_dwell_s", "chain_dwell_nofit_s"):
         assert result[key] > 0
     assert result["chain_dwell_over_tracking"] > 0 and result["chain_repeats"] == 3
+    # the CPI chains as fresh `fwdlook process` commands too: the command's wall time holds its chain
+    for method in ("decimation", "tracking"):
+        assert result[f"command_{method}_s"] > result[f"command_{method}_chain_s"] > 0
     # each CPI chain over its own floor (the transforms and stage bytes alone, same process)
     for method, key in (("decimation", "chain_s"), ("tracking", "chain_tracking_s")):
         assert result[f"chain_{method}_over_floor"] == pytest.approx(result[key] / result[f"floor_{method}_total_s"])
@@ -128,4 +131,4 @@ def test_bench_shows_progress(capsys, monkeypatch):
     assert result["chain_ratios_to_clean_fft2"]["chain"] == pytest.approx(
         result["chain_s"] / result["fft2_clean_process_s"])
     steps = [ln for ln in err.splitlines() if ln.startswith("bench [")]
-    assert [s.split("]")[0] for s in steps] == [f"bench [{i}/10" for i in range(1, 11)]
+    assert [s.split("]")[0] for s in steps] == [f"bench [{i}/11" for i in range(1, 12)]

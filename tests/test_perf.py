@@ -726,10 +726,44 @@ def test_one_blas_thread_limits_every_blas_and_restores_it():
         assert after == before
 
 
+def test_the_blas_limit_takes_in_scipys_blas_once_scipy_linalg_is_loaded():
+    """dsp.blas.one_blas_thread limits numpy's BLAS without importing scipy.linalg, and once a host
+    program has imported it, scipy's BLAS too (the controller is made again), in a fresh interpreter."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import sys
+        import numpy as np
+        from threadpoolctl import threadpool_info
+        from fwdlook_cli.dsp.blas import one_blas_thread
+
+        def blas():
+            return {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+        with one_blas_thread():
+            first = blas()
+        print("linalg", "scipy.linalg" in sys.modules, "libraries", len(first), "threads", sorted(set(first.values())))
+        import scipy.linalg
+        with one_blas_thread():
+            second = blas()
+        print("libraries", len(second), "threads", sorted(set(second.values())))
+    """)
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    first, second = res.stdout.splitlines()
+    assert first.startswith("linalg False") and first.endswith("threads [1]"), res.stdout
+    n_first, n_second = int(first.split()[3]), int(second.split()[1])
+    assert n_first >= 1 and n_second >= n_first and second.endswith("threads [1]"), res.stdout
+
+
 def test_a_run_imports_neither_scipy_optimize_nor_interpolate(tmp_path):
     """Their imports are a quarter of a second of a command's start (docs/SPEED_HISTORY.md, eighth round): the chain and the
     simulator solve their roots without them (dsp.antenna.bracketed_root), and ``tracking``'s Doppler
-    history on the uniform pulse grid is the closed-form spline (dsp.spline)."""
+    history on the uniform pulse grid is the closed-form spline (dsp.spline).  Nor ``scipy.linalg`` and
+    ``scipy.ndimage`` (about 30 ms each, twenty-first round): the BLAS limit does not load scipy's BLAS
+    (dsp.blas), and the calibration check's running maximum and groups are dsp.neighbours."""
     import subprocess
     import sys
     import textwrap
@@ -740,7 +774,8 @@ def test_a_run_imports_neither_scipy_optimize_nor_interpolate(tmp_path):
         try:
             main(sys.argv[1:])
         except SystemExit as exc:
-            heavy = sorted(m for m in ("scipy.optimize", "scipy.interpolate") if m in sys.modules)
+            heavy = sorted(m for m in ("scipy.optimize", "scipy.interpolate", "scipy.linalg", "scipy.ndimage")
+                           if m in sys.modules)
             print("exit", exc.code, "imported:", heavy)
     """)
     for method, heavy in (("decimation", "[]"), ("tracking", "[]"), ("bulk", "[]")):

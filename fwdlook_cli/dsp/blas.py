@@ -10,8 +10,8 @@ the pool of whichever BLAS numpy loaded (OpenBLAS, MKL, BLIS).
 from __future__ import annotations
 
 import contextlib
-import importlib
 import os
+import sys
 
 import numpy as np
 
@@ -20,23 +20,27 @@ try:                                            # a dependency (pyproject.toml);
 except ImportError:                             # pragma: no cover
     ThreadpoolController = None
 
-_CONTROLLER: list = []      # one ThreadpoolController, made at the first use
+_CONTROLLER: list = []      # [(scipy.linalg loaded when it was made, ThreadpoolController)]
 
 
 def _controller():
-    """The process's ThreadpoolController: finding the loaded BLAS libraries costs about 2 ms (a scan
-    of the shared objects), so it is done once; limiting through it costs 20 us.  Made at the first
-    use, after numpy and scipy have loaded their BLAS (a BLAS loaded later is not limited)."""
-    if not _CONTROLLER:
-        _CONTROLLER.append(ThreadpoolController())
-    return _CONTROLLER[0]
+    """The process's ThreadpoolController: finding the loaded BLAS libraries costs about 4 ms (a scan
+    of the shared objects), so it is done once; limiting through it costs 20 us.  It limits the BLAS
+    libraries loaded when it was made: numpy's, which every product of the chain calls, and scipy's
+    own where ``scipy.linalg`` has loaded it; made again once ``scipy.linalg`` appears (a host
+    program's import), so that its BLAS is limited too.  Not imported here for that: ``scipy.linalg``
+    costs about 30 ms to import, and no fwdlook code calls it (it was imported here until issue 11's
+    twenty-first round, inside the Doppler stage's time of every command-line run)."""
+    linalg = "scipy.linalg" in sys.modules
+    if not _CONTROLLER or _CONTROLLER[0][0] != linalg:
+        _CONTROLLER[:] = [(linalg, ThreadpoolController())]
+    return _CONTROLLER[0][1]
 
 
 def one_blas_thread():
     """A context in which the BLAS runs on one thread (the stage's own threads share the cores)."""
     if ThreadpoolController is None:            # pragma: no cover
         return contextlib.nullcontext()
-    importlib.import_module("scipy.linalg")       # scipy's own BLAS loaded before the controller looks
     return _controller().limit(limits=1, user_api="blas")
 
 

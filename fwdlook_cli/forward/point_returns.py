@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dsp.imaging import power_f32          # |x|^2 in float32 (the same numbers whole or in blocks)
+from ..dsp.neighbours import label_cells, running_max
 from ..dsp.order_stats import percentile_of_blocks
 
 POWER_BLOCK_BYTES = 8 << 20    # the sum power of one block of pulses: the detection's memory, whatever the cube
@@ -32,14 +33,12 @@ def _detections(s, thr, step, sidelobe_reach):
     ``sidelobe_reach`` samples, at least :data:`SIDELOBE_DB` below it): (pulse, sample) and the power at
     sample - 1, at it and at + 1, pulse block by pulse block (``step`` pulses); row-major, as
     ``np.nonzero`` of the whole cube's mask."""
-    from scipy.ndimage import maximum_filter1d
-
     below = np.float32(10.0 ** (-SIDELOBE_DB / 10.0))
     parts = []
     for lo in range(0, s.shape[0], step):
         p = power_f32(s[lo:lo + step])
         mid = p[:, 1:-1]
-        strongest = maximum_filter1d(p, size=2 * sidelobe_reach + 1, axis=1, mode="nearest")[:, 1:-1]
+        strongest = running_max(p, 2 * sidelobe_reach + 1, axis=1)[:, 1:-1]
         strongest *= below
         n_b, i_b = np.nonzero((mid > thr) & (mid >= p[:, :-2]) & (mid > p[:, 2:]) & (mid >= strongest))
         i_b += 1
@@ -117,14 +116,9 @@ def point_returns(echo_sum, echo_diff, range_m, scan_angle_deg, position_m, *, b
     rho = np.linalg.norm(coarse - p_ref, axis=1)
     scan = scan_angle_deg[n_idx]
     scan_step = beamwidth_deg / 40.0
-    from scipy import ndimage
-
     ir = np.floor((rho - rho.min()) / dr).astype(np.int64)
     ia = np.floor((scan - scan.min()) / scan_step).astype(np.int64)
-    grid = np.zeros((ir.max() + 1, ia.max() + 1), dtype=bool)
-    grid[ir, ia] = True
-    labels, n_lab = ndimage.label(grid, structure=np.ones((3, 3)))
-    lab = labels[ir, ia] - 1
+    lab, n_lab = label_cells(ir, ia)            # 8-connected groups on the (range, scan) grid
     counts = np.bincount(lab, minlength=n_lab)
     pw = p_at
     peak = np.full(n_lab, 0.0)

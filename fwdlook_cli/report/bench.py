@@ -28,7 +28,8 @@ def _step(i: int, n: int, what: str) -> None:
     log.info(f"bench [{i}/{n}] {what} ({time.perf_counter() - _T0[0]:.1f} s elapsed)")
 
 
-from .benchtools import chain_peak_rss, clean_process_fft2, environment, median_time as _median_time, time_chain
+from .benchtools import (chain_peak_rss, clean_process_fft2, command_runs, environment, median_time as _median_time,
+                         time_chain)
 
 FFT2_REPEATS = 21          # the reference: median of at least 20 plain 2-D FFTs, before and after
 FFT2_BETWEEN = 3           # and this many before each chain run of the rounds (after one untimed)
@@ -55,14 +56,16 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     ``chain_<method>_peak_rss_x_cube`` is its peak RSS above the RSS before it, as a multiple of the
     cube (both channels); ``chain_<method>_cores_busy`` the process's CPU time during the chain over
     its wall time (median of the rounds), ``chain_<method>_user_cpu_ms`` and ``_system_cpu_ms`` that CPU
-    time split into the process's own code and the kernel's work for it (medians, in ms: not ratios)."""
+    time split into the process's own code and the kernel's work for it (medians, in ms: not ratios);
+    ``command_<method>_s`` the wall time of ``fwdlook process`` of the same cube in a fresh interpreter
+    and ``command_<method>_chain_s`` the (cold) chain inside it (:func:`benchtools.command_runs`)."""
     from ..forward.chain import build_forward_stages
     from ..scenario.loader import load_scenario
     from ..dsp.keystone_czt import KeystonePlan
     from ..dsp.keystone import keystone_dft, keystone_sinc
     from ..forward.simulate import simulate_scenario
 
-    n = 10
+    n = 11
     _step(1, n, "simulating the paper cube")
     paper = load_scenario(paper_scenario)
     tiny = load_scenario(tiny_scenario)
@@ -172,10 +175,18 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         out["interpreter_base_mib"] = (t.get("interpreter_base_bytes") or 0) / 2**20
     out["chain_dwell_over_tracking"] = statistics.median(
         d["total_s"] / t["total_s"] for d, t in zip(rounds["dwell"], rounds["tracking"]))
+    # the CPI chains as one-shot commands: a fresh `fwdlook process` each, its chain cold (imports on
+    # first use, FFT plans, first-touched memory); the command's wall time is what a user waits for
+    _step(8, n, f"fwdlook process as a command, {chain_repeats} fresh interpreters per chain")
+    commands = command_runs(cube, {method: {"method": method, "imaging": "cpi", "dwell_fit": "none"}
+                                   for method in ("decimation", "tracking")}, repeats=chain_repeats)
+    for method, t in commands.items():
+        out[f"command_{method}_s"] = t["wall_s"]
+        out[f"command_{method}_chain_s"] = t["chain_s"]
     # the floor: the transforms and stage-file bytes the chain cannot avoid, timed alone (bench_floor.py)
     from .bench_floor import chain_floor
 
-    _step(8, n, "the floor: the chain's transforms and stage bytes alone")
+    _step(9, n, "the floor: the chain's transforms and stage bytes alone")
     for method in ("decimation", "tracking"):
         floor = chain_floor(*cube.sum.shape, method=method, q=paper["processing"]["q"],
                             cpi=paper["processing"]["cpi"], n_doppler=paper["processing"]["n_doppler"],
@@ -188,7 +199,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         chain_key = "chain_s" if method == "decimation" else f"chain_{method}_s"
         out[f"chain_{method}_over_floor"] = out[chain_key] / floor["total_s"]
     # the reference again after the chains (load drifts on a shared machine): median of both sets
-    _step(9, n, "plain 2-D FFT again")
+    _step(10, n, "plain 2-D FFT again")
     fft2_after = _times(lambda: scipy.fft.fft2(x, workers=-1), FFT2_REPEATS)
     out["fft2_median_before_after"] = [out["fft2_s"], statistics.median(fft2_after)]
     out["fft2_median_between_chains"] = statistics.median(fft2_between)
@@ -207,7 +218,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     out["cube_mib"] = (cube.sum.nbytes + cube.diff.nbytes) / 2**20
     out["chain_repeats"] = chain_repeats
     out["environment"] = environment()
-    _step(10, n, "done")
+    _step(11, n, "done")
     out["ratios_to_fft2"] = {k[:-2]: out[k] / out["fft2_s"] for k in list(out) if k.endswith("_s")
                              and k != "fft2_s" and out[k] is not None}
     if out["fft2_clean_process_s"]:

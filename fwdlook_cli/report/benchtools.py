@@ -267,6 +267,43 @@ def clean_process_fft2(x, repeats: int = 21, processes: int = 1) -> dict:
     return out
 
 
+def command_runs(cube, settings: dict, repeats: int = 3) -> dict:
+    """``fwdlook process RAW.h5 --set processing.KEY=VALUE ...`` as a user runs it: a fresh interpreter
+    per run (its imports, the cube read from HDF5, the calibration check, the painter drawing
+    image.png, every stage file), ``repeats`` rounds, each running every entry of ``settings``
+    ({name: {processing key: value}}) once into a new folder.  The chain of such a run is cold: its
+    modules imported on first use, its FFT plans made, its memory touched for the first time, which
+    the bench's chains in one warm process (:func:`time_chain`) no longer pay.  Returns {name:
+    {"wall_s": median wall time of the command, "chain_s": median of its metrics.json total}} (None
+    where no run succeeded)."""
+    import json
+    import subprocess
+    import sys
+
+    from ..io.raw import write_raw
+
+    walls: dict = {name: [] for name in settings}
+    chains: dict = {name: [] for name in settings}
+    with tempfile.TemporaryDirectory() as tmp:
+        raw = Path(tmp) / "raw.h5"
+        write_raw(raw, cube)
+        for r in range(max(1, int(repeats))):
+            for name, sets in settings.items():
+                run_dir = Path(tmp) / f"{name}_{r}"
+                args = [sys.executable, "-m", "fwdlook_cli.cli", "-q", "process", str(raw), "-o", str(run_dir)]
+                for key, value in sets.items():
+                    args += ["--set", f"processing.{key}={value}"]
+                t0 = time.perf_counter()
+                res = subprocess.run(args, capture_output=True, text=True, check=False)
+                wall = time.perf_counter() - t0
+                if res.returncode != 0:
+                    continue
+                walls[name].append(wall)
+                chains[name].append(json.loads((run_dir / "metrics.json").read_text())["timing_s"]["total"])
+    return {name: {"wall_s": statistics.median(walls[name]) if walls[name] else None,
+                   "chain_s": statistics.median(chains[name]) if chains[name] else None} for name in settings}
+
+
 # ----------------------------------------------------------------------------------------------
 # scaling series (fwdlook bench --scaling)
 # ----------------------------------------------------------------------------------------------

@@ -187,7 +187,7 @@ def crop_image(image: dict, metrics: dict, *, key="image", range_key="range_m", 
 def fill_beam_gaps(real_beam):
     """The real-beam image holds one column per CPI beam angle (a CPI step is several angle bins):
     fill the empty bins between them with a running maximum over one CPI step, for display only."""
-    from scipy.ndimage import maximum_filter1d
+    from ..dsp.neighbours import running_max
 
     lit = np.nonzero(np.any(real_beam > 0, axis=0))[0]
     if len(lit) < 2:
@@ -197,7 +197,7 @@ def fill_beam_gaps(real_beam):
     if n_groups < 2:
         return real_beam
     step = int(np.ceil((lit[-1] - lit[0]) / (n_groups - 1))) + 1
-    return maximum_filter1d(real_beam, size=max(1, step), axis=1, mode="nearest") if step > 1 else real_beam
+    return running_max(real_beam, step, axis=1) if step > 1 else real_beam
 
 
 def nearest_target(metrics: dict, xy_m) -> dict | None:
