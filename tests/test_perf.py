@@ -819,3 +819,38 @@ def test_the_bench_records_what_its_figures_depend_on():
     assert env["h5py"] == h5py.version.version
     assert int(env["cores"]) == len(os.sched_getaffinity(0))
     assert {"python", "hdf5", "machine", "cpu", "blas"} <= set(env)
+
+
+def test_the_image_stage_does_not_keep_its_float64_sums_beside_its_output():
+    """The monopulse image is summed in float64 (np.bincount) and kept in float32: the float64 image and
+    the real-beam image's float64 sums are dropped as soon as they are rounded, not held to the end of
+    the stage beside everything else (the CPI chains' high-water mark is the image stage's).  On an
+    angle grid fine enough that the image dominates, the stage's traced peak exceeds its output by less
+    than two float32 images (2.5 before: the float64 image, its float32 copy and the real beam's sums
+    all held to the end)."""
+    import tracemalloc
+
+    from fwdlook_cli.forward.chain import build_forward_stages
+    from fwdlook_cli.forward.monopulse import monopulse_image
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.testing import tiny_scenario
+
+    scn = tiny_scenario()
+    cube, _ = simulate_scenario(scn)
+    src, stages, _ = build_forward_stages(cube, dict(scn["processing"], imaging="cpi", method="decimation"))
+    data = src
+    for st in stages[:-1]:
+        data = st.fn(data, **st.params)
+    assert stages[-1].name == "monopulse_image"
+    params = dict(stages[-1].params, angle_step_deg=0.002)
+    tracemalloc.start()
+    try:
+        out = monopulse_image(data, **params)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    image32 = out["image"].nbytes
+    output = sum(v.data.nbytes for v in out.vars.values())
+    assert out["image"].dtype == np.float32 and image32 > 0.6 * output      # the image dominates
+    assert len(out["cell"]) > 1000
+    assert peak - output < 2.0 * image32

@@ -103,6 +103,7 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     flat, w_in = _concat_column(cells, 3), _concat_column(cells, 4)       # each part freed as it goes
     image = np.bincount(flat, weights=w_in, minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
     del flat, w_in
+    image = image.astype(np.float32)    # the float64 sums not held beside the rest (the stage's high-water mark)
     gx, gy, w = _concat_column(cells, 0), _concat_column(cells, 1), _concat_column(cells, 2)
 
     # real-beam image: incoherent CPI sum power at the beam angle (same t_ref angle mapping)
@@ -113,14 +114,14 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     rb_idx = np.rint((rb_az - a0) / angle_step_deg)
     good = np.isfinite(rb_idx) & (rb_idx >= 0) & (rb_idx < n_a)
     rb_flat = (np.broadcast_to(np.arange(n_r), (n_cpi, n_r))[good] * n_a + rb_idx[good].astype(np.int64))
-    real_beam = np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a)
+    real_beam = np.bincount(rb_flat, weights=rb_power[good], minlength=n_r * n_a).reshape(n_r, n_a).astype(np.float32)
 
     out = StageData(attrs=dict(data.attrs))
     out.add("range_m", range_os, ("range_m",), "m", "slant range from the antenna at t_ref")
     out.add("angle_deg", angle_deg, ("angle_deg",), "deg", "azimuth from the antenna at t_ref")
     out.add("range_native_m", range_m, ("range_native_m",), "m", "slant range, native sampling")
-    out.add("image", image.astype(np.float32), ("range_m", "angle_deg"), "1", "monopulse image, sum power")
-    out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
+    out.add("image", image, ("range_m", "angle_deg"), "1", "monopulse image, sum power")
+    out.add("real_beam", real_beam, ("range_native_m", "angle_deg"), "1",
             "real-beam image, sum power against beam angle")
     # kept cells, for the ground projection and diagnostics
     out.add("cell", np.arange(len(w), dtype=np.int32), ("cell",), "1", "projected Doppler cell")
