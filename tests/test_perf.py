@@ -479,6 +479,9 @@ def test_chain_timing_reports_every_stage_and_the_peak_rss(tiny_raw):
     if t["peak_rss_x_cube"] is not None:                       # Linux: measured in a fresh interpreter
         # the tiny cube (0.25 MB) is within the RSS noise of two interpreters: only the sign is a fact
         assert t["peak_rss_above_base_bytes"] >= 0
+        # the tiny run's own peak is a base at least as high as the RSS after it (VmHWM >= VmRSS)
+        assert t["tiny_run_peak_bytes"] >= t["interpreter_base_bytes"]
+        assert 0 <= t["peak_rss_over_tiny_peak_x_cube"] <= t["peak_rss_x_cube"] + 1e-12
 
 
 def test_process_cpu_time_counts_busy_threads():

@@ -54,7 +54,8 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     stage, stage files written); ``chain_<method>_keep_none_s`` the same CPI chains with
     ``--keep-stages none`` (no stage file: their difference is what the files cost);
     ``chain_<method>_peak_rss_x_cube`` is its peak RSS above the RSS before it, as a multiple of the
-    cube (both channels); ``chain_<method>_cores_busy`` the process's CPU time during the chain over
+    cube (both channels), and ``chain_<method>_peak_rss_over_tiny_peak_x_cube`` the same above the
+    tiny run's own peak (the README's ``/usr/bin/time`` base); ``chain_<method>_cores_busy`` the process's CPU time during the chain over
     its wall time (median of the rounds), ``chain_<method>_user_cpu_ms`` and ``_system_cpu_ms`` that CPU
     time split into the process's own code and the kernel's work for it (medians, in ms: not ratios);
     ``command_<method>_s`` the wall time of ``fwdlook process`` of the same cube in a fresh interpreter
@@ -170,6 +171,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
             out[f"stage_{method}_{stage}_s"] = statistics.median(t["stages_s"][stage] for t in rounds[method])
         t = chain_peak_rss(cube, scenarios[method])
         out[f"chain_{method}_peak_rss_x_cube"] = t["peak_rss_x_cube"]
+        out[f"chain_{method}_peak_rss_over_tiny_peak_x_cube"] = t["peak_rss_over_tiny_peak_x_cube"]
         out[f"chain_{method}_peak_rss_mib"] = (None if t["peak_rss_above_base_bytes"] is None
                                                else t["peak_rss_above_base_bytes"] / 2**20)
         out["interpreter_base_mib"] = (t.get("interpreter_base_bytes") or 0) / 2**20

@@ -164,7 +164,10 @@ def chain_peak_rss(cube, scn: dict) -> dict:
     """Peak RSS of ``process_cube`` in a fresh interpreter: after the imports and one warm-up run on the
     tiny cube (the interpreter base), the cube is read from HDF5 and the chain run once; the
     high-water mark minus the base, in bytes and as a multiple of the cube (both channels; the cube
-    itself counts)."""
+    itself counts).  Two bases: the RSS after the tiny run (``peak_rss_x_cube``, the stricter: what
+    the tiny run freed counts against the chain), and the tiny run's own peak
+    (``peak_rss_over_tiny_peak_x_cube``: the README's ``/usr/bin/time`` convention, a tiny run's
+    high-water mark as the base of the same command on the paper cube)."""
     import json
     import subprocess
     import sys
@@ -182,14 +185,18 @@ def chain_peak_rss(cube, scn: dict) -> dict:
     try:
         probe = json.loads(res.stdout.strip().splitlines()[-1])
     except (IndexError, ValueError):
-        return {"peak_rss_above_base_bytes": None, "cube_bytes": cube_bytes, "peak_rss_x_cube": None}
+        return {"peak_rss_above_base_bytes": None, "cube_bytes": cube_bytes, "peak_rss_x_cube": None,
+                "peak_rss_over_tiny_peak_x_cube": None}
     above = probe["hwm"] - probe["base"] if probe["hwm"] and probe["base"] else None
+    over_tiny = max(0, probe["hwm"] - probe["tiny_peak"]) if probe["hwm"] and probe.get("tiny_peak") else None
     return {"peak_rss_above_base_bytes": above, "cube_bytes": cube_bytes, "interpreter_base_bytes": probe["base"],
-            "peak_rss_x_cube": None if above is None else above / cube_bytes}
+            "peak_rss_x_cube": None if above is None else above / cube_bytes,
+            "tiny_run_peak_bytes": probe.get("tiny_peak"),
+            "peak_rss_over_tiny_peak_x_cube": None if over_tiny is None else over_tiny / cube_bytes}
 
 
 def _rss_probe() -> None:
-    """Child of :func:`chain_peak_rss`: argv = RAW.h5 SCENARIO.json TMPDIR; prints {base, hwm}."""
+    """Child of :func:`chain_peak_rss`: argv = RAW.h5 SCENARIO.json TMPDIR; prints {base, tiny_peak, hwm}."""
     import json
     import sys
 
@@ -215,10 +222,11 @@ def _rss_probe() -> None:
     tiny_cube, _ = simulate_scenario(tiny)
     process_cube(tiny_cube, tiny, Path(tmp) / "warm", force=True, quiet=True, png=False, release_cube=True)
     del tiny_cube
+    tiny_peak = peak_rss_bytes()         # the imports and the tiny run's high-water mark
     base = reset_peak_rss()
     cube = read_raw(raw)
     process_cube(cube, scn, Path(tmp) / "run", force=True, quiet=True, png=False, release_cube=True)
-    print(json.dumps({"base": base, "hwm": peak_rss_bytes()}))
+    print(json.dumps({"base": base, "tiny_peak": tiny_peak, "hwm": peak_rss_bytes()}))
 
 
 _CLEAN_FFT2 = """
