@@ -824,13 +824,29 @@ def test_the_bench_records_what_its_figures_depend_on():
     assert {"python", "hdf5", "machine", "cpu", "blas"} <= set(env)
 
 
+def test_block_by_block_sums_are_one_bincount():
+    """The image stage sums each block's cells into the float64 image as the block arrives
+    (np.add.at): per bin, the same additions in the same order as one np.bincount of every cell, so the
+    same numbers bit for bit (the assumption forward/monopulse.py rests on)."""
+    rng = np.random.default_rng(21)
+    size = 5000
+    bins = [np.sort(rng.integers(0, size, n)) for n in (0, 1, 700, 3000, 12)]
+    weights = [rng.exponential(1.0, len(b)).astype(np.float32).astype(np.float64) * 10.0 ** rng.uniform(-3, 3)
+               for b in bins]
+    image = np.zeros(size)
+    for b, w in zip(bins, weights):
+        np.add.at(image, b, w)
+    np.testing.assert_array_equal(image, np.bincount(np.concatenate(bins), np.concatenate(weights), minlength=size))
+
+
 def test_the_image_stage_does_not_keep_its_float64_sums_beside_its_output():
-    """The monopulse image is summed in float64 (np.bincount) and kept in float32: the float64 image and
-    the real-beam image's float64 sums are dropped as soon as they are rounded, not held to the end of
-    the stage beside everything else (the CPI chains' high-water mark is the image stage's).  On an
-    angle grid fine enough that the image dominates, the stage's traced peak exceeds its output by less
-    than two float32 images (2.5 before: the float64 image, its float32 copy and the real beam's sums
-    all held to the end)."""
+    """The monopulse image is summed in float64 and kept in float32: the float64 image is summed block
+    by block and rounded once the blocks are done, the real beam's sums rounded at once, and neither is
+    held to the end of the stage beside everything else (the CPI chains' high-water mark is the image
+    stage's).  On an angle grid fine enough that the image dominates, the stage's traced peak exceeds
+    its output by less than two float32 images (2.5 before: the float64 image, its float32 copy and the
+    real beam's sums all held to the end).  And the image holds the power of its cells: the sum over the
+    image is the sum of the projected cells' power (every cell on the grid here)."""
     import tracemalloc
 
     from fwdlook_cli.forward.chain import build_forward_stages
@@ -857,3 +873,5 @@ def test_the_image_stage_does_not_keep_its_float64_sums_beside_its_output():
     assert out["image"].dtype == np.float32 and image32 > 0.6 * output      # the image dominates
     assert len(out["cell"]) > 1000
     assert peak - output < 2.0 * image32
+    np.testing.assert_allclose(out["image"].sum(dtype=np.float64), out["cell_power"].sum(dtype=np.float64),
+                               rtol=1e-6)

@@ -97,13 +97,18 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
                                  post=summed, **select)
     else:       # another cell selection (the GPU's, forward/gpu_imaging.py): the same blocks, rows summed
         blocks = map(project, cell_blocks(data["sum_z"], data["diff_z"], **select))
+    # each block's cells summed into the float64 image as the block arrives, in CPI order: one
+    # sequential sum per bin in the cells' order, as one np.bincount of every cell gives it (the same
+    # numbers), without holding every cell's bin and weight (12 of its 28 bytes) to the end and then
+    # gathering them (the CPI chains' high-water mark was there: README, "Memory")
+    image64 = np.zeros(len(range_os) * n_a)
     for c0, rb_rows, part in blocks:
         rb_power[c0:c0 + len(rb_rows)] = rb_rows
-        cells.append(part)
-    flat, w_in = _concat_column(cells, 3), _concat_column(cells, 4)       # each part freed as it goes
-    image = np.bincount(flat, weights=w_in, minlength=len(range_os) * n_a).reshape(len(range_os), n_a)
-    del flat, w_in
-    image = image.astype(np.float32)    # the float64 sums not held beside the rest (the stage's high-water mark)
+        np.add.at(image64, part[3], part[4])
+        cells.append(part[:3])
+        del part
+    image = image64.reshape(len(range_os), n_a).astype(np.float32)
+    del image64
     gx, gy, w = _concat_column(cells, 0), _concat_column(cells, 1), _concat_column(cells, 2)
 
     # real-beam image: incoherent CPI sum power at the beam angle (same t_ref angle mapping)
