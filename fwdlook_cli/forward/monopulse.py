@@ -99,7 +99,7 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
         blocks = map(project, cell_blocks(data["sum_z"], data["diff_z"], **select))
     # each block's cells summed into the float64 image as the block arrives, in CPI order: one
     # sequential sum per bin in the cells' order, as one np.bincount of every cell gives it (the same
-    # numbers), without holding every cell's bin and weight (12 of its 28 bytes) to the end and then
+    # numbers), without holding every cell's bin and weight (16 of its 28 bytes) to the end and then
     # gathering them (the CPI chains' high-water mark was there: README, "Memory")
     image64 = np.zeros(len(range_os) * n_a)
     for c0, rb_rows, part in blocks:
