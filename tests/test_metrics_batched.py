@@ -89,6 +89,23 @@ def test_ground_image_is_the_float64_bincount_to_float32_rounding(finished):
     assert img.sum(dtype=np.float64) == pytest.approx(float(w[ok].sum(dtype=np.float64)), rel=1e-6)
 
 
+def test_ground_image_in_blocks_of_cells_is_the_one_block_image(finished, monkeypatch):
+    """The ground image bins its cells in blocks (bounded temporaries while the outputs still hold the
+    Doppler spectra): the same sums in the same order as one block, so the same image bit for bit."""
+    import fwdlook_cli.forward.process as process
+
+    _, final, _, _ = finished
+    x, y, w = final["cell_x_m"], final["cell_y_m"], final["cell_power"]
+    monkeypatch.setattr(process, "GROUND_BLOCK_CELLS", len(x) + 1)
+    one, gx1, gy1 = ground_image(x, y, w, step_m=0.5)
+    monkeypatch.setattr(process, "GROUND_BLOCK_CELLS", max(1, len(x) // 7))
+    blocks, gx, gy = ground_image(x, y, w, step_m=0.5)
+    assert len(x) > 7 and np.count_nonzero(one) > 10
+    np.testing.assert_array_equal(blocks, one)
+    np.testing.assert_array_equal(gx, gx1)
+    np.testing.assert_array_equal(gy, gy1)
+
+
 def test_best_ratio_rows_is_the_sequential_rule_per_segment():
     """The peak loss's CPI choice for every dwell at once against the one-dwell rule, on segments of
     ratios with ties, with no positive ratio (the rule then takes the last CPI) and of one element."""
