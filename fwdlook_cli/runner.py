@@ -55,7 +55,7 @@ def stage_key(name: str, params: dict, previous_key: str) -> str:
 def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir: Path, *,
                force: bool = False, from_stage: str | None = None, quiet: bool = False,
                keep: str = "all", captured: dict | None = None, pending_writes: list | None = None,
-               stage_cpu: dict | None = None):
+               stage_cpu: dict | None = None, file_cpu: dict | None = None):
     """Run ``stages`` in order over ``source``; returns (last StageData, timings dict, keys dict).
 
     ``keep``: ``all`` writes every stage file (a killed run resumes after the last finished stage);
@@ -99,7 +99,7 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     timings: dict[str, float] = {}
     data = source if first == 0 else read_stage(paths[first - 1])
     del source                          # the input cube is freed once stage 1 has consumed it
-    writer = _StageWriter(stages, quiet=quiet)
+    writer = _StageWriter(stages, quiet=quiet, file_cpu=file_cpu)
     try:
         for i, st in enumerate(stages):
             if i < first:
@@ -155,6 +155,18 @@ def cpu_split_s() -> tuple[float, float]:
     return usage.ru_utime, usage.ru_stime
 
 
+def thread_cpu_split_s() -> tuple[float, float] | None:
+    """(user, system) CPU seconds of the calling thread (``getrusage(RUSAGE_THREAD)``, Linux); None
+    elsewhere."""
+    try:
+        import resource
+
+        usage = resource.getrusage(resource.RUSAGE_THREAD)
+    except (ImportError, AttributeError, OSError):     # pragma: no cover (not Linux)
+        return None
+    return usage.ru_utime, usage.ru_stime
+
+
 class _StageWriter:
     """Stage files written on one worker thread while the next stages compute, in stage order: a file
     is renamed into place only when complete (``io.h5.atomic_h5``), so a run killed at any moment
@@ -165,7 +177,7 @@ class _StageWriter:
     previous file's arrays (``known``) and whether it is a view are the writer's own state: only the
     writer thread touches them."""
 
-    def __init__(self, stages, quiet: bool):
+    def __init__(self, stages, quiet: bool, file_cpu: dict | None = None):
         from concurrent.futures import ThreadPoolExecutor
 
         self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fwdlook-stage-writer")
@@ -174,6 +186,7 @@ class _StageWriter:
         self.prev_is_view = None
         self.views = [st.view for st in stages]
         self.quiet, self.n = quiet, len(stages)
+        self.file_cpu = file_cpu            # {stage: (user s, system s)} of the writer thread, per file
 
     def _make_room(self, i):
         """Before stage i's write is queued, wait for the queued writes that do not hold stage i's output
@@ -200,6 +213,7 @@ class _StageWriter:
 
     def _write(self, st, out, previous, previous_path, path, key, input_key, t_compute):
         t0 = time.perf_counter()
+        cpu0 = thread_cpu_split_s() if self.file_cpu is not None else None
         extra, virtual, is_view = {"compute_s": t_compute}, None, False
         if previous_path is not None and not (self.prev_is_view if self.prev_is_view is not None
                                               else _is_view(previous_path)):
@@ -210,6 +224,9 @@ class _StageWriter:
         self.known = write_stage(path, out, stage=st.name, key=key, input_key=input_key, params=st.params,
                                  extra_attrs=extra, virtual=virtual, known=self.known)
         self.prev_is_view = is_view
+        if cpu0 is not None:
+            cpu1 = thread_cpu_split_s()
+            self.file_cpu[st.name] = (cpu1[0] - cpu0[0], cpu1[1] - cpu0[1])
         return ("view" if is_view else "write", time.perf_counter() - t0)
 
     def _finish(self, job):

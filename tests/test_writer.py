@@ -193,3 +193,53 @@ def test_the_spectra_are_not_held_while_the_png_is_drawn(tiny_raw, tmp_path, mon
     monkeypatch.setattr(quicklook, "painting", contextlib.nullcontext)     # drawn here, in the process
     assert _run(["process", raw, "-o", tmp_path / "run", "-q"]) == 0
     assert alive == [False]
+
+
+def _spin_cpu(seconds):
+    t0 = time.thread_time()
+    while time.thread_time() - t0 < seconds:
+        pass
+
+
+def test_the_writer_threads_cpu_is_counted_per_file_and_only_its_own(tiny_raw, tmp_path, monkeypatch):
+    """``file_cpu`` (the bench's ``chain_<method>_stage_files_*_cpu_ms``) holds, per stage file, the CPU
+    time of the thread that wrote it: 80 ms of CPU spent inside the keystone's write appears in the
+    keystone's file and nowhere else, and 80 ms spent by the main thread computing the range curvature
+    (while the keystone's file is being written) appears in no file's."""
+    from fwdlook_cli.forward.process import process_cube
+    from fwdlook_cli.io.raw import read_raw
+    from fwdlook_cli.testing import tiny_scenario
+
+    if runner.thread_cpu_split_s() is None:
+        pytest.skip("per-thread CPU time (getrusage RUSAGE_THREAD) is Linux's")
+    burn = 0.08
+    real_write = runner.write_stage
+
+    def write(path, data, **kw):
+        if kw["stage"] == "keystone":
+            _spin_cpu(burn)
+        return real_write(path, data, **kw)
+
+    real_curvature = chain.range_curvature
+
+    def curvature(*a, **k):
+        _spin_cpu(burn)
+        return real_curvature(*a, **k)
+
+    monkeypatch.setattr(runner, "write_stage", write)
+    monkeypatch.setattr(chain, "range_curvature", curvature)
+    cube = read_raw(tiny_raw)
+    file_cpu = {}
+    process_cube(cube, tiny_scenario(), tmp_path / "run", force=True, quiet=True, png=False, file_cpu=file_cpu)
+    assert list(file_cpu) == ["range_fft", "decimate", "keystone", "regroup", "range_curvature",
+                              "doppler_spectra", "monopulse_image"]
+    cpu = {name: u + s for name, (u, s) in file_cpu.items()}
+    assert all(u >= 0 and s >= 0 for u, s in file_cpu.values())
+    assert cpu["keystone"] >= burn
+    others = {name: c for name, c in cpu.items() if name != "keystone"}
+    assert max(others.values()) < burn / 2, others       # the curvature's 80 ms went to no file
+    assert cpu["keystone"] - burn < burn / 2             # nor to the keystone's beyond its own
+    empty = {}
+    process_cube(cube, tiny_scenario(), tmp_path / "none", force=True, quiet=True, png=False,
+                 keep_stages="none", file_cpu=empty)
+    assert empty == {}

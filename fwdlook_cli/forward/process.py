@@ -119,10 +119,11 @@ def _two_way_beamwidth_deg(cube) -> float:
 
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
                  png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False,
-                 stage_cpu: dict | None = None) -> dict:
+                 stage_cpu: dict | None = None, file_cpu: dict | None = None) -> dict:
     """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics.
     ``stage_cpu``: as :func:`runner.run_stages` (each computed stage's user and system CPU time), and
-    ``outputs`` (the metrics, image.h5 and metrics.json).
+    ``outputs`` (the metrics, image.h5 and metrics.json).  ``file_cpu``: as :func:`runner.run_stages`
+    (the writer thread's CPU time for each stage file).
 
     The run directory's outputs of an earlier run are removed first and ``scenario.yaml`` is written
     last, so a failed or interrupted run never leaves outputs that look complete for other settings
@@ -172,7 +173,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     writes = []            # the last stage files are written while the outputs below are computed
     final, timings, keys = run_stages(stages, holder.pop(), src_key, run_dir, force=force, from_stage=from_stage,
                                       quiet=quiet, keep=keep_stages, captured=captured, pending_writes=writes,
-                                      stage_cpu=stage_cpu)
+                                      stage_cpu=stage_cpu, file_cpu=file_cpu)
     t_out = time.perf_counter()
     cpu_out = cpu_split_s() if stage_cpu is not None else None
     pending_png = []

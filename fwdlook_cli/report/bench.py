@@ -57,7 +57,9 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     cube (both channels), and ``chain_<method>_peak_rss_over_tiny_peak_x_cube`` the same above the
     tiny run's own peak (the README's ``/usr/bin/time`` base); ``chain_<method>_cores_busy`` the process's CPU time during the chain over
     its wall time (median of the rounds), ``chain_<method>_user_cpu_ms`` and ``_system_cpu_ms`` that CPU
-    time split into the process's own code and the kernel's work for it (medians, in ms: not ratios);
+    time split into the process's own code and the kernel's work for it (medians, in ms: not ratios),
+    and ``chain_<method>_stage_files_user_cpu_ms`` and ``_system_cpu_ms`` the part of it that the
+    stage-file writer thread spent on its own (every file's HDF5 objects and bytes; Linux);
     ``command_<method>_s`` the wall time of ``fwdlook process`` of the same cube in a fresh interpreter
     and ``command_<method>_chain_s`` the (cold) chain inside it (:func:`benchtools.command_runs`)."""
     from ..forward.chain import build_forward_stages
@@ -163,6 +165,10 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         for clock in ("user", "system"):
             spent = [t[f"{clock}_cpu_s"] for t in runs if t.get(f"{clock}_cpu_s") is not None]
             out[f"chain_{key}_{clock}_cpu_ms"] = 1e3 * statistics.median(spent) if spent else None
+            # of which the stage-file writer thread's own (every file's HDF5 objects and bytes)
+            files = [t[f"stage_files_{clock}_cpu_s"] for t in runs if t.get(f"stage_files_{clock}_cpu_s") is not None]
+            if files:
+                out[f"chain_{key}_stage_files_{clock}_cpu_ms"] = 1e3 * statistics.median(files)
     _step(7, n, "peak memory of each chain (a fresh interpreter each)")
     for method in scenarios:
         key = "chain_s" if method == "decimation" else f"chain_{method}_s"
