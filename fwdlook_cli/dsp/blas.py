@@ -69,14 +69,19 @@ def batched_matmul_each(a, bs) -> list:
             return [first] + [f.result() for f in later]
 
 
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity; the machine's count where the OS has none)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):       # pragma: no cover (not Linux)
+        return os.cpu_count() or 1
+
+
 def worker_threads() -> int:
     """Threads for independent blocks of a stage (image, dwell, keystone columns): the cores this process
     may use, at most 4 (numpy's element-wise loops and the FFTs release the GIL), or fewer where
     ``FWDLOOK_THREADS`` or ``OMP_NUM_THREADS`` says so (a sweep's workers set the latter to 1)."""
-    try:
-        n = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):       # pragma: no cover (not Linux)
-        n = os.cpu_count() or 1
+    n = available_cores()
     for var in ("FWDLOOK_THREADS", "OMP_NUM_THREADS"):
         value = os.environ.get(var, "").strip()
         if value.isdigit() and int(value) > 0:

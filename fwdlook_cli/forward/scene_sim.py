@@ -40,7 +40,6 @@ and the compressed pulse of ``pulse.CompressedPulse``; a pair whose two-way powe
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -49,6 +48,7 @@ import numpy as np
 import scipy.fft
 
 from ..dsp.antenna import MonopulseAntenna, bracketed_root
+from ..dsp.blas import available_cores
 from ..dsp.geometry import C_MPS
 from ..dsp.pulse import TABLE_OVERSAMPLE, CompressedPulse
 from ..dsp.noise import add_band_limited_noise
@@ -310,7 +310,7 @@ def simulate_scene_echo(slow_time_s, position_m, beam_deg, range_m, targets_m, a
             echo_diff[b0:b1] = acc[2] + 1j * acc[3]
         return kept
 
-    n_workers = max(1, int(workers if workers is not None else len(os.sched_getaffinity(0))))
+    n_workers = max(1, int(workers if workers is not None else available_cores()))
     blocks = range(0, n_p, blk)
     if n_workers == 1:
         kept_total = sum(do_block(b0) for b0 in blocks)

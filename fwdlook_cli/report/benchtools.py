@@ -20,13 +20,13 @@ def environment() -> dict:
     """What a bench's figures depend on besides the code: the versions of the libraries that compute
     (pocketfft is scipy's, the fused oversampling ducc0's, the Doppler zoom's products the BLAS), the
     processor and the cores this process may use.  Strings, for the JSON."""
-    import os
     import platform
 
     import h5py
     import scipy
 
     from .. import __version__
+    from ..dsp.blas import available_cores
 
     env = {"fwdlook": __version__, "python": platform.python_version(), "numpy": np.__version__,
            "scipy": scipy.__version__, "h5py": h5py.version.version, "hdf5": h5py.version.hdf5_version,
@@ -37,8 +37,7 @@ def environment() -> dict:
         env["ducc0"] = ducc0.__version__
     except ImportError:                     # pragma: no cover (a core dependency)
         env["ducc0"] = "missing"
-    affinity = getattr(os, "sched_getaffinity", None)
-    env["cores"] = str(len(affinity(0)) if affinity else os.cpu_count())
+    env["cores"] = str(available_cores())
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
             models = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
