@@ -69,9 +69,12 @@ def run_chain(cube, processing: dict):
         return run_isar_stages(cube, processing)[0]
     from .forward.chain import build_forward_stages
 
+    from .dsp.blas import one_blas_thread
+
     data, stages, _ = build_forward_stages(cube, _forward_processing(cube, processing))
-    for st in stages:
-        data = st.fn(data, **st.params)
+    with one_blas_thread():             # as process_cube (dsp/blas.py: no idle BLAS thread spinning)
+        for st in stages:
+            data = st.fn(data, **st.params)
     return data
 
 

@@ -438,7 +438,10 @@ def _command_of(args) -> str | None:
 
 def main(argv=None):
     """Console entry point: maps BadInput and click usage errors to one line and exit 2."""
+    from .dsp.blas import one_blas_thread_for_the_process
     from .io import painter
+
+    one_blas_thread_for_the_process()   # before numpy, here and in the painter: no idle BLAS thread spinning
 
     args = sys.argv[1:] if argv is None else list(argv)
     if _command_of(args) in QUICKLOOK_COMMANDS and not {"-h", "--help"} & set(args):

@@ -155,8 +155,10 @@ def test_a_painter_that_does_not_answer_is_ended(monkeypatch):
 def test_process_forks_its_painter_before_numpy_and_the_painter_draws_its_png(tmp_path):
     """``fwdlook process`` forks the painter first thing (cli.main), before numpy is imported, and the
     run's image.png is that child's: the command's own draw_image_png, replaced right after the fork,
-    refuses."""
+    refuses.  Before the fork the command has put the BLAS on one thread (``OPENBLAS_NUM_THREADS``,
+    read when numpy loads it: the painter's and the command's)."""
     script = textwrap.dedent("""
+        import os
         import sys
         from fwdlook_cli.io import painter
         forks = []
@@ -165,6 +167,7 @@ def test_process_forks_its_painter_before_numpy_and_the_painter_draws_its_png(tm
             raise AssertionError("drawn in the command's process")
         def spy(*args):
             forks.append("numpy" in sys.modules)
+            forks.append(os.environ.get("OPENBLAS_NUM_THREADS"))
             child = fork_early(*args)
             import fwdlook_cli.io.quicklook as q          # the parent's module only: the child has forked
             q.draw_image_png = refuse
@@ -174,12 +177,17 @@ def test_process_forks_its_painter_before_numpy_and_the_painter_draws_its_png(tm
         try:
             main(sys.argv[1:])
         except SystemExit as exc:
-            print("exit", exc.code, "numpy imported before the fork:", forks)
+            from threadpoolctl import threadpool_info
+            blas = sorted({p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"})
+            print("exit", exc.code, "numpy imported before the fork, OPENBLAS_NUM_THREADS:", forks, "blas", blas)
     """)
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}      # (none of the user's)
     res = subprocess.run([sys.executable, "-c", script, "process", "scenarios/tiny.yaml", "-o", str(tmp_path / "run"),
-                          "-q"], capture_output=True, text=True, timeout=120)
+                          "-q"], capture_output=True, text=True, timeout=120, env=env)
     assert res.returncode == 0, res.stderr
-    assert "exit 0 numpy imported before the fork: [False]" in res.stdout, res.stdout + res.stderr
+    # the BLAS on one thread from before numpy's import, the painter's included (dsp/blas.py)
+    assert "exit 0 numpy imported before the fork, OPENBLAS_NUM_THREADS: [False, '1'] blas [1]" in res.stdout, \
+        res.stdout + res.stderr
     assert (tmp_path / "run" / "image.png").stat().st_size > 10_000
 
 

@@ -9,7 +9,9 @@ products against ``np.matmul``.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
+import os
 
 import h5py
 import numpy as np
@@ -733,6 +735,74 @@ def test_one_blas_thread_limits_every_blas_and_restores_it():
         assert after == before
 
 
+def test_the_process_blas_setting_keeps_the_users_own_and_a_plain_environment_drops_only_its_own(monkeypatch):
+    """dsp.blas.one_blas_thread_for_the_process sets each BLAS thread variable the environment lacks to 1
+    and leaves one the user set; plain_environment (the bench's plain interpreters) is the environment
+    without exactly the variables it set."""
+    from fwdlook_cli.dsp import blas
+
+    monkeypatch.setattr(blas, "_SET_FOR_THE_PROCESS", [])
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "3")
+    monkeypatch.setenv("FWDLOOK_TEST_OTHER", "kept")
+    assert blas.one_blas_thread_for_the_process() == ["OPENBLAS_NUM_THREADS"]
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "1" and os.environ["MKL_NUM_THREADS"] == "3"
+    assert blas.one_blas_thread_for_the_process() == ["OPENBLAS_NUM_THREADS"]      # again: nothing new
+    plain = blas.plain_environment()
+    assert "OPENBLAS_NUM_THREADS" not in plain
+    assert plain["MKL_NUM_THREADS"] == "3" and plain["FWDLOOK_TEST_OTHER"] == "kept"
+    assert set(plain) == set(os.environ) - {"OPENBLAS_NUM_THREADS"}
+
+
+def test_a_chain_run_from_python_runs_on_one_blas_thread_and_gives_the_thread_count_back(tmp_path, monkeypatch):
+    """process_cube and api.run_chain hold the BLAS at one thread while their stages run (dsp/blas.py:
+    an idle OpenBLAS thread spins on a core the stages need), and the host program's count after."""
+    from threadpoolctl import threadpool_info
+
+    import fwdlook_cli.api as api
+    from fwdlook_cli import runner
+    from fwdlook_cli.forward.process import process_cube
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.testing import tiny_scenario
+
+    def blas():
+        return {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+    before = blas()
+    seen = []
+    run_stages = runner.run_stages
+
+    def spy(stages, source, *a, **kw):
+        seen.append(blas())
+        return run_stages(stages, source, *a, **kw)
+
+    monkeypatch.setattr(runner, "run_stages", spy)
+    scn = tiny_scenario()
+    cube, _ = simulate_scenario(scn)
+    process_cube(cube, scn, tmp_path / "run", quiet=True, png=False)
+    assert len(seen) == 1 and set(seen[0]) == set(before) and set(seen[0].values()) == {1}
+    assert blas() == before
+    from fwdlook_cli.forward import chain
+
+    build = chain.build_forward_stages
+
+    def spy_build(*a, **kw):
+        data, stages, geo = build(*a, **kw)
+        first = stages[0]
+
+        def counted(d, **params):
+            seen.append(blas())
+            return first.fn(d, **params)
+
+        stages[0] = dataclasses.replace(first, fn=counted)
+        return data, stages, geo
+
+    monkeypatch.setattr(chain, "build_forward_stages", spy_build)
+    api.run_chain(cube, scn["processing"])
+    assert len(seen) == 2 and set(seen[1].values()) == {1}
+    assert blas() == before
+
+
 def test_the_blas_limit_takes_in_scipys_blas_once_scipy_linalg_is_loaded():
     """dsp.blas.one_blas_thread limits numpy's BLAS without importing scipy.linalg, and once a host
     program has imported it, scipy's BLAS too (the controller is made again), in a fresh interpreter."""
@@ -825,7 +895,7 @@ def test_the_bench_records_what_its_figures_depend_on():
     assert env["scipy"] == scipy.__version__ and env["ducc0"] == ducc0.__version__
     assert env["h5py"] == h5py.version.version
     assert int(env["cores"]) == len(os.sched_getaffinity(0))
-    assert {"python", "hdf5", "machine", "cpu", "blas"} <= set(env)
+    assert {"python", "hdf5", "machine", "cpu", "blas", "blas_threads"} <= set(env)
 
 
 def test_float32_image_sums_are_the_float64_sums_to_their_rounding():

@@ -6,14 +6,25 @@ call; with the cores shared, a call can wait for a descheduled thread for millis
 ranged from 55 ms to 1.8 s (issue 11).  One thread per call makes each product a few microseconds of
 work that cannot stall; the batch is what is large, not the matrices.  ``threadpoolctl`` controls
 the pool of whichever BLAS numpy loaded (OpenBLAS, MKL, BLIS).
+
+A command runs with the BLAS on one thread from its start (:func:`one_blas_thread_for_the_process`,
+before numpy is imported) and :func:`..forward.process.process_cube` holds it there for a chain run
+from Python.  An OpenBLAS thread that has worked, or has just been started, spins for about 2^28
+cycles (0.1 s here) before it sleeps, on a core the stages' own threads need: measured on this
+machine, 52 ms of CPU in the 0.3 s after ``import numpy``, 105 ms after one multithreaded product,
+104 ms after a threadpoolctl limit that a fork came under is lifted (the fork shut the pool down,
+lifting the limit starts it again).  The chain's products are small and its stages make their own
+threads, so one BLAS thread gives the same numbers bit for bit (image.h5 and metrics.json of both
+presets on the paper cube) and takes the spinning away (README, Speed).
+
+This module imports no numpy at import time, so that the command line can call it before the
+painter is forked (``io/painter.py``).
 """
 from __future__ import annotations
 
 import contextlib
 import os
 import sys
-
-import numpy as np
 
 try:                                            # a dependency (pyproject.toml); tolerated if absent
     from threadpoolctl import ThreadpoolController
@@ -37,6 +48,28 @@ def _controller():
     return _CONTROLLER[0][1]
 
 
+BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+_SET_FOR_THE_PROCESS: list = []     # the variables one_blas_thread_for_the_process set (not the user's)
+
+
+def one_blas_thread_for_the_process() -> list:
+    """The BLAS on one thread for this process and the children it starts: each of
+    :data:`BLAS_THREAD_VARS` the environment does not set is set to 1.  Read by the BLAS when numpy
+    loads it, so it takes effect only before numpy is imported (the command line calls it first
+    thing); a user's own setting stays.  Returns the variables set here."""
+    for var in BLAS_THREAD_VARS:
+        if var not in os.environ:
+            os.environ[var] = "1"
+            _SET_FOR_THE_PROCESS.append(var)
+    return list(_SET_FOR_THE_PROCESS)
+
+
+def plain_environment() -> dict:
+    """This process's environment without what :func:`one_blas_thread_for_the_process` set: a plain
+    interpreter's, as the user started this one (the bench's reference, ``benchtools.clean_process_fft2``)."""
+    return {k: v for k, v in os.environ.items() if k not in _SET_FOR_THE_PROCESS}
+
+
 def one_blas_thread():
     """A context in which the BLAS runs on one thread (the stage's own threads share the cores)."""
     if ThreadpoolController is None:            # pragma: no cover
@@ -46,6 +79,8 @@ def one_blas_thread():
 
 def batched_matmul(a, b):
     """``np.matmul(a, b)`` over stacks of small matrices, the BLAS limited to one thread."""
+    import numpy as np
+
     with one_blas_thread():
         return np.matmul(a, b)
 
@@ -56,6 +91,8 @@ def batched_matmul_each(a, bs) -> list:
     same calls as :func:`batched_matmul`, so the same numbers, but both cores busy (numpy's matmul
     loop releases the GIL).  The two channels' zooms of the paper cube: 14.0-15.7 ms one after the other,
     5.7-8.1 ms side by side (random data of those shapes, medians of 41 calls)."""
+    import numpy as np
+
     bs = list(bs)
     threads = min(worker_threads(), len(bs))
     with one_blas_thread():

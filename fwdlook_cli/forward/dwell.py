@@ -54,10 +54,11 @@ range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
 Cost (``fwdlook bench``, paper cube, idle machine, without step 6): the ``dwell_image`` stage is about
 40 plain 2-D FFTs of one channel (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range,
 8.8 k x 280 cells, one interpolated read, the phase, the rotation and one sparse sum over the dwell),
-run over blocks of sub-apertures on the stage thread pool (bounded memory); the whole chain 0.96-1.04 x
-``chain_tracking_s``.  Step 6 (the tracking preset's default) adds 0.3-0.4 s on the paper lattice
-(started on forked workers before this stage projects its own cells), the whole chain 1.6-1.7 x
-``chain_tracking_s`` (README; ``dwell_fit.py`` says where it goes).
+run over blocks of sub-apertures on the stage thread pool (bounded memory); the whole chain 1.12-1.17 x
+``chain_tracking_s`` (issue 11's twenty-fourth round).  Step 6 (the tracking preset's default) adds
+130-150 ms on the paper lattice (started on forked workers before this stage projects its own
+cells), the whole chain 1.88-1.94 x ``chain_tracking_s`` (README, Speed; ``dwell_fit.py`` says where
+it goes).
 """
 from __future__ import annotations
 

@@ -128,7 +128,20 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     The run directory's outputs of an earlier run are removed first and ``scenario.yaml`` is written
     last, so a failed or interrupted run never leaves outputs that look complete for other settings
     (the stage files stay: they carry their own hashes and are reused only where they match).
+
+    The BLAS runs on one thread throughout (``dsp/blas.py``: its idle threads spin on the cores the
+    stages' own threads need; the command line has it so from its start).
     """
+    from ..dsp.blas import one_blas_thread
+
+    with one_blas_thread():
+        return _process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, png=png,
+                             source=source, keep_stages=keep_stages, release_cube=release_cube,
+                             stage_cpu=stage_cpu, file_cpu=file_cpu)
+
+
+def _process_cube(cube, scn, run_dir, *, force, from_stage, quiet, png, source, keep_stages, release_cube,
+                  stage_cpu, file_cpu):
     from .chain import build_forward_stages
     from ..runner import cpu_split_s, run_stages
 

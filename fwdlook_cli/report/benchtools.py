@@ -49,6 +49,8 @@ def environment() -> dict:
 
         blas = [f"{p.get('internal_api')} {p.get('version')}" for p in threadpool_info() if p.get("user_api") == "blas"]
         env["blas"] = ", ".join(sorted(set(blas))) or "none found"
+        env["blas_threads"] = ", ".join(sorted({str(p.get("num_threads")) for p in threadpool_info()
+                                                if p.get("user_api") == "blas"})) or "none found"
     except Exception:                       # noqa: BLE001  pragma: no cover (informational only)
         env["blas"] = "unknown"
     return env
@@ -267,13 +269,15 @@ def clean_process_fft2(x, repeats: int = 21, processes: int = 1) -> dict:
     import subprocess
     import sys
 
+    from ..dsp.blas import plain_environment     # (not fwdlook's one BLAS thread: a plain interpreter's)
+
     out = {"times": [], "medians": [], "abs_sum": None}
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "x.npy"
         np.save(path, np.ascontiguousarray(x))
         for _ in range(max(1, int(processes))):
             res = subprocess.run([sys.executable, "-c", _CLEAN_FFT2, str(path), str(int(repeats))],
-                                 capture_output=True, text=True, check=False)
+                                 capture_output=True, text=True, check=False, env=plain_environment())
             try:
                 child = json.loads(res.stdout.strip().splitlines()[-1])
             except (IndexError, ValueError):
