@@ -1,4 +1,5 @@
-"""Small batched matrix products with the BLAS thread pool held to one thread.
+"""Threads and memory of the stages: the BLAS held to one thread (for a command, a chain, the small
+batched products), the stages' worker threads, one allocator arena.
 
 ``np.matmul`` over a stack of small matrices (the Doppler zoom: one 64 x 32 by 32 x n_range product
 per CPI) calls the BLAS once per matrix.  A multithreaded OpenBLAS wakes and parks its pool on every
@@ -8,8 +9,8 @@ work that cannot stall; the batch is what is large, not the matrices.  ``threadp
 the pool of whichever BLAS numpy loaded (OpenBLAS, MKL, BLIS).
 
 A command runs with the BLAS on one thread from its start (:func:`one_blas_thread_for_the_process`,
-before numpy is imported) and :func:`..forward.process.process_cube` holds it there for a chain run
-from Python.  An OpenBLAS thread that has worked, or has just been started, spins for about 2^28
+before numpy is imported) and ``forward.process.process_cube`` holds it there for a chain run from
+Python.  An OpenBLAS thread that has worked, or has just been started, spins for about 2^28
 cycles (0.1 s here) before it sleeps, on a core the stages' own threads need: measured on this
 machine, 52 ms of CPU in the 0.3 s after ``import numpy``, 105 ms after one multithreaded product,
 104 ms after a threadpoolctl limit that a fork came under is lifted (the fork shut the pool down,
