@@ -67,9 +67,8 @@ def run_chain(cube, processing: dict):
         from .isar.chain import run_isar_stages
 
         return run_isar_stages(cube, processing)[0]
-    from .forward.chain import build_forward_stages
-
     from .dsp.blas import one_blas_thread
+    from .forward.chain import build_forward_stages
 
     data, stages, _ = build_forward_stages(cube, _forward_processing(cube, processing))
     with one_blas_thread():             # as process_cube (dsp/blas.py: no idle BLAS thread spinning)
