@@ -57,7 +57,7 @@ Cost (``fwdlook bench``, paper cube, idle machine, without step 6): the ``dwell_
 run over blocks of sub-apertures on the stage thread pool (bounded memory); the whole chain 1.12-1.17 x
 ``chain_tracking_s`` (issue 11's twenty-fourth round).  Step 6 (the tracking preset's default) adds
 130-150 ms on the paper lattice (started on forked workers before this stage projects its own
-cells), the whole chain 1.88-1.94 x ``chain_tracking_s`` (README, Speed; ``dwell_fit.py`` says where
+cells), the whole chain 1.88-2.01 x ``chain_tracking_s`` (README, Speed; ``dwell_fit.py`` says where
 it goes).
 """
 from __future__ import annotations
