@@ -130,5 +130,11 @@ def test_bench_shows_progress(capsys, monkeypatch):
     assert result["fft2_clean_process_s"] > 0 and len(result["fft2_clean_process_medians"]) == 2 * CLEAN_PROCESSES
     assert result["chain_ratios_to_clean_fft2"]["chain"] == pytest.approx(
         result["chain_s"] / result["fft2_clean_process_s"])
+    # the issues' bounds on these figures, with the run's values (README, Speed: the status table)
+    t = result["targets"]
+    assert t["chain_s / fft2_s"]["value"] == pytest.approx(result["chain_s"] / result["fft2_s"])
+    assert t["chain_s / fft2_s"]["at_most"] == 35 and t["chain_tracking_s / fft2_s"]["at_most"] == 40
+    assert t["chain_dwell_over_tracking"] == {"value": result["chain_dwell_over_tracking"], "at_most": 2.0,
+                                              "issue": 9, "met": result["chain_dwell_over_tracking"] <= 2.0}
     steps = [ln for ln in err.splitlines() if ln.startswith("bench [")]
     assert [s.split("]")[0] for s in steps] == [f"bench [{i}/11" for i in range(1, 12)]

@@ -803,6 +803,28 @@ def test_a_chain_run_from_python_runs_on_one_blas_thread_and_gives_the_thread_co
     assert blas() == before
 
 
+def test_the_bench_states_each_target_against_its_bound_and_prints_them_last(monkeypatch, capsys):
+    """report.bench.bench_targets: a ratio of two keys or one key against the issue's bound, met when
+    at most it, left out where the run has no figure; the human output ends with them."""
+    import fwdlook_cli.report.bench as bench
+
+    result = {"fft2_s": 0.002, "chain_s": 0.07, "chain_tracking_s": 0.09, "chain_dwell_over_tracking": 2.0,
+              "chain_decimation_peak_rss_over_tiny_peak_x_cube": 4.2, "chain_tracking_peak_rss_over_tiny_peak_x_cube": None}
+    t = bench.bench_targets(result)
+    assert t["chain_s / fft2_s"] == {"value": 35.0, "at_most": 35.0, "issue": 11, "met": True}
+    assert t["chain_tracking_s / fft2_s"]["value"] == pytest.approx(45.0) and not t["chain_tracking_s / fft2_s"]["met"]
+    assert t["chain_dwell_over_tracking"]["met"] and t["chain_dwell_over_tracking"]["issue"] == 9
+    assert not t["chain_decimation_peak_rss_over_tiny_peak_x_cube"]["met"]
+    assert "chain_tracking_peak_rss_over_tiny_peak_x_cube" not in t                  # no figure, no verdict
+    assert bench.bench_targets({"chain_s": 0.07, "fft2_s": 0.0}) == {}                 # no reference, no ratio
+    monkeypatch.setattr(bench, "run_bench", lambda chain_repeats=3: dict(result, targets=t))
+    bench.print_bench()
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-5] == "targets (issue: bound; this run):"
+    assert lines[-4].split() == ["chain_s", "/", "fft2_s", "35.00", "at", "most", "35", "(issue", "11):", "met"]
+    assert lines[-3].split()[-2:] == ["NOT", "met"]
+
+
 def test_the_blas_limit_takes_in_scipys_blas_once_scipy_linalg_is_loaded():
     """dsp.blas.one_blas_thread limits numpy's BLAS without importing scipy.linalg, and once a host
     program has imported it, scipy's BLAS too (the controller is made again), in a fresh interpreter."""
