@@ -22,6 +22,8 @@ runs on disk       ``process_cube(cube, scn, run_dir)`` (stage files, image.h5, 
 """
 from __future__ import annotations
 
+from .dsp.blas import on_one_blas_thread      # (no numpy at its import: the API's import stays light)
+
 EXPORTS = {
     "load_scenario": "scenario.loader", "resolve_scenario": "scenario.loader",
     "scenario_hash": "scenario.loader", "dump_scenario": "scenario.loader",
@@ -57,6 +59,7 @@ def _forward_processing(cube, processing: dict) -> dict:
     return processing
 
 
+@on_one_blas_thread                     # as process_cube (dsp/blas.py: no idle BLAS thread spinning)
 def run_chain(cube, processing: dict):
     """Every stage of the chain in memory, no files; returns the last stage's StageData.
 
@@ -67,13 +70,11 @@ def run_chain(cube, processing: dict):
         from .isar.chain import run_isar_stages
 
         return run_isar_stages(cube, processing)[0]
-    from .dsp.blas import one_blas_thread
     from .forward.chain import build_forward_stages
 
     data, stages, _ = build_forward_stages(cube, _forward_processing(cube, processing))
-    with one_blas_thread():             # as process_cube (dsp/blas.py: no idle BLAS thread spinning)
-        for st in stages:
-            data = st.fn(data, **st.params)
+    for st in stages:
+        data = st.fn(data, **st.params)
     return data
 
 

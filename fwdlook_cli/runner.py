@@ -145,26 +145,27 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     return data, timings, dict(zip(names, keys))
 
 
-def cpu_split_s() -> tuple[float, float]:
-    """(user, system) CPU seconds of this process, every thread (``getrusage``; (0, 0) off POSIX)."""
+def _rusage_split_s(who: str) -> tuple[float, float] | None:
+    """(user, system) CPU seconds of ``getrusage(resource.<who>)``; None where the platform has no such
+    measure."""
     try:
         import resource
-    except ImportError:              # pragma: no cover (not POSIX)
-        return 0.0, 0.0
-    usage = resource.getrusage(resource.RUSAGE_SELF)
+
+        usage = resource.getrusage(getattr(resource, who))
+    except (ImportError, AttributeError, OSError):     # pragma: no cover (not POSIX; RUSAGE_THREAD: Linux)
+        return None
     return usage.ru_utime, usage.ru_stime
+
+
+def cpu_split_s() -> tuple[float, float]:
+    """(user, system) CPU seconds of this process, every thread (``getrusage``; (0, 0) off POSIX)."""
+    return _rusage_split_s("RUSAGE_SELF") or (0.0, 0.0)
 
 
 def thread_cpu_split_s() -> tuple[float, float] | None:
     """(user, system) CPU seconds of the calling thread (``getrusage(RUSAGE_THREAD)``, Linux); None
     elsewhere."""
-    try:
-        import resource
-
-        usage = resource.getrusage(resource.RUSAGE_THREAD)
-    except (ImportError, AttributeError, OSError):     # pragma: no cover (not Linux)
-        return None
-    return usage.ru_utime, usage.ru_stime
+    return _rusage_split_s("RUSAGE_THREAD")
 
 
 class _StageWriter:

@@ -24,6 +24,7 @@ painter is forked (``io/painter.py``).
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 
@@ -76,6 +77,15 @@ def one_blas_thread():
     if ThreadpoolController is None:            # pragma: no cover
         return contextlib.nullcontext()
     return _controller().limit(limits=1, user_api="blas")
+
+
+def on_one_blas_thread(fn):
+    """``fn`` run inside :func:`one_blas_thread` (a whole chain: ``process_cube``, ``api.run_chain``)."""
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        with one_blas_thread():
+            return fn(*args, **kwargs)
+    return wrapped
 
 
 def batched_matmul(a, b):

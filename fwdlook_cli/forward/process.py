@@ -8,6 +8,7 @@ import numpy as np
 
 from .. import __version__
 from ..scenario.loader import dump_scenario, scenario_hash
+from ..dsp.blas import on_one_blas_thread
 from ..errors import BadInput
 from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, json_text, put_scale, put_sparse_gzip, set_attrs
 from ..io import backing
@@ -117,6 +118,7 @@ def _two_way_beamwidth_deg(cube) -> float:
     return two_way_width_for(float(cube.radar["beamwidth_3db_deg"]), cube.antenna)
 
 
+@on_one_blas_thread
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
                  png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False,
                  stage_cpu: dict | None = None, file_cpu: dict | None = None) -> dict:
@@ -132,16 +134,6 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     The BLAS runs on one thread throughout (``dsp/blas.py``: its idle threads spin on the cores the
     stages' own threads need; the command line has it so from its start).
     """
-    from ..dsp.blas import one_blas_thread
-
-    with one_blas_thread():
-        return _process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, png=png,
-                             source=source, keep_stages=keep_stages, release_cube=release_cube,
-                             stage_cpu=stage_cpu, file_cpu=file_cpu)
-
-
-def _process_cube(cube, scn, run_dir, *, force, from_stage, quiet, png, source, keep_stages, release_cube,
-                  stage_cpu, file_cpu):
     from .chain import build_forward_stages
     from ..runner import cpu_split_s, run_stages
 

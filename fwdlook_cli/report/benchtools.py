@@ -47,12 +47,11 @@ def environment() -> dict:
     try:
         from threadpoolctl import threadpool_info
 
-        blas = [f"{p.get('internal_api')} {p.get('version')}" for p in threadpool_info() if p.get("user_api") == "blas"]
-        env["blas"] = ", ".join(sorted(set(blas))) or "none found"
-        env["blas_threads"] = ", ".join(sorted({str(p.get("num_threads")) for p in threadpool_info()
-                                                if p.get("user_api") == "blas"})) or "none found"
+        libs = [p for p in threadpool_info() if p.get("user_api") == "blas"]
+        env["blas"] = ", ".join(sorted({f"{p.get('internal_api')} {p.get('version')}" for p in libs})) or "none found"
+        env["blas_threads"] = ", ".join(sorted({str(p.get("num_threads")) for p in libs})) or "none found"
     except Exception:                       # noqa: BLE001  pragma: no cover (informational only)
-        env["blas"] = "unknown"
+        env["blas"] = env["blas_threads"] = "unknown"
     return env
 
 
