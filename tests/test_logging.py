@@ -136,5 +136,11 @@ def test_bench_shows_progress(capsys, monkeypatch):
     assert t["chain_s / fft2_s"]["at_most"] == 35 and t["chain_tracking_s / fft2_s"]["at_most"] == 40
     assert t["chain_dwell_over_tracking"] == {"value": result["chain_dwell_over_tracking"], "at_most": 2.0,
                                               "issue": 9, "met": result["chain_dwell_over_tracking"] <= 2.0}
+    # the reference and the CPI chains again on one core, and what the second core buys each
+    one = result["one_core"]
+    if one is not None:                       # None where the process may use one core only
+        assert one["chain_over_fft2"] == pytest.approx(one["chain_s"] / one["fft2_s"])
+        assert one["second_core_gain_fft2"] == pytest.approx(one["fft2_s"] / result["fft2_s"])
+        assert one["second_core_gain_chain_tracking"] == pytest.approx(one["chain_tracking_s"] / result["chain_tracking_s"])
     steps = [ln for ln in err.splitlines() if ln.startswith("bench [")]
-    assert [s.split("]")[0] for s in steps] == [f"bench [{i}/11" for i in range(1, 12)]
+    assert [s.split("]")[0] for s in steps] == [f"bench [{i}/12" for i in range(1, 13)]

@@ -823,6 +823,17 @@ def test_the_bench_states_each_target_against_its_bound_and_prints_them_last(mon
     assert lines[-5] == "targets (issue: bound; this run):"
     assert lines[-4].split() == ["chain_s", "/", "fft2_s", "35.00", "at", "most", "35", "(issue", "11):", "met"]
     assert lines[-3].split()[-2:] == ["NOT", "met"]
+    # with the one-core timings (report/bench_cores.py), their summary after the targets
+    one = {"core": 0, "fft2_s": 0.004, "chain_s": 0.12, "chain_over_fft2": 30.0, "chain_tracking_s": 0.14,
+           "chain_tracking_over_fft2": 35.0, "second_core_gain_chain": 0.12 / 0.07,
+           "second_core_gain_chain_tracking": 0.14 / 0.09, "second_core_gain_fft2": 2.0}
+    monkeypatch.setattr(bench, "run_bench", lambda chain_repeats=3: dict(result, targets=t, one_core=one))
+    bench.print_bench()
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-6] == "targets (issue: bound; this run):"
+    assert lines[-1] == ("on one core (bench_cores.py): chain_s / fft2_s 30.0, chain_tracking_s / fft2_s 35.0; "
+                         "the second core makes the fft2 2.00 x faster, the chains 1.71 x and 1.56 x")
+    assert "one_core[chain_s]            120.00 ms" in lines and "one_core[chain_over_fft2]      30.00 x" in lines
 
 
 def test_the_blas_limit_takes_in_scipys_blas_once_scipy_linalg_is_loaded():

@@ -29,20 +29,11 @@ def _step(i: int, n: int, what: str) -> None:
 
 
 from .benchtools import (chain_peak_rss, clean_process_fft2, command_runs, environment, median_time as _median_time,
-                         time_chain)
+                         time_chain, wall_times as _times)
 
 FFT2_REPEATS = 21          # the reference: median of at least 20 plain 2-D FFTs, before and after
 FFT2_BETWEEN = 3           # and this many before each chain run of the rounds (after one untimed)
 CLEAN_PROCESSES = 3        # plain interpreters timing the reference, before and after the chains each
-
-
-def _times(fn, repeats):
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return times
 
 
 def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SCENARIOS / "tiny.yaml",
@@ -68,7 +59,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     from ..dsp.keystone import keystone_dft, keystone_sinc
     from ..forward.simulate import simulate_scenario
 
-    n = 11
+    n = 12
     _step(1, n, "simulating the paper cube")
     paper = load_scenario(paper_scenario)
     tiny = load_scenario(tiny_scenario)
@@ -206,13 +197,25 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
         # 35 / (floor / fft2) x this floor)
         chain_key = "chain_s" if method == "decimation" else f"chain_{method}_s"
         out[f"chain_{method}_over_floor"] = out[chain_key] / floor["total_s"]
+    # the reference and the CPI chains again with every thread on one core (bench_cores.py): the
+    # chain's work apart from how it spreads over the cores, and what the second core buys each
+    _step(10, n, "the reference and the CPI chains on one core")
+    from .bench_cores import one_core_timings
+
+    one_core = {"chain": scenarios["decimation"], "chain_tracking": scenarios["tracking"]}
+    out["one_core"] = one_core_timings(
+        x, one_core, lambda scn: time_chain(cube, scn, repeats=1, rss=False)["total_s"],
+        all_cores={"chain": out["chain_s"], "chain_tracking": out["chain_tracking_s"]},
+        fft2_repeats=FFT2_REPEATS, fft2_between=FFT2_BETWEEN, rounds=chain_repeats)
     # the reference again after the chains (load drifts on a shared machine): median of both sets
-    _step(10, n, "plain 2-D FFT again")
+    _step(11, n, "plain 2-D FFT again")
     fft2_after = _times(lambda: scipy.fft.fft2(x, workers=-1), FFT2_REPEATS)
     out["fft2_median_before_after"] = [out["fft2_s"], statistics.median(fft2_after)]
     out["fft2_median_between_chains"] = statistics.median(fft2_between)
     out["fft2_s"] = statistics.median(fft2_times + fft2_between + fft2_after)
     out["fft2_repeats"] = len(fft2_times) + len(fft2_between) + len(fft2_after)
+    if out["one_core"]:
+        out["one_core"]["second_core_gain_fft2"] = out["one_core"]["fft2_s"] / out["fft2_s"]
     # the same fft2 on one thread: what the reference gains from this machine's second core (2.8 ms on
     # two free cores against 5.6 ms on one: docs/SPEED_HISTORY.md, seventh round), which every ratio
     # above inherits while the chain keeps 1.4-1.6 cores busy; its ratio to fft2_s is that gain
@@ -226,7 +229,7 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     out["cube_mib"] = (cube.sum.nbytes + cube.diff.nbytes) / 2**20
     out["chain_repeats"] = chain_repeats
     out["environment"] = environment()
-    _step(11, n, "done")
+    _step(12, n, "done")
     out["ratios_to_fft2"] = {k[:-2]: out[k] / out["fft2_s"] for k in list(out) if k.endswith("_s")
                              and k != "fft2_s" and out[k] is not None}
     if out["fft2_clean_process_s"]:
@@ -294,7 +297,11 @@ def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, re
         for key, value in result.items():
             if key == "targets":
                 continue                           # last, as a summary
-            if key in ("ratios_to_fft2", "chain_ratios_to_clean_fft2"):
+            if key == "one_core":
+                for k, v in (value or {}).items():
+                    shown = f"{v * 1e3:10.2f} ms" if k.endswith("_s") else (f"{v:10.2f} x" if isinstance(v, float) else f" {v}")
+                    print(f"one_core[{k}]".ljust(24) + f" {shown}")
+            elif key in ("ratios_to_fft2", "chain_ratios_to_clean_fft2"):
                 unit = "fft2" if key == "ratios_to_fft2" else "fft2 in a plain interpreter"
                 for k, v in value.items():
                     print(f"  {k:<22s} {v:10.1f} x {unit}")
@@ -317,6 +324,12 @@ def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, re
             for name, t in result["targets"].items():
                 print(f"  {name:<48s} {t['value']:8.2f}  at most {t['at_most']:g} (issue {t['issue']}): "
                       + ("met" if t["met"] else "NOT met"))
+        one = result.get("one_core")
+        if one and "second_core_gain_fft2" in one:
+            print(f"on one core (bench_cores.py): chain_s / fft2_s {one['chain_over_fft2']:.1f}, chain_tracking_s / "
+                  f"fft2_s {one['chain_tracking_over_fft2']:.1f}; the second core makes the fft2 "
+                  f"{one['second_core_gain_fft2']:.2f} x faster, the chains {one['second_core_gain_chain']:.2f} x "
+                  f"and {one['second_core_gain_chain_tracking']:.2f} x")
 
 
 if __name__ == "__main__":

@@ -55,14 +55,19 @@ def environment() -> dict:
     return env
 
 
-def median_time(fn, repeats=5):
-    """Median wall time of ``repeats`` calls of ``fn`` (s)."""
+def wall_times(fn, repeats: int) -> list[float]:
+    """The wall time of each of ``repeats`` calls of ``fn`` (s)."""
     times = []
-    for _ in range(max(1, int(repeats))):
+    for _ in range(repeats):
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    return times
+
+
+def median_time(fn, repeats=5):
+    """Median wall time of ``repeats`` calls of ``fn`` (s)."""
+    return statistics.median(wall_times(fn, max(1, int(repeats))))
 
 
 def process_cpu_split_s() -> tuple[float, float] | None:

@@ -1,0 +1,94 @@
+"""What the second core buys: the reference fft2 and the CPI chains timed again with every thread of
+the process on one core (``fwdlook bench``'s ``one_core``).
+
+The bench's ratios divide a chain by one 2-D FFT, and on this 2-core machine the two gain unequally
+from the second core: the FFT is compute-bound and pocketfft splits it over both cores, while most of
+the chain is numpy's element-wise passes over arrays larger than the caches, one thread each (the
+stages' block pools add a second where the work divides, but memory-bound passes gain little from it,
+and calls of a few microseconds on two threads queue for the GIL).  Timing both on one core, in the
+same process and the same interleaved way, separates the chain's work from how it spreads over cores:
+``chain_over_fft2`` on one core against ``chain_s / fft2_s`` on all of them, and each one's
+``second_core_gain`` (one-core time over all-core time).
+
+On one core ``worker_threads()`` is 1 (it reads the process's affinity), so the stages run their blocks
+one after the other; ``scipy.fft``'s ``workers=-1`` still starts ``os.cpu_count()`` threads, which then
+share the one core, in the reference and in the chain alike.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import statistics
+
+from .benchtools import wall_times as _times
+
+
+def _thread_ids() -> list[int]:
+    return [int(t) for t in os.listdir("/proc/self/task")]
+
+
+@contextlib.contextmanager
+def pinned_to_one_core():
+    """Every thread of this process on one core, the lowest this process may use, and every thread
+    started meanwhile (a new thread inherits its creator's mask); yields that core, or None where the OS
+    has no per-thread affinity or the process may use one core only (nothing to compare).  On exit
+    each thread that existed before gets its own mask back, and any other the process's mask."""
+    if not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task"):
+        yield None                                       # pragma: no cover (not Linux)
+        return
+    allowed = os.sched_getaffinity(0)
+    if len(allowed) < 2:
+        yield None
+        return
+    before = {}
+    for tid in _thread_ids():
+        with contextlib.suppress(OSError):             # a thread that ended meanwhile
+            before[tid] = os.sched_getaffinity(tid)
+    core = min(allowed)
+    try:
+        for tid in _thread_ids():
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(tid, {core})
+        yield core
+    finally:
+        for tid in _thread_ids():
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(tid, before.get(tid, allowed))
+
+
+def one_core_timings(x, chains: dict, run_chain, *, all_cores: dict, fft2_repeats: int = 21,
+                     fft2_between: int = 3, rounds: int = 3) -> dict | None:
+    """The reference (``scipy.fft.fft2(x, workers=-1)``) and each chain of ``chains`` ({name:
+    scenario}, run by ``run_chain(scenario)``, which returns its seconds) on one core: the reference
+    ``fft2_repeats`` times before and after the chains and ``fft2_between`` times before each chain run
+    (after one untimed), the chains in ``rounds`` interleaved rounds after one untimed run each;
+    medians.  ``all_cores``: the chains' seconds on every core ({name: seconds}), for their gains
+    (the reference's is the caller's: its all-core median is complete after this).  None where the process cannot be put on one core (:func:`pinned_to_one_core`)."""
+    import scipy.fft
+
+    def fft2():
+        scipy.fft.fft2(x, workers=-1)
+
+    with pinned_to_one_core() as core:
+        if core is None:
+            return None
+        fft2()
+        reference = _times(fft2, fft2_repeats)
+        for scn in chains.values():                     # untimed: the pool threads and pages on this core
+            run_chain(scn)
+        runs: dict[str, list[float]] = {name: [] for name in chains}
+        for _ in range(max(1, int(rounds))):
+            for name, scn in chains.items():
+                fft2()
+                reference += _times(fft2, fft2_between)
+                runs[name].append(run_chain(scn))
+        reference += _times(fft2, fft2_repeats)
+    fft2_s = statistics.median(reference)
+    out = {"core": core, "fft2_s": fft2_s, "fft2_repeats": len(reference)}
+    for name, seconds in runs.items():
+        chain_s = statistics.median(seconds)
+        out[f"{name}_s"] = chain_s
+        out[f"{name}_over_fft2"] = chain_s / fft2_s
+        if all_cores.get(name):
+            out[f"second_core_gain_{name}"] = chain_s / all_cores[name]
+    return out
