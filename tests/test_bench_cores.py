@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fwdlook_cli.dsp.blas import worker_threads
-from fwdlook_cli.report.bench_cores import one_core_timings, pinned_to_one_core
+from fwdlook_cli.report.bench_cores import one_core_timings, pinned_to_one_core, second_core_gains
 
 needs_two_cores = pytest.mark.skipif(
     not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task")
@@ -58,7 +58,7 @@ def test_every_thread_is_on_one_core_inside_and_gets_its_mask_back_after():
 
 
 @needs_two_cores
-def test_one_core_timings_take_medians_after_the_untimed_runs_and_state_the_gains():
+def test_one_core_timings_take_medians_after_the_untimed_runs_and_the_gains_are_the_quotients():
     allowed = os.sched_getaffinity(0)
     core = min(allowed)
     returned = {"a": iter([9.0, 0.3, 0.1, 0.2]), "b": iter([7.0, 0.5, 0.4, 0.6])}   # first: the untimed run
@@ -69,8 +69,7 @@ def test_one_core_timings_take_medians_after_the_untimed_runs_and_state_the_gain
         return next(returned[name])
 
     x = np.ones((64, 32), np.complex64)
-    out = one_core_timings(x, {"chain": "a", "chain_tracking": "b"}, run_chain,
-                           all_cores={"chain": 0.1, "chain_tracking": 0.25}, fft2_repeats=5, fft2_between=2,
+    out = one_core_timings(x, {"chain": "a", "chain_tracking": "b"}, run_chain, fft2_repeats=5, fft2_between=2,
                            rounds=3)
     assert masks == [{core}] * 8                                   # every run on the one core
     assert out["core"] == core
@@ -79,8 +78,10 @@ def test_one_core_timings_take_medians_after_the_untimed_runs_and_state_the_gain
     assert out["fft2_s"] > 0
     assert out["chain_over_fft2"] == pytest.approx(0.2 / out["fft2_s"])
     assert out["chain_tracking_over_fft2"] == pytest.approx(0.5 / out["fft2_s"])
-    assert out["second_core_gain_chain"] == pytest.approx(2.0)
-    assert out["second_core_gain_chain_tracking"] == pytest.approx(2.0)
+    gains = second_core_gains(out, {"fft2_s": out["fft2_s"] / 4, "chain_s": 0.1, "chain_tracking_s": 0.25,
+                                    "other_s": 1.0})
+    assert gains == pytest.approx({"second_core_gain_fft2": 4.0, "second_core_gain_chain": 2.0,
+                                   "second_core_gain_chain_tracking": 2.0})      # only what both hold
     assert os.sched_getaffinity(0) == allowed                       # given back
 
 
@@ -89,5 +90,5 @@ def test_one_core_timings_say_none_where_there_is_no_second_core(monkeypatch):
         pytest.skip("no affinity on this OS")
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
     calls = []
-    assert one_core_timings(np.ones((4, 4), np.complex64), {"chain": None}, calls.append, all_cores={}) is None
+    assert one_core_timings(np.ones((4, 4), np.complex64), {"chain": None}, calls.append) is None
     assert calls == []

@@ -200,12 +200,11 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     # the reference and the CPI chains again with every thread on one core (bench_cores.py): the
     # chain's work apart from how it spreads over the cores, and what the second core buys each
     _step(10, n, "the reference and the CPI chains on one core")
-    from .bench_cores import one_core_timings
+    from .bench_cores import one_core_timings, second_core_gains
 
     one_core = {"chain": scenarios["decimation"], "chain_tracking": scenarios["tracking"]}
     out["one_core"] = one_core_timings(
         x, one_core, lambda scn: time_chain(cube, scn, repeats=1, rss=False)["total_s"],
-        all_cores={"chain": out["chain_s"], "chain_tracking": out["chain_tracking_s"]},
         fft2_repeats=FFT2_REPEATS, fft2_between=FFT2_BETWEEN, rounds=chain_repeats)
     # the reference again after the chains (load drifts on a shared machine): median of both sets
     _step(11, n, "plain 2-D FFT again")
@@ -214,8 +213,8 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     out["fft2_median_between_chains"] = statistics.median(fft2_between)
     out["fft2_s"] = statistics.median(fft2_times + fft2_between + fft2_after)
     out["fft2_repeats"] = len(fft2_times) + len(fft2_between) + len(fft2_after)
-    if out["one_core"]:
-        out["one_core"]["second_core_gain_fft2"] = out["one_core"]["fft2_s"] / out["fft2_s"]
+    if out["one_core"]:                     # each one-core time over this run's own (fft2_s now complete)
+        out["one_core"].update(second_core_gains(out["one_core"], out))
     # the same fft2 on one thread: what the reference gains from this machine's second core (2.8 ms on
     # two free cores against 5.6 ms on one: docs/SPEED_HISTORY.md, seventh round), which every ratio
     # above inherits while the chain keeps 1.4-1.6 cores busy; its ratio to fft2_s is that gain

@@ -8,7 +8,7 @@ stages' block pools add a second where the work divides, but memory-bound passes
 and calls of a few microseconds on two threads queue for the GIL).  Timing both on one core, in the
 same process and the same interleaved way, separates the chain's work from how it spreads over cores:
 ``chain_over_fft2`` on one core against ``chain_s / fft2_s`` on all of them, and each one's
-``second_core_gain`` (one-core time over all-core time).
+``second_core_gain`` (one-core time over all-core time, :func:`second_core_gains`).
 
 On one core ``worker_threads()`` is 1 (it reads the process's affinity), so the stages run their blocks
 one after the other; ``scipy.fft``'s ``workers=-1`` still starts ``os.cpu_count()`` threads, which then
@@ -56,14 +56,13 @@ def pinned_to_one_core():
                 os.sched_setaffinity(tid, before.get(tid, allowed))
 
 
-def one_core_timings(x, chains: dict, run_chain, *, all_cores: dict, fft2_repeats: int = 21,
-                     fft2_between: int = 3, rounds: int = 3) -> dict | None:
+def one_core_timings(x, chains: dict, run_chain, *, fft2_repeats: int = 21, fft2_between: int = 3,
+                     rounds: int = 3) -> dict | None:
     """The reference (``scipy.fft.fft2(x, workers=-1)``) and each chain of ``chains`` ({name:
     scenario}, run by ``run_chain(scenario)``, which returns its seconds) on one core: the reference
     ``fft2_repeats`` times before and after the chains and ``fft2_between`` times before each chain run
     (after one untimed), the chains in ``rounds`` interleaved rounds after one untimed run each;
-    medians.  ``all_cores``: the chains' seconds on every core ({name: seconds}), for their gains
-    (the reference's is the caller's: its all-core median is complete after this).  None where the process cannot be put on one core (:func:`pinned_to_one_core`)."""
+    medians, and each chain over that fft2.  None where the process cannot be put on one core (:func:`pinned_to_one_core`)."""
     import scipy.fft
 
     def fft2():
@@ -89,6 +88,11 @@ def one_core_timings(x, chains: dict, run_chain, *, all_cores: dict, fft2_repeat
         chain_s = statistics.median(seconds)
         out[f"{name}_s"] = chain_s
         out[f"{name}_over_fft2"] = chain_s / fft2_s
-        if all_cores.get(name):
-            out[f"second_core_gain_{name}"] = chain_s / all_cores[name]
     return out
+
+
+def second_core_gains(one_core: dict, all_cores: dict) -> dict:
+    """``second_core_gain_<name>``: one-core seconds over all-core seconds, for each ``<name>_s`` of
+    ``one_core`` that ``all_cores`` ({"<name>_s": seconds}, the bench's own keys) holds too."""
+    return {f"second_core_gain_{k[:-2]}": v / all_cores[k] for k, v in one_core.items()
+            if k.endswith("_s") and all_cores.get(k)}
