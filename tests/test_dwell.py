@@ -117,6 +117,20 @@ def test_mirror_pair_joint_fit_separates_dwell_image_mixes(tmp_path):
     assert max(abs(r["azimuth_error_deg"]) if r["detected"] else np.inf for r in plain) > 0.1
 
 
+def test_the_joint_fit_starts_as_soon_as_its_inputs_are_known(tmp_path, monkeypatch):
+    """The fit needs the region's profile and the image's level, both from the sum channel: it is
+    started once they are known, and the difference channel's oversampling, the cell selection and the
+    projection run while its workers fit (issue 11); the result is the fit's all the same."""
+    import fwdlook_cli.forward.dwell as D
+
+    calls, real_oversample, real_start = [], D.oversample_range, D.start_fit_region
+    monkeypatch.setattr(D, "oversample_range", lambda *a, **k: calls.append("oversample") or real_oversample(*a, **k))
+    monkeypatch.setattr(D, "start_fit_region", lambda *a, **k: calls.append("fit") or real_start(*a, **k))
+    joint = _mirror_pair("joint", tmp_path)
+    assert calls[:3] == ["oversample", "fit", "oversample"]           # sum, the fit started, then the difference
+    assert all(r["detected"] and r["resolved"] for r in joint)
+
+
 def test_iaa_separates_two_tones_closer_than_a_doppler_cell():
     """Two tones 30 Hz apart in a 32-pulse CPI at 2.5 kHz (0.38 of a Doppler cell, PRF/32 = 78 Hz):
     the periodogram shows one peak, IAA two at the right frequencies, and the difference channel

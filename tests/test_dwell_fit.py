@@ -337,15 +337,21 @@ def test_the_filter_and_its_convolution_are_scipy_signals():
     np.testing.assert_allclose(filter_same(x, taps), want, rtol=0, atol=1e-12 * np.abs(want).max())
 
 
-def test_the_fit_on_forked_workers_is_the_fit_in_one_process(monkeypatch):
-    """fit_region with its clusters on forked workers (two clusters, two cores) gives bit for bit the
-    angles and amplitudes it gives in one process: each worker runs the same code on the same data."""
+def _two_clusters():
+    """Two clusters of two points each (range cells 8 and 30) for fit_region: (s, d, truth, kwargs)."""
     pos, beam, p_ref = _flight(50.0)
     truth = [(8, -1.1), (8, 1.1), (30, 0.4), (30, 2.5)]
     s, d, range_m = _cluster_data(pos, beam, p_ref, truth, seed=2)
     kw = dict(scan_angle_deg=beam, position_m=pos, range_m=range_m, profile=np.max(np.abs(s) ** 2, axis=0),
               level=30.0, axis_deg=0.0, half_width_deg=4.8, dwell_half_width_deg=3.2, angle_step_deg=0.05,
               fc_hz=FC_HZ, prf_hz=PRF_HZ, slope_per_deg=SLOPE, beta_per_deg2=BETA, position_ref_m=p_ref)
+    return s, d, truth, kw
+
+
+def test_the_fit_on_forked_workers_is_the_fit_in_one_process(monkeypatch):
+    """fit_region with its clusters on forked workers (two clusters, two cores) gives bit for bit the
+    angles and amplitudes it gives in one process: each worker runs the same code on the same data."""
+    s, d, truth, kw = _two_clusters()
     fits = []
     for workers in (1, 2):
         monkeypatch.setattr(F, "worker_threads", lambda workers=workers: workers)
@@ -353,6 +359,29 @@ def test_the_fit_on_forked_workers_is_the_fit_in_one_process(monkeypatch):
     (th1, prof1, cov1), (th2, prof2, cov2) = fits
     assert len(F.range_clusters(kw["profile"], kw["level"])) == 2 and len(th1) == len(truth)
     assert np.array_equal(th1, th2) and np.array_equal(prof1, prof2) and np.array_equal(cov1, cov2)
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
+def test_each_cluster_is_prepared_on_the_worker_that_fits_it(monkeypatch, tmp_path):
+    """With forked workers the clusters' data and coarse dictionaries are made on the workers, beside
+    one another, not in the calling process before they start (issue 11: the fit starts sooner): the
+    caller builds no atom, the workers build them, and the fit is the one-process fit."""
+    s, d, truth, kw = _two_clusters()
+    one = F.fit_region(s, d, **kw)                                  # (the test's worker_threads: 1 or more)
+    log, real = tmp_path / "atoms_pids", F.FitModel.atoms
+
+    def atoms(self, *args, **kwargs):
+        with open(log, "a") as f:
+            f.write(f"{os.getpid()}\n")
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(F.FitModel, "atoms", atoms)
+    monkeypatch.setattr(F, "worker_threads", lambda: 2)
+    forked = F.fit_region(s, d, **kw)
+    pids = set(map(int, log.read_text().split()))
+    assert pids and os.getpid() not in pids          # on the workers (one may take both jobs: a free worker
+    assert len(pids) <= 2                            # takes the next one), none in the caller
+    assert all(np.array_equal(a, b) for a, b in zip(one, forked))
 
 
 def test_cancelled_jobs_release_their_workers():

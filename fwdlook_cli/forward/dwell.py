@@ -390,7 +390,6 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     del sum_in
     looked = gain > 0
     s = oversample_range(s_rot[looked], range_oversample // focus_os)
-    dz = oversample_range(d_rot[looked], range_oversample // focus_os)
     dr = (range_m[1] - range_m[0]) / range_oversample
     range_os = range_m[0] + dr * np.arange(s.shape[1])
     # the power in float32 (its own precision), its exact median (dsp.imaging.median_floor: np.median's
@@ -400,19 +399,10 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     floor = float(median_floor(power32.reshape(1, -1), power32.size, row_length=power32.shape[-1])[0])
     level = max(floor * 10 ** (threshold_db / 10), float(power32.max()) * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
-    over = np.flatnonzero(power32 > float32_floor(level))              # power > level, exactly
-    n_os = s.shape[1]
-    s_c, dz_c = s.reshape(-1)[over], dz.reshape(-1)[over]
-    power_c = power32.reshape(-1)[over].astype(np.float64)
-    ratio_c = (dz_c.real * s_c.real + dz_c.imag * s_c.imag) / np.maximum(power_c, 1e-30)
-    del s_c, dz_c, power32, s, dz          # (not held through the fit and the projection)
-    ok = np.abs(ratio_c) < max_ratio
-    i_dir, i_r = np.divmod(over[ok], n_os)                             # np.nonzero's order
-    ratio_kept, w = ratio_c[ok], power_c[ok]
-    del over, ok, ratio_c, power_c
     finish_fit = None
     if fit_half_width_deg > 0:       # the joint fit owns the directions near the flight axis (dwell_fit.py):
-        # started here, it runs on other processes while this one projects the dwell image's cells
+        # started as soon as its inputs (the region's profile, the level) are known, it runs on other
+        # processes while this one selects and projects the dwell image's cells
         in_fit = np.abs(angle_deg[looked] - twin_axis) <= fit_half_width_deg
         p_nat = s_rot[looked][in_fit][:, ::focus_os]       # the native range samples (the fit's grid)
         finish_fit = start_fit_region(
@@ -421,7 +411,19 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
             half_width_deg=fit_half_width_deg, dwell_half_width_deg=dwell_half_width_deg,
             angle_step_deg=angle_step_deg, fc_hz=fc_hz, prf_hz=prf_hz, slope_per_deg=slope_per_deg,
             beta_per_deg2=beta_per_deg2, position_ref_m=p_ref, boresight_offset_deg=boresight_offset_deg)
+        del p_nat
     try:
+        dz = oversample_range(d_rot[looked], range_oversample // focus_os)
+        over = np.flatnonzero(power32 > float32_floor(level))              # power > level, exactly
+        n_os = s.shape[1]
+        s_c, dz_c = s.reshape(-1)[over], dz.reshape(-1)[over]
+        power_c = power32.reshape(-1)[over].astype(np.float64)
+        ratio_c = (dz_c.real * s_c.real + dz_c.imag * s_c.imag) / np.maximum(power_c, 1e-30)
+        del s_c, dz_c, power32, s, dz          # (not held through the projection and the fit's end)
+        ok = np.abs(ratio_c) < max_ratio
+        i_dir, i_r = np.divmod(over[ok], n_os)                             # np.nonzero's order
+        ratio_kept, w = ratio_c[ok], power_c[ok]
+        del over, ok, ratio_c, power_c
         # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from
         # the dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
         p_dw = pos_dwell[looked][i_dir]

@@ -28,7 +28,7 @@ is filtered out instead of fitted),
 the phases relative to the axis in float32 (exact difference formula, ``FitModel.paired_phases``), the
 Gram matrices updated one atom at a time (``_ActiveSet``), each atom refined on its own cells, the
 RELAX sweeps until the angles settle and after the first only near the atoms that moved
-(``_relax_until_settled``), the clusters on forked workers (``dsp.forked``): 0.17 s of CPU, 0.1 s on
+(``_relax_until_settled``), the clusters prepared and fitted on forked workers (``dsp.forked``): 0.17 s of CPU, 0.1 s on
 two cores, for the paper lattice at a = 50 (its three clusters), where the direct form took 45 s.  Clusters wider than
 ``MAX_CLUSTER_CELLS`` (an extended scene) or needing ``MAX_ATOMS`` are left to the dwell image.
 
@@ -492,14 +492,14 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
         ext_model = FitModel(position_m=pos[ext], scan_angle_deg=beam[ext], **kw)
     else:
         model = full
-    n_r = len(range_m)
-    covered = np.zeros(n_r, bool)
-    jobs, dictionaries = [], {}
-    for cells in range_clusters(profile, level):
-        if len(cells) > MAX_CLUSTER_CELLS:
-            log.info(f"dwell_fit: {len(cells)} contiguous range cells at {range_m[cells[0]]:.0f} m are an extended "
-                     f"scene, not points (over {MAX_CLUSTER_CELLS}): left to the dwell image")
-            continue
+    n_r, covered = len(range_m), np.zeros(len(range_m), bool)
+    dictionaries, clusters = {}, range_clusters(profile, level)
+    jobs = [cells for cells in clusters if len(cells) <= MAX_CLUSTER_CELLS]
+    for cells in (c for c in clusters if len(c) > MAX_CLUSTER_CELLS):
+        log.info(f"dwell_fit: {len(cells)} contiguous range cells at {range_m[cells[0]]:.0f} m are an extended "
+                 f"scene, not points (over {MAX_CLUSTER_CELLS}): left to the dwell image")
+
+    def cluster_data(cells):     # y [B, 2N/Q] whitened and the coarse dictionary, made on the worker
         if q > 1:     # baseband of the axis history, filtered, every Q-th pulse of the window (whitened)
             to_base = _cis_cycles(2.0 * (ext_model.path([axis_deg], range_m[cells])[:, :, 0]
                                          - range_m[cells, None]) / full.lam - shift_hz * ext[None, :] / prf_hz,
@@ -514,12 +514,12 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
             y = np.concatenate([x[np.ix_(win, cells)].T / np.float32(s_ch)
                                 for x, s_ch in ((sum_rt, sig[0]), (diff_rt, sig[1]))], axis=1)   # [B, 2N]
         key = int(round(float(range_m[cells].mean()) / COARSE_RANGE_M))
-        if key not in dictionaries:
+        if key not in dictionaries:        # (a worker's own cache; threads may build one twice: the same)
             dictionaries[key] = model.atoms(grid, [key * COARSE_RANGE_M])[0]
-        jobs.append((cells, y, dictionaries[key]))
+        return y, dictionaries[key]
 
-    def fit_one(job):
-        cells, y, coarse = job
+    def fit_one(cells):
+        y, coarse = cluster_data(cells)
         theta, c, _ = fit_cluster(model, y, range_m[cells], grid, pfa=pfa, dynamic_db=dynamic_db, coarse=coarse,
                                   axis_deg=axis_deg)
         if len(theta) >= MAX_ATOMS:              # not sparse: the dwell image keeps these cells
