@@ -362,12 +362,13 @@ def test_the_fit_on_forked_workers_is_the_fit_in_one_process(monkeypatch):
 
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
-def test_each_cluster_is_prepared_on_the_worker_that_fits_it(monkeypatch, tmp_path):
+def test_the_clusters_are_prepared_on_the_workers(monkeypatch, tmp_path):
     """With forked workers the clusters' data and coarse dictionaries are made on the workers, beside
     one another, not in the calling process before they start (issue 11: the fit starts sooner): the
     caller builds no atom, the workers build them, and the fit is the one-process fit."""
-    s, d, truth, kw = _two_clusters()
-    one = F.fit_region(s, d, **kw)                                  # (the test's worker_threads: 1 or more)
+    s, d, _, kw = _two_clusters()
+    monkeypatch.setattr(F, "worker_threads", lambda: 1)
+    one = F.fit_region(s, d, **kw)                                  # in this process
     log, real = tmp_path / "atoms_pids", F.FitModel.atoms
 
     def atoms(self, *args, **kwargs):

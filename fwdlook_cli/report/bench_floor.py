@@ -35,15 +35,7 @@ from ..dsp.blas import batched_matmul_each
 from ..dsp.peaks import oversample_range
 from ..io.integrity import digest
 from ..io.outputs import FailSafeSink
-
-
-def _median_s(fn, repeats: int) -> float:
-    times = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+from .benchtools import median_time as _median_s
 
 
 def _noise(shape, rng):
