@@ -28,8 +28,8 @@ is filtered out instead of fitted),
 the phases relative to the axis in float32 (exact difference formula, ``FitModel.paired_phases``), the
 Gram matrices updated one atom at a time (``_ActiveSet``), each atom refined on its own cells, the
 RELAX sweeps until the angles settle and after the first only near the atoms that moved
-(``_relax_until_settled``), the clusters prepared and fitted on forked workers (``dsp.forked``): 0.17 s of CPU, 0.1 s on
-two cores, for the paper lattice at a = 50 (its three clusters), where the direct form took 45 s.  Clusters wider than
+(``_relax_until_settled``), the clusters prepared and fitted on forked workers (``dsp.forked``): 0.16 s of CPU on
+one thread (about 0.22 s on the workers), 0.13-0.15 s on two cores, for the paper lattice at a = 50 (its three clusters), where the direct form took 45 s.  Clusters wider than
 ``MAX_CLUSTER_CELLS`` (an extended scene) or needing ``MAX_ATOMS`` are left to the dwell image.
 
 Stop: the next atom's group statistic sum_b |a_b^H r_b|^2 / ||a_b||^2 (noise units) under the
