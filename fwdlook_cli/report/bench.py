@@ -28,6 +28,7 @@ def _step(i: int, n: int, what: str) -> None:
     log.info(f"bench [{i}/{n}] {what} ({time.perf_counter() - _T0[0]:.1f} s elapsed)")
 
 
+from .bench_pages import page_cost
 from .benchtools import (chain_peak_rss, clean_process_fft2, command_runs, environment, median_time as _median_time,
                          time_chain, wall_times as _times)
 
@@ -52,7 +53,9 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     and ``chain_<method>_stage_files_user_cpu_ms`` and ``_system_cpu_ms`` the part of it that the
     stage-file writer thread spent on its own (every file's HDF5 objects and bytes; Linux);
     ``command_<method>_s`` the wall time of ``fwdlook process`` of the same cube in a fresh interpreter
-    and ``command_<method>_chain_s`` the (cold) chain inside it (:func:`benchtools.command_runs`)."""
+    and ``command_<method>_chain_s`` the (cold) chain inside it (:func:`benchtools.command_runs`);
+    ``page_cost`` what a new page costs this machine, probed before the cube is simulated
+    (:func:`bench_pages.page_cost`: ms per MiB, and the kernel's free page reporting)."""
     from ..forward.chain import build_forward_stages
     from ..scenario.loader import load_scenario
     from ..dsp.keystone_czt import KeystonePlan
@@ -60,12 +63,13 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     from ..forward.simulate import simulate_scenario
 
     n = 12
-    _step(1, n, "simulating the paper cube")
+    _step(1, n, "what a new page costs here; simulating the paper cube")
+    page_probe = page_cost()                 # bench_pages.py: before the cube and the chains touch memory
     paper = load_scenario(paper_scenario)
     tiny = load_scenario(tiny_scenario)
     cube, stats = simulate_scenario(paper)
     out = {"cube_shape": list(cube.sum.shape), "n_targets": int(len(cube.truth["x_m"])),
-           "pairs_kept": stats.n_pairs_kept, "pairs_total": stats.n_pairs}
+           "pairs_kept": stats.n_pairs_kept, "pairs_total": stats.n_pairs, "page_cost": page_probe}
     x = cube.sum
     _step(2, n, "plain 2-D FFT and simulation timings")
     scipy.fft.fft2(x, workers=-1)                          # warm-up: scipy's plan cache, pages
@@ -300,6 +304,10 @@ def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, re
                 for k, v in (value or {}).items():
                     shown = f"{v * 1e3:10.2f} ms" if k.endswith("_s") else (f"{v:10.2f} x" if isinstance(v, float) else f" {v}")
                     print(f"one_core[{k}]".ljust(24) + f" {shown}")
+            elif key == "page_cost":
+                for k, v in value.items():
+                    shown = f"{v:10.2f} ms/MiB" if isinstance(v, float) else f" {v}"
+                    print(f"page_cost[{k}]".ljust(34) + shown)
             elif key in ("ratios_to_fft2", "chain_ratios_to_clean_fft2"):
                 unit = "fft2" if key == "ratios_to_fft2" else "fft2 in a plain interpreter"
                 for k, v in value.items():
