@@ -2,33 +2,32 @@
 
 The chain writes each stage's output into memory it has not used before and each stage file into
 the page cache, so its time depends on what a new page costs the machine as well as on its code.
-On a virtual machine that cost can be many times a bare-metal Linux's: the machine these figures
-were measured on is a Firecracker guest whose kernel reports each freed 2 MiB block back to its host
-at once (free page reporting, ``/sys/module/page_reporting``: ``page_reporting_order`` 9,
-``min_free_ms`` 0), so a page the guest takes next may be one the host must fault in again.  The
-probe measures it, so that a bench's ratios can be read against the machine they came from
-(README, Speed: "What a new page costs here").
+On the virtual machine these figures were measured on, a large write into a new file is many times
+dearer than the same bytes written in pieces (README, Speed: "What a new page costs here").  Its
+kernel also reports freed memory to its host at once (free page reporting,
+``/sys/module/page_reporting``: ``page_reporting_order`` 9, ``min_free_ms`` 0), which the probe
+records; that this is what makes the large writes dear was not shown.
 
 Every figure is in ms per MiB, timed once each (a probe of the machine's state, not a benchmark):
 - ``anon_first_touch``: one byte written in every 4 KiB page of a new anonymous mapping (the page
-  faults and the kernel's zeroing, and whatever the host adds);
-- ``new_file``: a new file written from memory already touched (page-cache pages the kernel takes
-  from its free memory);
-- ``new_file_after_unlink``: the same into a second new file, right after the first was unlinked
-  (pages the kernel has just had back);
-- ``overwrite``: the same bytes written again over the second file (pages already in the cache: the
-  copy alone).
+  faults and the kernel's zeroing);
+- ``new_file_one_write``: a new file written from memory already touched, in one ``write(2)``;
+- ``new_file``: a second new file, after the first is unlinked, written in ``io.outputs.FailSafeSink``'s
+  pieces (``WRITE_PIECE_BYTES``), as a stage file is written;
+- ``overwrite``: the same bytes written again over the second (pages already in the cache: the copy
+  alone).
 """
 from __future__ import annotations
 
 import mmap
-import os
 import stat
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from ..io.outputs import FailSafeSink
 
 PAGE_REPORTING_DIR = Path("/sys/module/page_reporting/parameters")
 PROBE_MIB = 32
@@ -68,39 +67,38 @@ def anon_first_touch_ms_per_mib(mib: int = PROBE_MIB) -> float:
     return 1e3 * seconds / mib
 
 
-def _write_all(fd: int, data, offset: int = 0) -> None:
-    """``data`` written at ``offset``, however many calls the kernel takes."""
-    view = memoryview(data).cast("B")
-    while view:
-        done = os.pwrite(fd, view, offset)
-        view, offset = view[done:], offset + done
-
-
 def file_write_ms_per_mib(mib: int = PROBE_MIB, directory=None) -> dict:
-    """``new_file``, ``new_file_after_unlink`` and ``overwrite`` (module docstring), ms per MiB, in a
-    temporary folder under ``directory`` (the system's temporary folder where None)."""
+    """``new_file_one_write``, ``new_file`` and ``overwrite`` (module docstring), in that order, ms per
+    MiB, in a temporary folder under ``directory`` (the system's temporary folder where None)."""
     data = np.ones(int(mib) << 20, dtype=np.uint8)            # touched: only the file's pages are new
     out = {}
     with tempfile.TemporaryDirectory(dir=directory) as tmp:
-        for name, path in (("new_file", Path(tmp) / "a"), ("new_file_after_unlink", Path(tmp) / "b")):
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-            try:
-                t0 = time.perf_counter()
-                _write_all(fd, data)
-                out[name] = 1e3 * (time.perf_counter() - t0) / mib
-                if name == "new_file_after_unlink":
-                    t0 = time.perf_counter()
-                    _write_all(fd, data)
-                    out["overwrite"] = 1e3 * (time.perf_counter() - t0) / mib
-            finally:
-                os.close(fd)
-            if name == "new_file":
-                path.unlink()
+        with open(Path(tmp) / "one_write", "xb", buffering=0) as f:
+            t0 = time.perf_counter()
+            done = f.write(data)
+            out["new_file_one_write"] = 1e3 * (time.perf_counter() - t0) / mib
+        if done != data.nbytes:                                 # pragma: no cover (a short write)
+            raise OSError(f"bench_pages: wrote {done} of {data.nbytes} bytes")
+        (Path(tmp) / "one_write").unlink()
+        sink = FailSafeSink(Path(tmp) / "pieces")            # as a stage file is written (io/outputs.py)
+        try:
+            t0 = time.perf_counter()
+            sink.write(data)
+            out["new_file"] = 1e3 * (time.perf_counter() - t0) / mib
+            sink.seek(0)
+            t0 = time.perf_counter()
+            sink.write(data)
+            out["overwrite"] = 1e3 * (time.perf_counter() - t0) / mib
+        finally:
+            sink.close()
+        if sink.error is not None:
+            raise sink.error
+        (Path(tmp) / "pieces").unlink()
     return out
 
 
 def page_cost(mib: int = PROBE_MIB, directory=None) -> dict:
-    """The probe (module docstring): ``{anon_first_touch, new_file, new_file_after_unlink, overwrite}``
+    """The probe (module docstring): ``{anon_first_touch, new_file_one_write, new_file, overwrite}``
     in ms per MiB, ``probe_mib``, and the kernel's ``page_reporting`` settings."""
     out = {"anon_first_touch": anon_first_touch_ms_per_mib(mib)}
     out.update(file_write_ms_per_mib(mib, directory))
