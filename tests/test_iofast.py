@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import glob
 import json
+import zlib
 from pathlib import Path
 
 import h5py
@@ -16,7 +17,7 @@ import yaml
 
 from fwdlook_cli.cli import main
 from fwdlook_cli.io import integrity
-from fwdlook_cli.io.h5 import GzipChunks, atomic_h5, put_sparse_gzip, set_attrs
+from fwdlook_cli.io.h5 import GzipChunks, atomic_h5, deflate_rle, put_sparse_gzip, set_attrs
 from fwdlook_cli.io.stagefile import load_verified, read_stage
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,6 +88,19 @@ def test_sparse_gzip_reads_back_what_the_deflate_filter_stores(tmp_path, shape, 
         n_chunks = f["sparse"].id.get_num_chunks()
     non_zero_chunks = sum(a.view(np.uint8).reshape(shape[0], -1)[i:i + rows].any() for i in range(0, shape[0], rows))
     assert n_chunks == non_zero_chunks
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.075, 1.0])
+def test_run_length_deflate_is_a_zlib_stream_of_the_same_bytes(fraction):
+    """The run-length strategy's stream, read by zlib's own decoder (the one HDF5's deflate filter
+    calls), gives back the chunk byte for byte; its header says zlib's 32 KiB window, as the default
+    strategy's does."""
+    block = _sparse((16, 834), fraction, 3).view(np.uint8).reshape(-1)
+    for level in (1, 6):
+        stream = deflate_rle(memoryview(block), level)
+        assert zlib.decompress(stream) == block.tobytes()
+        assert stream[:1] == zlib.compress(block.tobytes(), level)[:1]        # CMF: deflate, 32 KiB window
+        assert (stream[0] * 256 + stream[1]) % 31 == 0                         # the header's check bits
 
 
 def test_image_h5_opens_in_xarray_with_named_axes(tiny_run):
