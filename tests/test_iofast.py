@@ -100,7 +100,6 @@ def test_run_length_deflate_is_a_zlib_stream_of_the_same_bytes(fraction):
         stream = deflate_rle(memoryview(block), level)
         assert zlib.decompress(stream) == block.tobytes()
         assert stream[:1] == zlib.compress(block.tobytes(), level)[:1]        # CMF: deflate, 32 KiB window
-        assert (stream[0] * 256 + stream[1]) % 31 == 0                         # the header's check bits
 
 
 def test_image_h5_opens_in_xarray_with_named_axes(tiny_run):
