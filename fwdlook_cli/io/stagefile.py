@@ -73,7 +73,7 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
                 extra_attrs: dict | None = None, virtual: dict | None = None, known: dict | None = None) -> dict:
     """``virtual``: {var name: (h5py.VirtualLayout, digest of the bytes it maps)} for arrays stored as
     views of another file (:mod:`io.stageview`); every other array is written in full, uncompressed and
-    contiguous (complex stage data compresses to 90-95 % at 30 times the write time: README, Speed).
+    contiguous (complex stage data compresses to 90-95 % at 30 times the write time: docs/SPEED.md).
     ``known``: {var name: (weak reference to the array, digest)} digests already computed in this run
     (the previous stage's file); an array that is the same object (under any name) keeps its digest.
     Returns that mapping for what the file declares (``known`` for the next stage): weak references, so

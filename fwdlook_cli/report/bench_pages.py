@@ -3,7 +3,7 @@
 The chain writes each stage's output into memory it has not used before and each stage file into
 the page cache, so its time depends on what a new page costs the machine as well as on its code.
 On the virtual machine these figures were measured on, a large write into a new file is many times
-dearer than the same bytes written in pieces (README, Speed: "What a new page costs here").  Its
+dearer than the same bytes written in pieces (docs/SPEED.md: "What a new page costs here").  Its
 kernel also reports freed memory to its host at once (free page reporting,
 ``/sys/module/page_reporting``: ``page_reporting_order`` 9, ``min_free_ms`` 0), which the probe
 records; that this is what makes the large writes dear was not shown.
