@@ -16,6 +16,7 @@ import h5py
 import numpy as np
 
 from .. import __version__
+from . import h5native
 
 _SCALAR = None
 _TYPES: dict = {}
@@ -46,6 +47,13 @@ def set_attrs(obj, attrs: dict) -> None:
             obj.attrs[name] = value
             continue
         dt, ftype, mtype = _attr_type(kind)
+        if h5native.enabled():          # the same calls without the GIL (io/h5native.py)
+            # a str from a char* in the file's own C string type (h5py's memory type for str is its
+            # Python-object type, converted by h5py's own routine)
+            if not h5native.write_scalar_attr(obj.id.id, name, kind, value, ftype.id,
+                                              (ftype if kind == "str" else mtype).id):
+                obj.attrs[name] = value             # already there: h5py replaces it
+            continue
         try:
             attr = h5py.h5a.create(obj.id, name.encode(), ftype, _SCALAR)
         except (OSError, KeyError, RuntimeError, ValueError):   # already there: h5py replaces it
@@ -78,6 +86,8 @@ def atomic_h5(path: str | Path):
                 set_attrs(f, {"software": "fwdlook", "software_version": __version__,
                               "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")})
                 yield f
+                if h5native.enabled():          # the metadata written out without the GIL; h5py's
+                    h5native.flush(f.id.id)     # close then finds nothing left to write
         finally:
             sink.close()
         if sink.error is not None:

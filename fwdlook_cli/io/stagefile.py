@@ -14,7 +14,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from . import backing
+from . import backing, h5native
 from .h5 import atomic_h5, set_attrs
 from .integrity import (ATTRS_DIGEST_ATTR, DATASETS_ATTR, DIGEST_ATTR, STAGE_FORMAT_VERSION, attrs_digest,
                         declaration, digest, digest_async, read_declaration)
@@ -111,7 +111,7 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
             if var.dims == (name,):
                 ds = _new_dataset(f.id, name, var.data)
                 set_attrs(_Node(ds), {"units": var.units, "long_name": var.long_name})
-                h5py.h5ds.set_scale(ds, name.encode())
+                _set_scale(ds, name)
                 scales[name] = (ds, var.data.shape[0])
         for name, var in data.vars.items():
             if var.dims == (name,):
@@ -125,7 +125,7 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
                 if dim not in scales or scales[dim][1] != var.data.shape[axis]:
                     raise ValueError(f"stage {stage}: {name} axis {axis} is '{dim}', which has no coordinate "
                                      f"of length {var.data.shape[axis]} in the stage output")
-                h5py.h5ds.attach_scale(ds, scales[dim][0], axis)
+                _attach_scale(ds, scales[dim][0], axis)
         declared, out = {}, {}
         for name, var in data.vars.items():
             sha = virtual[name][1] if name in virtual else pending[name]
@@ -157,18 +157,35 @@ def _new_dataset(group_id, name: str, data):
     ``create_dataset(name, data=data)`` makes (its file type, no timestamps), at a fraction of the
     Python around it (stage files hold about ten datasets each; README, Speed)."""
     a = np.ascontiguousarray(data)
-    tid = _H5_TYPES.get(a.dtype.str)
-    if tid is None:
-        tid = _H5_TYPES[a.dtype.str] = h5py.h5t.py_create(a.dtype, logical=True)
+    types = _H5_TYPES.get(a.dtype.str)
+    if types is None:      # (file type, memory type), as h5py's create_dataset and DatasetID.write
+        types = _H5_TYPES[a.dtype.str] = (h5py.h5t.py_create(a.dtype, logical=True), h5py.h5t.py_create(a.dtype))
+    tid = types[0]
     if not _DCPL:
         dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
         dcpl.set_obj_track_times(False)         # as h5py's default
         _DCPL.append(dcpl)
+    if h5native.enabled() and a.dtype.kind in "biufc":   # the same calls without the GIL (io/h5native.py)
+        return h5py.h5d.DatasetID(h5native.new_dataset(group_id.id, name, a, tid.id, types[1].id, _DCPL[0].id))
     space = h5py.h5s.create_simple(a.shape) if a.ndim else h5py.h5s.create(h5py.h5s.SCALAR)
     dsid = h5py.h5d.create(group_id, name.encode(), tid, space, dcpl=_DCPL[0])
     if a.size:
         dsid.write(h5py.h5s.ALL, h5py.h5s.ALL, a)
     return dsid
+
+
+def _set_scale(ds, name: str) -> None:
+    if h5native.enabled():
+        h5native.set_scale(ds.id, name)
+    else:
+        h5py.h5ds.set_scale(ds, name.encode())
+
+
+def _attach_scale(ds, scale, axis: int) -> None:
+    if h5native.enabled():
+        h5native.attach_scale(ds.id, scale.id, axis)
+    else:
+        h5py.h5ds.attach_scale(ds, scale, axis)
 
 
 def _weak(array):
