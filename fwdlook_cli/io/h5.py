@@ -51,7 +51,7 @@ def set_attrs(obj, attrs: dict) -> None:
             # a str from a char* in the file's own C string type (h5py's memory type for str is its
             # Python-object type, converted by h5py's own routine)
             if not h5native.write_scalar_attr(obj.id.id, name, kind, value, ftype.id,
-                                              (ftype if kind == "str" else mtype).id):
+                                              (ftype if kind == "str" else mtype).id, _SCALAR.id):
                 obj.attrs[name] = value             # already there: h5py replaces it
             continue
         try:

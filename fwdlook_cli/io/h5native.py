@@ -2,11 +2,11 @@
 
 h5py holds the GIL through every HDF5 call.  The stage files are written on a writer thread while
 the next stage computes (``runner._StageWriter``), and their HDF5 objects (datasets, attributes,
-dimension scales, the metadata flush: about 3 ms of CPU a file here) held the GIL for all of that
+dimension scales, the metadata flush, and h5py's Python around them: about 3.5 ms a file here) held the GIL for all of that
 time, so the stage computing beside the writer waited for them: each of its numpy calls needs the
-GIL between two arrays.  The paper cube's ``decimation`` chain took about 40 ms longer with every
-stage file written than with the same bytes and digests written without HDF5 (issue 11, thirty-first
-round; README, Speed).  These functions make the same calls into the same library (the ``libhdf5``
+GIL between two arrays.  The paper cube's ``decimation`` chain took 27-39 ms longer with every
+stage file written than with the same bytes and digests written without HDF5 (medians of five
+alternated sets; issue 11, thirty-first round, docs/SPEED_HISTORY.md).  These functions make the same calls into the same library (the ``libhdf5``
 and ``libhdf5_hl`` that h5py has loaded, found in ``/proc/self/maps``), with the identifiers and
 types of h5py's own objects, through ``ctypes``, which releases the GIL for the length of each call.
 h5py's lock (``phil``) is held around each one, as h5py holds it around its own, so no two threads
@@ -149,20 +149,11 @@ def new_dataset(loc_id: int, name: str, a: np.ndarray, file_type_id: int, mem_ty
     return did
 
 
-_SCALAR_SPACE: list = []
-
-
-def _scalar_space() -> int:
-    if not _SCALAR_SPACE:
-        import h5py
-
-        _SCALAR_SPACE.append(h5py.h5s.create(h5py.h5s.SCALAR))    # kept for the process
-    return _SCALAR_SPACE[0].id
-
-
-def write_scalar_attr(obj_id: int, name: str, kind: str, value, file_type_id: int, mem_type_id: int) -> bool:
-    """A scalar attribute (``kind`` str: variable-length UTF-8, float: float64, int: int64), as
-    ``h5a.create`` + ``AttrID.write``; False (nothing written) when ``name`` is already there."""
+def write_scalar_attr(obj_id: int, name: str, kind: str, value, file_type_id: int, mem_type_id: int,
+                      scalar_space_id: int) -> bool:
+    """A scalar attribute (``kind`` str: variable-length UTF-8, float: float64, int: int64) in the scalar
+    dataspace ``scalar_space_id``, as ``h5a.create`` + ``AttrID.write``; False (nothing written) when
+    ``name`` is already there."""
     key = name.encode()
     if _call("H5Aexists", obj_id, key, what=name) > 0:
         return False
@@ -172,7 +163,7 @@ def write_scalar_attr(obj_id: int, name: str, kind: str, value, file_type_id: in
         buf = ctypes.c_double(value)
     else:
         buf = ctypes.c_int64(value)
-    aid = _call("H5Acreate2", obj_id, key, file_type_id, _scalar_space(), H5P_DEFAULT, H5P_DEFAULT, what=name)
+    aid = _call("H5Acreate2", obj_id, key, file_type_id, scalar_space_id, H5P_DEFAULT, H5P_DEFAULT, what=name)
     try:
         _call("H5Awrite", aid, mem_type_id, ctypes.byref(buf), what=name)
     finally:
