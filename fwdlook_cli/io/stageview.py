@@ -23,7 +23,8 @@ def reshaped_views(out, previous, min_bytes: int = VIEW_MIN_BYTES) -> dict:
     """{name: source name} of ``out``'s non-coordinate arrays of ``min_bytes`` or more that are reshapes
     (same bytes, same dtype, C order) of an array of the same name in ``previous``.  The smaller ones
     (the INS context: positions, velocities, scan angles) are written again: a virtual dataset costs
-    HDF5 about 1.5 ms to create, a 60 kB copy 0.1 ms."""
+    HDF5 about 0.26 ms to create (its layout 0.14 ms, the dataset 0.12 ms; thirty-second round), a
+    60 kB copy 0.1 ms, so copies pay up to about 128 KiB."""
     found = {}
     for name, var in out.vars.items():
         if var.dims == (name,) or name not in previous.vars or var.data.nbytes < min_bytes:
