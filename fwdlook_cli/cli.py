@@ -246,6 +246,7 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
         _refuse_out_of_core_isar(scn, raw or source, out_of_core)
         d = prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
         held.enter_context(folder_lock(d))
+        _start_fit_spawner(scn)
 
     from .io.quicklook import painting
 
@@ -281,6 +282,7 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
         d = prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config], overwrite=overwrite,
                             writes_raw=writes_raw)
         held.enter_context(folder_lock(d))
+        _start_fit_spawner(scn)
 
     from .io.quicklook import painting
 
@@ -423,6 +425,15 @@ def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene, backen
 
 QUICKLOOK_COMMANDS = ("process", "run")        # the commands that end with image.png
 QUICKLOOK_WARM_UP = "fwdlook_cli.io.quicklook:warm_up"   # io.quicklook.WARM_UP (not imported here: numpy)
+
+
+def _start_fit_spawner(scn):
+    """The joint fit's spawner forked before the cube is read, where the settings ask for the fit
+    (``forward.process.start_fit_spawner``; the ISAR chain has none)."""
+    if "processing" in scn and "imaging" in scn["processing"]:
+        from .forward.process import start_fit_spawner
+
+        start_fit_spawner(scn["processing"])
 
 
 def _command_of(args) -> str | None:

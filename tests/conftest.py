@@ -13,3 +13,13 @@ def tiny_raw(tmp_path_factory):
     cube, _ = simulate_scenario(tiny_scenario())
     write_raw(path, cube)
     return path
+
+
+@pytest.fixture(autouse=True)
+def _no_spawner_left():
+    """A spawner a test started (dsp/spawner.py: the joint fit's) is ended after it: each test's forked
+    workers see that test's own code and data, and no child of this process outlives its test."""
+    yield
+    from fwdlook_cli.dsp import spawner
+
+    spawner.stop()

@@ -11,6 +11,7 @@ from scipy.signal import freqz
 
 from fwdlook_cli.dsp.geometry import C_MPS
 from fwdlook_cli.forward import dwell_fit as F
+from fwdlook_cli.forward import dwell_fit_plan as FP
 from fwdlook_cli.forward.dwell_resolution import fit_resolved_flags
 
 FC_HZ, PRF_HZ, SPEED_MPS, HEIGHT_M = 18e9, 2500.0, 240.0, 50.0
@@ -98,8 +99,8 @@ def test_decimation_filter_passes_the_regions_atoms_and_stops_the_rest():
     q, shift_hz, taps = F.decimation_plan(model, band, 1700.0, 0.0, PRF_HZ)
     assert q == 10 and -110.0 < shift_hz < -70.0
     cut = PRF_HZ / (2 * q)
-    f_pass = np.linspace(0.0, F.DECIMATION_PASSBAND * cut, 400)
-    f_stop = np.linspace((2.0 - F.DECIMATION_PASSBAND) * cut, PRF_HZ / 2, 800)
+    f_pass = np.linspace(0.0, FP.DECIMATION_PASSBAND * cut, 400)
+    f_stop = np.linspace((2.0 - FP.DECIMATION_PASSBAND) * cut, PRF_HZ / 2, 800)
     _, h_pass = freqz(taps, worN=f_pass, fs=PRF_HZ)
     _, h_stop = freqz(taps, worN=f_stop, fs=PRF_HZ)
     assert np.max(np.abs(np.abs(h_pass) - 1.0)) < 2e-4
@@ -359,6 +360,16 @@ def test_the_fit_on_forked_workers_is_the_fit_in_one_process(monkeypatch):
     (th1, prof1, cov1), (th2, prof2, cov2) = fits
     assert len(F.range_clusters(kw["profile"], kw["level"])) == 2 and len(th1) == len(truth)
     assert np.array_equal(th1, th2) and np.array_equal(prof1, prof2) and np.array_equal(cov1, cov2)
+    if hasattr(os, "fork"):     # the workers forked by the spawner (dsp/spawner.py): the jobs pickle, the same
+        from fwdlook_cli.dsp import forked, spawner
+
+        def refused(*args, **kwargs):
+            raise AssertionError("the caller forked the fit's workers itself")
+
+        assert spawner.start() is not None
+        monkeypatch.setattr(forked, "_fork", refused)
+        th3, prof3, cov3 = F.fit_region(s, d, **kw)
+        assert np.array_equal(th1, th3) and np.array_equal(prof1, prof3) and np.array_equal(cov1, cov3)
 
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")

@@ -1,5 +1,5 @@
 """A Kaiser-windowed FIR low-pass and its linear convolution by FFTs (the joint fit's slow-time
-decimation, ``forward.dwell_fit.decimation_plan``), without scipy.signal (its import alone is over a
+decimation, ``forward.dwell_fit_plan.decimation_plan``), without scipy.signal (its import alone is over a
 second, paid by every run that fits)."""
 from __future__ import annotations
 

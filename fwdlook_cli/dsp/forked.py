@@ -17,7 +17,9 @@ cost about 3 ms each.  The jobs' indices wait in a pipe, 4 bytes each, written b
 ``MAX_FORKED_JOBS``, which any pipe's buffer holds; more jobs go to threads); every
 child takes the next one (a read of 4 bytes from a pipe is atomic), so a free child takes the next
 job as a pool's worker would, and sends back its results, pickled, on a pipe of its own when the
-queue is empty; it leaves by ``os._exit`` (no handler or buffer of the parent runs in it).
+queue is empty; it leaves by ``os._exit`` (no handler or buffer of the parent runs in it).  Where this
+process has a spawner (``dsp.spawner``, started for the dwell image's joint fit) and the jobs pickle,
+the spawner forks the workers instead, from its own small heap, with the same pipes.
 """
 from __future__ import annotations
 
@@ -26,13 +28,12 @@ import os
 import pickle
 import signal
 import struct
-import threading
 from concurrent.futures import ThreadPoolExecutor
 
+from . import spawner
 from .blas import one_blas_thread
 
 _fork = os.fork if hasattr(os, "fork") else None     # (a hook: the tests refuse it)
-_FORK_LOCK = threading.Lock()
 MAX_FORKED_JOBS = 1024          # their indices (4 KiB) fit any pipe's buffer (a page at least): written before the forks
 
 
@@ -62,34 +63,18 @@ class Pending:
         return self.done
 
 
-def _child(fn, jobs, task_fd: int, out_fd: int):
-    """A forked worker: the next job index from ``task_fd`` until none is left, then (True, [(index,
-    result), ...]) or (False, (the failed job's index, the exception)) pickled to ``out_fd``; never
-    returns."""
-    code = 0
-    i = -1
-    try:
-        try:
-            done = []
-            while True:
-                raw = os.read(task_fd, 4)
-                if len(raw) < 4:
-                    break
-                i = struct.unpack("<i", raw)[0]
-                done.append((i, fn(jobs[i])))
-            payload = pickle.dumps((True, done), protocol=pickle.HIGHEST_PROTOCOL)
-        except BaseException as exc:  # noqa: BLE001 (every failure goes to the parent, which raises it)
+def _close_workers(children, kill: bool):
+    """Close the result pipes of ``children`` [(pid, fd)], the workers killed first where ``kill``."""
+    for pid, fd in children:
+        if kill:
             try:
-                payload = pickle.dumps((False, (i, exc)), protocol=pickle.HIGHEST_PROTOCOL)
-            except Exception:  # noqa: BLE001 (an exception that does not pickle: its text)
-                payload = pickle.dumps((False, (i, RuntimeError(f"{type(exc).__name__}: {exc}"))))
-        view = memoryview(payload)
-        while view:
-            view = view[os.write(out_fd, view):]
-    except BaseException:  # noqa: BLE001 (the parent sees a worker without a result)
-        code = 1
-    finally:
-        os._exit(code)
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        try:
+            os.close(fd)
+        except OSError:
+            pass
 
 
 def _read_all(fd: int) -> bytes:
@@ -110,16 +95,7 @@ class ForkedPending:
         self.children, self.n_jobs, self.limit, self.done = children, n_jobs, limit, None
 
     def _reap(self, kill: bool):
-        for pid, fd in self.children:
-            if kill:
-                try:
-                    os.kill(pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        _close_workers(self.children, kill)
         statuses = []
         for pid, _ in self.children:
             try:
@@ -128,6 +104,10 @@ class ForkedPending:
                 statuses.append(0)
         self.children = []
         return statuses
+
+    def _count_cpu(self, user_s: float, system_s: float):
+        """A worker's own CPU time, as it reported it: counted by the kernel once the child is reaped
+        (``RUSAGE_CHILDREN``), so nothing to do here."""
 
     def cancel(self):
         """Kill the children (the jobs not finished are dropped), reap them, release the BLAS limit."""
@@ -156,7 +136,9 @@ class ForkedPending:
                     errors.append((self.n_jobs, RuntimeError(f"a forked worker ended without a result "
                                                              f"(wait status {status})")))
                     continue
-                ok, value = pickle.loads(payload)
+                ok, value, *cpu = pickle.loads(payload)
+                if ok and cpu:
+                    self._count_cpu(*cpu)
                 if not ok:
                     errors.append(value)      # (job index, exception)
                     continue
@@ -174,14 +156,89 @@ class ForkedPending:
         return self.done
 
 
+class SpawnedPending(ForkedPending):
+    """Jobs on the spawner's workers (``dsp.spawner``): read as ``ForkedPending``'s once the spawner has
+    said which workers it forked (``pids()``; none: the jobs run here, in the caller's thread).  The
+    workers are the spawner's children, which it reaps (their wait statuses are not seen here), so
+    ``cancel()`` kills them by id (the spawner reaps them only when its next batch comes: the ids
+    stay theirs until then)."""
+
+    def __init__(self, pipes, n_jobs: int, limit, pids, fn, jobs):
+        super().__init__(None, n_jobs, limit)
+        self.pipes, self.pids, self.fn, self.jobs = pipes, pids, fn, jobs
+
+    def _workers(self):
+        """The forked workers with their result pipes; the pipes of workers not forked closed."""
+        if self.children is None:
+            try:
+                pids = self.pids()
+            except OSError:                    # the spawner is gone: its workers cannot be named
+                pids = []
+            self.children = list(zip(pids, self.pipes))
+            for fd in self.pipes[len(pids):]:
+                os.close(fd)
+        return self.children
+
+    def _count_cpu(self, user_s: float, system_s: float):
+        """The spawner's workers are not this process's children: their CPU time, which the kernel does
+        not count among this process's children's, is added to ``spawner.worker_cpu_split_s()``."""
+        spawner.count_worker_cpu(user_s, system_s)
+
+    def _reap(self, kill: bool):
+        _close_workers(self._workers(), kill)
+        statuses = [0] * len(self.children)
+        self.children = []
+        return statuses
+
+    def result(self):
+        if self.done is None and not self._workers():      # the spawner forked none: the jobs here
+            try:
+                self.done = [self.fn(job) for job in self.jobs]
+            finally:
+                self.limit.__exit__(None, None, None)
+        return super().result()
+
+
+def _start_spawned(fn, jobs, workers: int, limit):
+    """The jobs on ``workers`` children of the spawner (``dsp.spawner``), or None where there is no
+    spawner, the jobs do not pickle or the spawner is gone (the caller then forks them itself)."""
+    sp = spawner.current()
+    if sp is None:
+        return None
+    payload = spawner.payload_of(fn, jobs)
+    if payload is None:
+        return None
+    with spawner.FORK_LOCK:      # (a direct fork meanwhile would inherit the result pipes' write ends)
+        task_r, task_w = os.pipe()
+        pipes = [os.pipe() for _ in range(workers)]
+        pids = None
+        try:
+            os.write(task_w, struct.pack(f"<{len(jobs)}i", *range(len(jobs))))
+            os.close(task_w)
+            task_w = None
+            try:
+                pids = sp.spawn(payload, [task_r] + [w for _, w in pipes], workers)
+            except OSError:
+                spawner.stop()
+        finally:
+            for fd in [task_r, task_w] + [w for _, w in pipes]:
+                if fd is not None:
+                    os.close(fd)
+            if pids is None:
+                for r, _ in pipes:
+                    os.close(r)
+    if pids is None:
+        return None
+    return SpawnedPending([r for r, _ in pipes], len(jobs), limit, pids, fn, jobs)
+
+
 def _start_forked(fn, jobs, workers: int, limit):
     """The jobs on ``workers`` forked children (module docstring), or None where a fork is refused (the
     children already started killed).  Under one lock, so that the children of a call made meanwhile
     from another thread inherit none of this call's pipe ends (a write end held by another process
     would keep a reader from ever seeing the end of its pipe)."""
-    global _FORK_LOCK
     children = []
-    with _FORK_LOCK:
+    with spawner.FORK_LOCK:   # (a fresh one in each child: dsp.spawner's fork hook)
         task_r, task_w = os.pipe()
         try:
             os.write(task_w, struct.pack(f"<{len(jobs)}i", *range(len(jobs))))
@@ -196,9 +253,8 @@ def _start_forked(fn, jobs, workers: int, limit):
                     os.close(out_w)
                     raise
                 if pid == 0:                                   # the child
-                    _FORK_LOCK = threading.Lock()              # (the parent's is held: a fresh one)
                     os.close(out_r)
-                    _child(fn, jobs, task_r, out_w)
+                    spawner.run_worker(fn, jobs, task_r, out_w)
                 os.close(out_w)
                 children.append((pid, out_r))
         except OSError:                      # the system refused a process (memory, a process limit)
@@ -230,7 +286,8 @@ def start_jobs(fn, jobs, workers, processes: bool = False):
     # (a daemonic process, e.g. a dask worker's, may not have children: threads there)
     if (processes and _fork is not None and len(jobs) <= MAX_FORKED_JOBS
             and not multiprocessing.current_process().daemon):
-        pending = _start_forked(fn, jobs, min(int(workers), len(jobs)), limit)
+        n = min(int(workers), len(jobs))
+        pending = _start_spawned(fn, jobs, n, limit) or _start_forked(fn, jobs, n, limit)
         if pending is not None:
             return pending
     pool = ThreadPoolExecutor(max_workers=workers)

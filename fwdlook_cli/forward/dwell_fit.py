@@ -54,10 +54,11 @@ import numpy as np
 from scipy.special import gammainccinv
 
 from ..dsp.blas import worker_threads
-from ..dsp.fir import filter_same, kaiser_lowpass
+from ..dsp.fir import filter_same
 from ..dsp.forked import start_jobs
 from ..dsp.geometry import C_MPS
 from ..dsp.keystone_common import _cis as _cis_cycles
+from .dwell_fit_plan import decimation_plan, noise_sigma, range_clusters
 
 log = logging.getLogger(__name__)
 
@@ -67,11 +68,7 @@ MAX_ATOMS = 80             # per cluster: a guard against a runaway fit (the pap
 MAX_CLUSTER_CELLS = 48     # a cluster wider than this (150 m at 3 m cells) is an extended scene, not points: the
                            # sparse model does not hold there and the dwell image keeps it (as for a fit that
                            # reaches MAX_ATOMS)
-CLUSTER_HALF_BINS = 2      # range cells fitted on each side of the strong ones (a scatterer's skirts)
-SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
-                           # mixing products (or weak scatterers), left to the dwell image
 COARSE_RANGE_M = 100.0     # one coarse dictionary per 100 m of range (its phase error there < 0.3 rad)
-DECIMATION_PASSBAND = 0.87  # the atoms' baseband within 87 % of the decimated Nyquist band (the filter: flat to 1e-4 up to 87.5 %)
 FILTER_STOP_EDGE = 1.125    # the filter's stop edge, in units of its cut-off (its transition: +-1/8 of it)
 REFINE_CELL_DB = 15.0      # an atom's angle is refined on its cells within 15 dB of its strongest one (its main lobe in range)
 RESOLVED_MAX_CORR = 0.9    # two atoms the fit parts: |rho| <= 0.9, each amplitude's CRB <= 1/(1 - rho^2) = 5.3 x a lone one's
@@ -388,52 +385,60 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
     return np.asarray(thetas), act.c.astype(np.complex64), np.asarray(stats)
 
 
-def range_clusters(profile, level, half_bins=CLUSTER_HALF_BINS, sidelobe_db=SIDELOBE_DB):
-    """Clusters of range cells to fit: the runs of cells where ``profile`` [n_r] (the region's strongest
-    power per range cell) is above ``level`` and within ``sidelobe_db`` of its maximum, widened by
-    +-``half_bins`` (a scatterer's skirts stay inside its cluster), overlapping runs merged."""
-    p = np.asarray(profile, dtype=np.float64)
-    n = len(p)
-    floor = max(float(level), float(p.max(initial=0.0)) * 10 ** (-sidelobe_db / 10))
-    hot = np.flatnonzero(p > floor)
-    act = np.zeros(n, bool)
-    for q in hot:
-        act[max(0, q - half_bins):min(n, q + half_bins + 1)] = True
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], act.astype(np.int8), [0]])))
-    return [np.arange(a, b) for a, b in zip(edges[::2], edges[1::2])]
+class ClusterFit:
+    """One cluster's fit (``start_fit_region``), run on a worker: ``fit(job)`` with job = (cells, the sum
+    channel's samples, the difference channel's) at the pulses the fit reads (the window, or with
+    Q > 1 the window and the filter's half length each side).  Holds no more than the fit needs, so
+    that it pickles (``dsp.spawner``); each worker keeps its own coarse dictionaries."""
 
+    def __init__(self, *, model, range_m, grid, axis_deg, half_width_deg, pfa, dynamic_db, sig, q, lam, taps=None,
+                 shift_hz=0.0, gain=1.0, ext=None, kept=None, ext_model=None, prf_hz=None):
+        self.model, self.range_m, self.grid, self.axis_deg = model, range_m, grid, axis_deg
+        self.half_width_deg, self.pfa, self.dynamic_db, self.sig, self.q, self.lam = (
+            half_width_deg, pfa, dynamic_db, sig, q, lam)
+        self.taps, self.shift_hz, self.gain, self.ext, self.kept, self.ext_model, self.prf_hz = (
+            taps, shift_hz, gain, ext, kept, ext_model, prf_hz)
+        self.dictionaries = {}
 
-def noise_sigma(x):
-    """Noise standard deviation of a mostly-empty channel: median sample power / ln 2, square-rooted."""
-    p = np.asarray(x[:: max(1, x.shape[0] // 256)])
-    return float(np.sqrt(np.median(p.real**2 + p.imag**2) / np.log(2.0)))
+    def cluster_data(self, cells, x_sum, x_diff):
+        """y [B, 2N/Q] whitened and the coarse dictionary of the cluster's range."""
+        range_m, sig = self.range_m, self.sig
+        if self.q > 1:     # baseband of the axis history, filtered, every Q-th pulse of the window (whitened)
+            ext, kept, prf_hz = self.ext, self.kept, self.prf_hz
+            to_base = _cis_cycles(2.0 * (self.ext_model.path([self.axis_deg], range_m[cells])[:, :, 0]
+                                         - range_m[cells, None]) / self.lam - self.shift_hz * ext[None, :] / prf_hz,
+                                  np.complex64)                                           # [B, N_ext]
+            pick = kept - ext[0]
+            # filtered at baseband, then the shift put back on the kept pulses: the fit's frame is the
+            # axis-relative one, unshifted (its atoms need no shift; the amplitudes are the same)
+            unshift = _cis_cycles(self.shift_hz * kept / prf_hz, np.complex64) / np.float32(self.gain)
+            chans = [filter_same(x.T * to_base, self.taps)[:, pick] * (unshift / np.float32(s_ch))
+                     for x, s_ch in ((x_sum, sig[0]), (x_diff, sig[1]))]
+            y = np.concatenate(chans, axis=1).astype(np.complex64)                       # [B, 2N/Q]
+        else:
+            y = np.concatenate([x.T / np.float32(s_ch) for x, s_ch in ((x_sum, sig[0]), (x_diff, sig[1]))],
+                               axis=1)                                                    # [B, 2N]
+        key = int(round(float(range_m[cells].mean()) / COARSE_RANGE_M))
+        if key not in self.dictionaries:
+            self.dictionaries[key] = self.model.atoms(self.grid, [key * COARSE_RANGE_M])[0]
+        return y, self.dictionaries[key]
 
-
-def decimation_plan(model, grid_deg, range_m, axis_deg, prf_hz):
-    """Slow-time decimation the directions ``grid_deg`` allow: (Q, shift_hz, taps).
-
-    Relative to the axis direction's phase history, the atom at theta has the Doppler
-    f(theta; n) = -(2 / lambda) d/dt [R(theta; n) - R(axis; n)] (2 v (cos theta - 1) / lambda for a
-    straight flight: 0 to -200 Hz over the paper's region and 1 deg more); measured here over the
-    window's pulses and the grid, shifted to baseband by -shift_hz and widened by the antenna envelope's own
-    bandwidth (a Gaussian two-way pattern exp(-2 beta d^2) swept at w deg/s: -60 dB at
-    sqrt(27.6 beta) w / pi Hz), it fits in ``DECIMATION_PASSBAND`` of the band of a rate prf / Q.  The
-    anti-alias filter is a Kaiser (beta 8) windowed sinc of 40 Q + 1 taps cut at prf / (2 Q): flat to
-    1e-4 in the passband (-80 dB), its transition (a quarter of the cut-off frequency wide, centred on
-    it) beyond where any atom lives.  Q = 1: no decimation."""
-    grid = np.asarray(grid_deg, dtype=np.float64)
-    grid = np.unique(np.concatenate([grid[::8], grid[-1:], [axis_deg]]))    # f is smooth in theta: every 8th
-    rng = model.path(grid, [range_m])[0] - model.path([axis_deg], [range_m])[0]     # [N, M]
-    f_hz = -2.0 / model.lam * np.diff(rng, axis=0) * prf_hz
-    scan_dps = float(np.median(np.abs(np.diff(model.beam)))) * prf_hz
-    envelope_hz = np.sqrt(27.6 * model.beta) * scan_dps / np.pi
-    lo, hi = float(f_hz.min()), float(f_hz.max())
-    half = 0.5 * (hi - lo) + envelope_hz
-    q = int(np.floor(DECIMATION_PASSBAND * prf_hz / (2.0 * half)))
-    if q < 2:
-        return 1, 0.0, None
-    taps = kaiser_lowpass(40 * q + 1, prf_hz / (2.0 * q), prf_hz)
-    return q, 0.5 * (lo + hi), taps
+    def __call__(self, job):
+        """(theta [K], profile [K, n_r], cells) of the atoms inside the region; cells None where the cluster
+        is not sparse (left to the dwell image)."""
+        cells, x_sum, x_diff = job
+        range_m, n_r = self.range_m, len(self.range_m)
+        y, coarse = self.cluster_data(cells, x_sum, x_diff)
+        theta, c, _ = fit_cluster(self.model, y, range_m[cells], self.grid, pfa=self.pfa, dynamic_db=self.dynamic_db,
+                                  coarse=coarse, axis_deg=self.axis_deg)
+        if len(theta) >= MAX_ATOMS:              # not sparse: the dwell image keeps these cells
+            log.info(f"dwell_fit: the cluster at {range_m[cells[0]]:.0f} m needs over {MAX_ATOMS} points: left "
+                     "to the dwell image")
+            return np.zeros(0), np.zeros((0, n_r), np.complex64), None
+        inside = np.abs(theta - self.axis_deg) <= self.half_width_deg
+        prof = np.zeros((int(inside.sum()), n_r), np.complex64)
+        prof[:, cells] = c[:, inside].T
+        return theta[inside], prof, cells
 
 
 def fit_region(*args, **kw):
@@ -493,43 +498,18 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
     else:
         model = full
     n_r, covered = len(range_m), np.zeros(len(range_m), bool)
-    dictionaries, clusters = {}, range_clusters(profile, level)
-    jobs = [cells for cells in clusters if len(cells) <= MAX_CLUSTER_CELLS]
+    clusters = range_clusters(profile, level)
     for cells in (c for c in clusters if len(c) > MAX_CLUSTER_CELLS):
         log.info(f"dwell_fit: {len(cells)} contiguous range cells at {range_m[cells[0]]:.0f} m are an extended "
                  f"scene, not points (over {MAX_CLUSTER_CELLS}): left to the dwell image")
-
-    def cluster_data(cells):     # y [B, 2N/Q] whitened and the coarse dictionary, made on the worker
-        if q > 1:     # baseband of the axis history, filtered, every Q-th pulse of the window (whitened)
-            to_base = _cis_cycles(2.0 * (ext_model.path([axis_deg], range_m[cells])[:, :, 0]
-                                         - range_m[cells, None]) / full.lam - shift_hz * ext[None, :] / prf_hz,
-                                  np.complex64)                                           # [B, N_ext]
-            pick = kept - ext[0]
-            # filtered at baseband, then the shift put back on the kept pulses: the fit's frame is the
-            # axis-relative one, unshifted (its atoms need no shift; the amplitudes are the same)
-            unshift = _cis_cycles(shift_hz * kept / prf_hz, np.complex64) / np.float32(gain)
-            chans = [filter_same(x[ext[0]:ext[-1] + 1, cells].T * to_base, taps)[:, pick] * (unshift / np.float32(s_ch)) for x, s_ch in ((sum_rt, sig[0]), (diff_rt, sig[1]))]
-            y = np.concatenate(chans, axis=1).astype(np.complex64)                       # [B, 2N/Q]
-        else:
-            y = np.concatenate([x[np.ix_(win, cells)].T / np.float32(s_ch)
-                                for x, s_ch in ((sum_rt, sig[0]), (diff_rt, sig[1]))], axis=1)   # [B, 2N]
-        key = int(round(float(range_m[cells].mean()) / COARSE_RANGE_M))
-        if key not in dictionaries:        # (a worker's own cache; threads may build one twice: the same)
-            dictionaries[key] = model.atoms(grid, [key * COARSE_RANGE_M])[0]
-        return y, dictionaries[key]
-
-    def fit_one(cells):
-        y, coarse = cluster_data(cells)
-        theta, c, _ = fit_cluster(model, y, range_m[cells], grid, pfa=pfa, dynamic_db=dynamic_db, coarse=coarse,
-                                  axis_deg=axis_deg)
-        if len(theta) >= MAX_ATOMS:              # not sparse: the dwell image keeps these cells
-            log.info(f"dwell_fit: the cluster at {range_m[cells[0]]:.0f} m needs over {MAX_ATOMS} points: left "
-                     "to the dwell image")
-            return np.zeros(0), np.zeros((0, n_r), np.complex64), None
-        inside = np.abs(theta - axis_deg) <= half_width_deg
-        prof = np.zeros((int(inside.sum()), n_r), np.complex64)
-        prof[:, cells] = c[:, inside].T
-        return theta[inside], prof, cells
+    # each job carries its cells' samples (the pulses the fit reads), so that it pickles (dsp/spawner.py)
+    pulses = slice(ext[0], ext[-1] + 1) if q > 1 else win
+    jobs = [(cells, *(np.asarray(x[pulses, cells] if q > 1 else x[np.ix_(win, cells)]) for x in (sum_rt, diff_rt)))
+            for cells in clusters if len(cells) <= MAX_CLUSTER_CELLS]
+    fit_one = ClusterFit(model=model, range_m=range_m, grid=grid, axis_deg=axis_deg, half_width_deg=half_width_deg,
+                         pfa=pfa, dynamic_db=dynamic_db, sig=sig, q=q, lam=full.lam,
+                         **(dict(taps=taps, shift_hz=shift_hz, gain=gain, ext=ext, kept=kept, ext_model=ext_model,
+                                 prf_hz=prf_hz) if q > 1 else {}))
 
     # a forked worker per cluster, at most two per core (threads take turns on the GIL; a fork costs page
     # tables and copy-on-write faults, dsp.forked): the paper's 3 clusters end together (README, Speed)

@@ -1,6 +1,7 @@
 """Driving a run: settings, the stage runner, image.h5, image.png, metrics.json (I/O at the edge)."""
 from __future__ import annotations
 
+import importlib
 import time
 from pathlib import Path
 
@@ -8,6 +9,7 @@ import numpy as np
 
 from .. import __version__
 from ..scenario.loader import dump_scenario, scenario_hash
+from ..dsp import spawner
 from ..dsp.blas import on_one_blas_thread
 from ..errors import BadInput
 from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, json_text, put_scale, put_sparse_gzip, set_attrs
@@ -118,6 +120,15 @@ def _two_way_beamwidth_deg(cube) -> float:
     return two_way_width_for(float(cube.radar["beamwidth_3db_deg"]), cube.antenna)
 
 
+def start_fit_spawner(proc: dict) -> None:
+    """Where the processing settings ask for the dwell image's joint fit: its workers' spawner forked
+    now (``dsp/spawner.py``: before the chain's data exist, so that neither this process nor the
+    workers pay for the other's pages), with the fit's modules imported first (the workers need them)."""
+    if proc.get("imaging") == "dwell" and proc.get("dwell_fit") == "joint" and spawner.current() is None:
+        importlib.import_module("fwdlook_cli.forward.dwell_fit")
+        spawner.start()
+
+
 @on_one_blas_thread
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
                  png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False,
@@ -164,6 +175,8 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     except BadInput as exc:       # the data's own refusals (no calibration from it) name the file too
         raise BadInput(str(exc) if str(exc).startswith(f"{source}:") else f"{source}: {exc}") from None
     names = [st.name for st in stages]
+    if "fit_region" in geo:
+        start_fit_spawner(proc)
     if from_stage is not None and from_stage not in names:
         raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
     for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):

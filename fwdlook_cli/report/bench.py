@@ -57,12 +57,16 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
     ``page_cost`` what a new page costs this machine, probed before the cube is simulated
     (:func:`bench_pages.page_cost`: ms per MiB, and the kernel's free page reporting)."""
     from ..forward.chain import build_forward_stages
+    from ..forward.process import start_fit_spawner
     from ..scenario.loader import load_scenario
     from ..dsp.keystone_czt import KeystonePlan
     from ..dsp.keystone import keystone_dft, keystone_sinc
     from ..forward.simulate import simulate_scenario
 
     n = 12
+    # the dwell chain's joint fit forks its workers from a spawner (dsp/spawner.py), which the command
+    # forks before it reads the cube: here before the cube is simulated
+    start_fit_spawner({"imaging": "dwell", "dwell_fit": "joint"})
     _step(1, n, "what a new page costs here; simulating the paper cube")
     page_probe = page_cost()                 # bench_pages.py: before the cube and the chains touch memory
     paper = load_scenario(paper_scenario)

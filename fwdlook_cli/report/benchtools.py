@@ -72,18 +72,23 @@ def median_time(fn, repeats=5):
 
 def process_cpu_split_s() -> tuple[float, float] | None:
     """(user, system) CPU time of this process, every thread, and of the children it has reaped (the
-    joint fit's forked workers, ``dsp.forked``: a chain's own work done in other processes) (s); None
+    joint fit's forked workers, ``dsp.forked``: a chain's own work done in other processes), with the
+    workers forked for it by its spawner (``dsp.spawner``, which the workers report; once the spawner
+    itself is reaped its children come in ``RUSAGE_CHILDREN`` as well: the bench's lives as long as
+    the bench) (s); None
     where unsupported.  System time is the kernel's work for the process: page faults on memory it
     touches first (the pages cleared), the copies of written bytes into the page cache."""
     try:
         import resource
     except ImportError:              # pragma: no cover (not POSIX)
         return None
+    from ..dsp.spawner import worker_cpu_split_s
     from ..runner import cpu_split_s            # the process itself, as each stage is charged
 
     user, system = cpu_split_s()
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return user + children.ru_utime, system + children.ru_stime
+    spawned = worker_cpu_split_s()
+    return user + children.ru_utime + spawned[0], system + children.ru_stime + spawned[1]
 
 
 def process_cpu_s() -> float | None:

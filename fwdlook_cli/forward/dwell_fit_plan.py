@@ -1,0 +1,60 @@
+"""The joint fit's plan (``forward.dwell_fit``): the clusters of range cells it fits, the channels' noise
+level, and the slow-time decimation its directions allow."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..dsp.fir import kaiser_lowpass
+
+CLUSTER_HALF_BINS = 2      # range cells fitted on each side of the strong ones (a scatterer's skirts)
+SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
+                           # mixing products (or weak scatterers), left to the dwell image
+DECIMATION_PASSBAND = 0.87  # the atoms' baseband within 87 % of the decimated Nyquist band (the filter: flat to 1e-4 up to 87.5 %)
+
+
+def range_clusters(profile, level, half_bins=CLUSTER_HALF_BINS, sidelobe_db=SIDELOBE_DB):
+    """Clusters of range cells to fit: the runs of cells where ``profile`` [n_r] (the region's strongest
+    power per range cell) is above ``level`` and within ``sidelobe_db`` of its maximum, widened by
+    +-``half_bins`` (a scatterer's skirts stay inside its cluster), overlapping runs merged."""
+    p = np.asarray(profile, dtype=np.float64)
+    n = len(p)
+    floor = max(float(level), float(p.max(initial=0.0)) * 10 ** (-sidelobe_db / 10))
+    hot = np.flatnonzero(p > floor)
+    act = np.zeros(n, bool)
+    for q in hot:
+        act[max(0, q - half_bins):min(n, q + half_bins + 1)] = True
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], act.astype(np.int8), [0]])))
+    return [np.arange(a, b) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def noise_sigma(x):
+    """Noise standard deviation of a mostly-empty channel: median sample power / ln 2, square-rooted."""
+    p = np.asarray(x[:: max(1, x.shape[0] // 256)])
+    return float(np.sqrt(np.median(p.real**2 + p.imag**2) / np.log(2.0)))
+
+
+def decimation_plan(model, grid_deg, range_m, axis_deg, prf_hz):
+    """Slow-time decimation the directions ``grid_deg`` allow: (Q, shift_hz, taps).
+
+    Relative to the axis direction's phase history, the atom at theta has the Doppler
+    f(theta; n) = -(2 / lambda) d/dt [R(theta; n) - R(axis; n)] (2 v (cos theta - 1) / lambda for a
+    straight flight: 0 to -200 Hz over the paper's region and 1 deg more); measured here over the
+    window's pulses and the grid, shifted to baseband by -shift_hz and widened by the antenna envelope's own
+    bandwidth (a Gaussian two-way pattern exp(-2 beta d^2) swept at w deg/s: -60 dB at
+    sqrt(27.6 beta) w / pi Hz), it fits in ``DECIMATION_PASSBAND`` of the band of a rate prf / Q.  The
+    anti-alias filter is a Kaiser (beta 8) windowed sinc of 40 Q + 1 taps cut at prf / (2 Q): flat to
+    1e-4 in the passband (-80 dB), its transition (a quarter of the cut-off frequency wide, centred on
+    it) beyond where any atom lives.  Q = 1: no decimation."""
+    grid = np.asarray(grid_deg, dtype=np.float64)
+    grid = np.unique(np.concatenate([grid[::8], grid[-1:], [axis_deg]]))    # f is smooth in theta: every 8th
+    rng = model.path(grid, [range_m])[0] - model.path([axis_deg], [range_m])[0]     # [N, M]
+    f_hz = -2.0 / model.lam * np.diff(rng, axis=0) * prf_hz
+    scan_dps = float(np.median(np.abs(np.diff(model.beam)))) * prf_hz
+    envelope_hz = np.sqrt(27.6 * model.beta) * scan_dps / np.pi
+    lo, hi = float(f_hz.min()), float(f_hz.max())
+    half = 0.5 * (hi - lo) + envelope_hz
+    q = int(np.floor(DECIMATION_PASSBAND * prf_hz / (2.0 * half)))
+    if q < 2:
+        return 1, 0.0, None
+    taps = kaiser_lowpass(40 * q + 1, prf_hz / (2.0 * q), prf_hz)
+    return q, 0.5 * (lo + hi), taps
