@@ -189,10 +189,26 @@ def test_the_spawner_ends_with_the_process_that_forked_it():
     assert _state(child_spawner) in ("", "Z")
 
 
-def test_no_spawner_where_asked_for_none(monkeypatch):
-    """FWDLOOK_SPAWNER=0: none (the workers forked by the caller, as before)."""
+def test_no_spawner_where_asked_for_none_or_where_the_fit_forks_nothing(monkeypatch):
+    """FWDLOOK_SPAWNER=0: none (the workers forked by the caller, as before); nor for a process whose
+    fit runs its clusters itself (one worker thread: a sweep's workers), nor for settings without the
+    joint fit."""
+    import fwdlook_cli.forward.process as process
+
+    start_fit_spawner = process.start_fit_spawner
+    fit = {"imaging": "dwell", "dwell_fit": "joint"}
     monkeypatch.setenv("FWDLOOK_SPAWNER", "0")
     assert spawner.start() is None and spawner.current() is None
+    monkeypatch.delenv("FWDLOOK_SPAWNER")
+    monkeypatch.setattr(process, "worker_threads", lambda: 1)
+    start_fit_spawner(fit)
+    assert spawner.current() is None
+    monkeypatch.setattr(process, "worker_threads", lambda: 2)
+    for proc in ({"imaging": "cpi", "dwell_fit": "joint"}, {"imaging": "dwell", "dwell_fit": "none"}):
+        start_fit_spawner(proc)
+        assert spawner.current() is None
+    start_fit_spawner(fit)
+    assert spawner.current() is not None
 
 
 def test_the_dwell_chain_is_the_same_with_its_fit_on_the_spawner(tmp_path, monkeypatch):
@@ -206,6 +222,11 @@ def test_the_dwell_chain_is_the_same_with_its_fit_on_the_spawner(tmp_path, monke
     from fwdlook_cli.scenario.loader import load_scenario
     from pathlib import Path
 
+    import fwdlook_cli.forward.dwell_fit as F
+    import fwdlook_cli.forward.process as process
+
+    for module in (F, process):                 # two workers, as on two cores (whatever this machine has)
+        monkeypatch.setattr(module, "worker_threads", lambda: 2)
     scn = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "paper_fig6_a50.yaml")
     scn["processing"].update(method="tracking", imaging="dwell", dwell_fit="joint", curvature_model="beam")
     cube, _ = simulate_scenario(scn)

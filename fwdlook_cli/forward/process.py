@@ -10,7 +10,7 @@ import numpy as np
 from .. import __version__
 from ..scenario.loader import dump_scenario, scenario_hash
 from ..dsp import spawner
-from ..dsp.blas import on_one_blas_thread
+from ..dsp.blas import on_one_blas_thread, worker_threads
 from ..errors import BadInput
 from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, json_text, put_scale, put_sparse_gzip, set_attrs
 from ..io import backing
@@ -121,10 +121,12 @@ def _two_way_beamwidth_deg(cube) -> float:
 
 
 def start_fit_spawner(proc: dict) -> None:
-    """Where the processing settings ask for the dwell image's joint fit: its workers' spawner forked
-    now (``dsp/spawner.py``: before the chain's data exist, so that neither this process nor the
-    workers pay for the other's pages), with the fit's modules imported first (the workers need them)."""
-    if proc.get("imaging") == "dwell" and proc.get("dwell_fit") == "joint" and spawner.current() is None:
+    """Where the processing settings ask for the dwell image's joint fit and the fit forks its workers
+    (more than one worker thread: not in a sweep's one-thread workers): their spawner forked now
+    (``dsp/spawner.py``: before the chain's data exist, so that neither this process nor the workers
+    pay for the other's pages), with the fit's modules imported first (the workers need them)."""
+    if (proc.get("imaging") == "dwell" and proc.get("dwell_fit") == "joint" and spawner.current() is None
+            and worker_threads() > 1):
         importlib.import_module("fwdlook_cli.forward.dwell_fit")
         spawner.start()
 
