@@ -2,14 +2,15 @@
 
 ``dsp.forked`` runs the dwell image's joint fit (``forward.dwell_fit``) on forked children. Forked from
 the process that runs the chain, they cost that process where the chain runs: the forks write-protect
-every page of its heap (three forks took 19.7 ms of its main thread, medians of nine chains of the paper
+every page of its heap (three forks took 16.7-19.7 ms of its main thread, medians of seven and nine chains of the paper
 cube, ``-c configs/tracking.yaml``), and then every first write to one of those pages while the
 children live is a copy-on-write fault (14 551 minor faults of the process during the dwell stage,
 against 842 with the same jobs on threads).
 
 The spawner is forked once, early: the command forks it once the scenario is known and before the cube
-is read (``cli``), ``process_cube`` where it is not yet running. It closes every descriptor but its
-socket, hands its free heap back (``malloc_trim``) and waits. A batch of jobs is sent to it pickled,
+is read (``cli``), ``process_cube`` where it is not yet running (and only where the fit forks: more than
+one worker thread). It closes every pipe and socket it inherited but its own socket, hands its free
+heap back (``malloc_trim``) and waits. A batch of jobs is sent to it pickled,
 with the descriptors of its pipes (``SCM_RIGHTS``): the task pipe, read by every worker, and one result
 pipe per worker, read by the caller as the directly forked workers' are. It forks the workers from its
 own small heap, sends back their process ids and waits for the next batch; the caller's process forks
@@ -132,14 +133,32 @@ def _trim_heap():
         pass
 
 
+def _close_pipes(keep: int):
+    """Close every inherited pipe and socket but ``keep``: a pipe end held here would keep its reader
+    from ever seeing its end (the painter's, a batch's).  Files stay open (a log file the workers write)."""
+    import stat
+
+    try:
+        fds = [int(fd) for fd in os.listdir("/proc/self/fd")]
+    except OSError:                     # pragma: no cover (no /proc)
+        fds = range(3, 1 << 12)
+    for fd in fds:
+        if fd < 3 or fd == keep:
+            continue
+        try:
+            mode = os.fstat(fd).st_mode
+        except OSError:                 # (the listing's own descriptor, closed by now)
+            continue
+        if stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode):
+            os.close(fd)
+
+
 def _serve(sock: socket.socket):
     """The spawner's loop (module docstring); never returns."""
     children = set()
     try:
         signal.signal(signal.SIGINT, signal.SIG_IGN)      # the caller ends the workers (it has their ids)
-        keep = sock.fileno()
-        os.closerange(3, keep)
-        os.closerange(keep + 1, os.sysconf("SC_OPEN_MAX") if hasattr(os, "sysconf") else 1 << 16)
+        _close_pipes(keep=sock.fileno())
         _trim_heap()
         while True:
             _reap(children, block=False)                  # the workers of earlier batches, ended
