@@ -52,6 +52,10 @@ def environment() -> dict:
         env["blas_threads"] = ", ".join(sorted({str(p.get("num_threads")) for p in libs})) or "none found"
     except Exception:                       # noqa: BLE001  pragma: no cover (informational only)
         env["blas"] = env["blas_threads"] = "unknown"
+    from ..dsp import spawner
+
+    # who forks the joint fit's workers (the dwell chain): dsp/spawner.py, or this process (before it)
+    env["fit_workers"] = "spawner" if spawner.current() is not None else "forked by this process"
     return env
 
 
