@@ -54,8 +54,9 @@ def environment() -> dict:
         env["blas"] = env["blas_threads"] = "unknown"
     from ..dsp import spawner
 
-    # who forks the joint fit's workers (the dwell chain): dsp/spawner.py, or this process (before it)
-    env["fit_workers"] = "spawner" if spawner.current() is not None else "forked by this process"
+    # who forks the joint fit's workers (the dwell chain): a spawner (dsp/spawner.py) where this process
+    # runs one, else the process itself (as before the thirty-fifth round), where it runs the fit at all
+    env["fit_workers"] = "spawner" if spawner.current() is not None else "no spawner"
     return env
 
 
