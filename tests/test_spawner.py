@@ -247,3 +247,15 @@ def test_the_dwell_chain_is_the_same_with_its_fit_on_the_spawner(tmp_path, monke
             out[mode + "image"] = f["image"][()]
     assert out["0"]["targets"] == out["1"]["targets"]
     assert np.array_equal(out["0image"], out["1image"]) and out["0image"].any()
+
+
+def test_stop_does_not_wait_on_a_spawner_that_does_not_leave():
+    """A spawner that does not leave when its socket closes (stopped here by SIGSTOP) is killed after
+    the grace period: the command's exit never hangs on it."""
+    sp = spawner.start()
+    os.kill(sp.pid, signal.SIGSTOP)
+    t0 = time.perf_counter()
+    spawner.stop()
+    assert time.perf_counter() - t0 < 10.0 and _state(sp.pid) in ("", "Z")
+    with pytest.raises(ChildProcessError):
+        os.waitpid(sp.pid, os.WNOHANG)                # reaped

@@ -33,6 +33,7 @@ import signal
 import socket
 import struct
 import threading
+import time
 
 _HEAD = struct.Struct("<iq")          # workers, payload bytes
 _SPAWNER = None                       # this process's spawner, if started
@@ -73,13 +74,20 @@ class Spawner:
                 self.answered += 1
             return self.answers.pop(ticket)
 
-    def close(self):
-        """End the spawner (its socket closed) and reap it."""
+    def close(self, grace_s: float = 2.0):
+        """End the spawner (its socket closed: it leaves at once) and reap it; killed where it has not
+        left within ``grace_s`` (an exit never waits on it)."""
         try:
             self.sock.close()
         finally:
             try:
-                os.waitpid(self.pid, 0)
+                deadline = time.monotonic() + grace_s
+                while not os.waitpid(self.pid, os.WNOHANG)[0]:
+                    if time.monotonic() > deadline:
+                        os.kill(self.pid, signal.SIGKILL)
+                        os.waitpid(self.pid, 0)
+                        break
+                    time.sleep(0.001)
             except ChildProcessError:
                 pass
 
