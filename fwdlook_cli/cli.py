@@ -430,10 +430,9 @@ QUICKLOOK_WARM_UP = "fwdlook_cli.io.quicklook:warm_up"   # io.quicklook.WARM_UP 
 def _start_fit_spawner(scn):
     """The joint fit's spawner forked before the cube is read, where the settings ask for the fit
     (``forward.process.start_fit_spawner``; the ISAR chain has none)."""
-    if "processing" in scn and "imaging" in scn["processing"]:
-        from .forward.process import start_fit_spawner
+    from .forward.process import start_fit_spawner
 
-        start_fit_spawner(scn["processing"])
+    start_fit_spawner(scn.get("processing") or {})
 
 
 def _command_of(args) -> str | None:

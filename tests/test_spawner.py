@@ -158,8 +158,13 @@ def test_the_spawner_holds_none_of_its_parents_pipes(tmp_path):
         w = None
         ready, _, _ = select.select([r], [], [], 10.0)
         assert ready and os.read(r, 1) == b""             # the end of the pipe: no copy of w left open
-        targets = [os.readlink(f"/proc/{sp.pid}/fd/{fd}") for fd in os.listdir(f"/proc/{sp.pid}/fd")
-                   if int(fd) > 2]
+        def targets():
+            return [os.readlink(f"/proc/{sp.pid}/fd/{fd}") for fd in os.listdir(f"/proc/{sp.pid}/fd") if int(fd) > 2]
+
+        t0 = time.perf_counter()                       # (it may still be closing the others)
+        while any(t.startswith("pipe:") for t in targets()) and time.perf_counter() - t0 < 10.0:
+            time.sleep(0.01)
+        targets = targets()
         assert str(tmp_path / "log.txt") in targets
         assert sum(t.startswith("socket:") for t in targets) == 1               # its own
         assert not [t for t in targets if t.startswith("pipe:")]

@@ -261,7 +261,6 @@ def start() -> Spawner | None:
                 _serve(theirs)
         theirs.close()
         _SPAWNER = Spawner(pid, ours)
-    atexit.register(stop)
     return _SPAWNER
 
 
@@ -300,3 +299,6 @@ def payload_of(fn, jobs) -> bytes | None:
         return pickle.dumps((fn, jobs), protocol=pickle.HIGHEST_PROTOCOL)
     except (pickle.PicklingError, TypeError, AttributeError):
         return None
+
+
+atexit.register(stop)       # (once: a process that ends closes its spawner's socket anyway; this reaps it)

@@ -386,7 +386,7 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
 
 
 class ClusterFit:
-    """One cluster's fit (``start_fit_region``), run on a worker: ``fit(job)`` with job = (cells, the sum
+    """One cluster's fit (``start_fit_region``), run on a worker: called with job = (cells, the sum
     channel's samples, the difference channel's) at the pulses the fit reads (the window, or with
     Q > 1 the window and the filter's half length each side).  Holds no more than the fit needs, so
     that it pickles (``dsp.spawner``); each worker keeps its own coarse dictionaries."""
@@ -503,8 +503,8 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
         log.info(f"dwell_fit: {len(cells)} contiguous range cells at {range_m[cells[0]]:.0f} m are an extended "
                  f"scene, not points (over {MAX_CLUSTER_CELLS}): left to the dwell image")
     # each job carries its cells' samples (the pulses the fit reads), so that it pickles (dsp/spawner.py)
-    pulses = slice(ext[0], ext[-1] + 1) if q > 1 else win
-    jobs = [(cells, *(np.asarray(x[pulses, cells] if q > 1 else x[np.ix_(win, cells)]) for x in (sum_rt, diff_rt)))
+    jobs = [(cells, *(np.asarray(x[ext[0]:ext[-1] + 1, cells] if q > 1 else x[np.ix_(win, cells)])
+                      for x in (sum_rt, diff_rt)))
             for cells in clusters if len(cells) <= MAX_CLUSTER_CELLS]
     fit_one = ClusterFit(model=model, range_m=range_m, grid=grid, axis_deg=axis_deg, half_width_deg=half_width_deg,
                          pfa=pfa, dynamic_db=dynamic_db, sig=sig, q=q, lam=full.lam,

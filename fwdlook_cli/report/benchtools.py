@@ -80,8 +80,7 @@ def process_cpu_split_s() -> tuple[float, float] | None:
     joint fit's forked workers, ``dsp.forked``: a chain's own work done in other processes), with the
     workers forked for it by its spawner (``dsp.spawner``, which the workers report; once the spawner
     itself is reaped its children come in ``RUSAGE_CHILDREN`` as well: the bench's lives as long as
-    the bench) (s); None
-    where unsupported.  System time is the kernel's work for the process: page faults on memory it
+    the bench) (s); None where unsupported.  System time is the kernel's work for the process: page faults on memory it
     touches first (the pages cleared), the copies of written bytes into the page cache."""
     try:
         import resource
