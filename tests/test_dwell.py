@@ -361,12 +361,12 @@ def _dwell_range_error(cube_path, slope, mode, run_dir, capsys):
 
 def test_steep_depression_dwell_ranges(steep_cubes, tmp_path, capsys):
     """At 39 deg of depression the sub-apertures' range phases 4 pi (|P(r) - p_j| - r) / lambda have
-    slopes up to +-0.0057 (2e-5 at 50 m of height): the dwell image's range band (1/resolution +
-    4 max|s| / lambda = 1.7 per metre) exceeds the native rate (0.4 per metre), so the image is focused on
-    the x4 range grid there. Measured before: 1.18 m of range error and a 4.6 m wide peak (resolution
-    3.0 m); now 0.13 m (the envelope) and 0.05 m (iso_doppler: the cell moved along its iso-Doppler line
-    too). At 50 m of height nothing changes, to the millimetre."""
-    from fwdlook_cli.forward.dwell_range import focus_range_oversample
+    slopes up to +-0.011 over this 675-pulse scan (5e-5 at 50 m of height): the dwell image's range band
+    (1/resolution + 4 max|s| / lambda = 2.95 per metre) exceeds the native rate (0.4 per metre), so the
+    image is focused on the x 4 range grid there. Measured before: 1.18 m of range error and a 4.6 m
+    wide peak (resolution 3.0 m); now 0.13 m (the envelope) and 0.05 m (iso_doppler: the cell moved along
+    its iso-Doppler line too). At 50 m of height nothing changes, to the millimetre."""
+    from fwdlook_cli.forward.dwell_range import auto_focus_range_oversample, focus_range_oversample, focus_range_rate
     from fwdlook_cli.io.raw import read_raw
 
     cubes, slope = steep_cubes
@@ -376,6 +376,14 @@ def test_steep_depression_dwell_ranges(steep_cubes, tmp_path, capsys):
         m = cube.n_pulses // 2
         assert focus_range_oversample(cube.range_m, cube.position_m, cube.position_m[m], cube.radar["fc_hz"], 4,
                                       resolution_m=resolution_m) == want
+        # range_oversample: auto: the power image's Nyquist factor ceil(2 B / fs) = 2 where the native grid
+        # holds the focused band (0.34 per metre at 50 m); at 1000 m the band 1/3 + 4 x 0.0109 / lambda =
+        # 2.95 per metre passes the 2.5 m grid's 0.4: the fine focus grid, x 4
+        rate = focus_range_rate(cube.range_m, cube.position_m, cube.position_m[m], cube.radar["fc_hz"],
+                                resolution_m=resolution_m)
+        dr = float(cube.range_m[1] - cube.range_m[0])
+        assert auto_focus_range_oversample(cube, cube.position_m[m], 2) == {50.0: 2, 1000.0: 4}[h]
+        assert (7 < rate * dr <= 8) if h == 1000.0 else rate * dr < 1
     err_env, width_env = _dwell_range_error(cubes[1000.0], slope, "envelope", tmp_path / "env", capsys)
     err_iso, width_iso = _dwell_range_error(cubes[1000.0], slope, "iso_doppler", tmp_path / "iso", capsys)
     assert abs(err_env) < 0.1 * resolution_m and width_env < resolution_m
@@ -398,6 +406,8 @@ def test_steep_fine_focus_with_the_joint_fit(tmp_path, capsys):
     assert exc.value.code == 0, capsys.readouterr().err
     with h5py.File(run_dir / "stages" / "06_dwell_image.h5", "r") as f:
         settings = json.loads(f.attrs["settings"])
-    assert settings["focus_oversample"] == 4 and settings["fit_half_width_deg"] > 0
     m = json.loads((run_dir / "metrics.json").read_text())
+    # range_oversample: auto: the fine focus grid, x 4, not the power image's x 2
+    assert settings["focus_oversample"] == m["params"]["range_oversample"] == 4
+    assert settings["fit_half_width_deg"] > 0
     assert m["summary"]["detected"] == m["summary"]["n_targets"]

@@ -23,6 +23,20 @@ import numpy as np
 from .peaks import oversample_range
 
 
+def auto_range_oversample(bandwidth_hz: float, fs_hz: float) -> int:
+    """``processing.range_oversample: auto``: the smallest whole factor that samples the image's power
+    at its Nyquist rate, ``ceil(2 B / fs)`` (1 to 16).
+
+    A range-compressed echo of bandwidth B sampled at fs has a power |s|^2 whose spectrum (the
+    autocorrelation of the echo's) spans -B..B: 2B wide, so the oversampled rate k fs must reach 2B
+    for the power image to hold every range between its samples (no aliasing; the peak's log-parabola
+    refinement, ``evaluate.target_metrics``, then interpolates it).  The paper's radar (B = 50 MHz,
+    fs = 60 MHz): 2, a 1.25 m grid for its 3 m resolution; a point midway between two samples loses
+    at most sinc^2(0.21) of its peak in the image, 0.62 dB (x 4: 0.16 dB).  The accuracy and the time
+    against the factor are in the README ("Range oversampling: speed against accuracy")."""
+    return int(min(16, max(1, math.ceil(2.0 * float(bandwidth_hz) / float(fs_hz) - 1e-9))))
+
+
 def power_f32(z):
     """|z|^2 in float32, fused (no complex abs, no float64 temporaries)."""
     re, im = z.real, z.imag

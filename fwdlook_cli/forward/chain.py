@@ -28,6 +28,7 @@ import scipy.fft
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both, keystone_both_blocked
 from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
+from ..dsp.imaging import auto_range_oversample
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history_m, boresight_doppler_spread_hz,
                      bulk_range_history_m, cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion,
@@ -398,6 +399,9 @@ def build_forward_stages(cube, proc: dict):
             cpi=proc["cpi"], follow_speed=bool(proc["doppler_centroid"]), depression_deg=band_depressions,
             fc_hz=cube.radar["fc_hz"], beamwidth_deg=cube.radar["beamwidth_3db_deg"], prf_hz=prf)
         geo["n_doppler"] = auto_doppler_cells(widest_hz, cpi=proc["cpi"], prf_hz=prf)
+    geo["range_oversample"] = proc["range_oversample"]
+    if geo["range_oversample"] == "auto":  # the power image's Nyquist rate (dsp/imaging.py)
+        geo["range_oversample"] = auto_range_oversample(cube.radar["bandwidth_hz"], cube.radar["fs_hz"])
     src = StageData()
     src.add("slow_time_s", cube.slow_time_s, ("slow_time_s",), "s", "slow time")
     src.add("range_m", cube.range_m, ("range_m",), "m", "slant range")
@@ -433,7 +437,7 @@ def build_forward_stages(cube, proc: dict):
             **({"estimator": "iaa"} if proc.get("doppler_estimator", "fft") == "iaa" else {})}),
         Stage("monopulse_image", monopulse_image, {
             "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
-            "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
+            "angle_step_deg": proc["angle_step_deg"], "range_oversample": geo["range_oversample"],
             "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
             "position_ref_m": [float(v) for v in geo["p_ref"]], **geo["calibration"].stage_params()}),
     ]

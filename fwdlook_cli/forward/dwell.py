@@ -79,7 +79,8 @@ from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
 from .dwell_fit import start_fit_region
-from .dwell_range import dwell_duration_s, dwell_stage_params, ground_points, iso_doppler_range
+from .dwell_range import (auto_focus_range_oversample, dwell_duration_s, dwell_stage_params, ground_points,
+                          iso_doppler_range)
 
 log = logging.getLogger(__name__)
 
@@ -505,6 +506,8 @@ def dwell_stages(cube, proc: dict, geo: dict):
     from ..runner import Stage
 
     geo["doppler_resolution_hz"] = 1.0 / dwell_duration_s(cube)
+    if proc["range_oversample"] == "auto":     # the focused image's range band where it passes the image's
+        geo["range_oversample"] = auto_focus_range_oversample(cube, geo["p_ref"], geo["range_oversample"])
     cal = geo["calibration"]                     # the chain's monopulse calibration (slope, imbalance, offset)
     two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
     step_deg = float(np.median(np.abs(np.diff(cube.scan_angle_deg))))          # scan per pulse
@@ -527,7 +530,7 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "diff_gain_db": float(cal.diff_gain_db), "diff_phase_deg": float(cal.diff_phase_deg),
         "boresight_offset_deg": float(cal.boresight_offset_deg),
         "beta_per_deg2": pattern_beta_per_deg2(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
-        "angle_step_deg": proc["angle_step_deg"], "range_oversample": proc["range_oversample"],
+        "angle_step_deg": proc["angle_step_deg"], "range_oversample": geo["range_oversample"],
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
         "position_ref_m": [float(v) for v in geo["p_ref"]],
         "fit_half_width_deg": fit_half_width_deg, **dwell_stage_params(cube, proc, geo)})]

@@ -24,11 +24,13 @@ import json
 import numpy as np
 
 from ..dsp.geometry import C_MPS, ambiguity_number
+from ..dsp.imaging import auto_range_oversample
 from .motion import auto_doppler_cells, boresight_doppler_spread_hz, doppler_band_depressions, widest_cpi_band_hz
 
 
 def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf_hz, fs_hz,
-                  beamwidth_deg, reference_range_m, t_ref_s, cpi, q_candidates=None, range_extent_m=None) -> dict:
+                  beamwidth_deg, reference_range_m, t_ref_s, cpi, q_candidates=None, range_extent_m=None,
+                  bandwidth_hz=None) -> dict:
     t = np.asarray(slow_time_s, dtype=np.float64)
     half_cell_m = C_MPS / (2.0 * fs_hz) / 2.0
     height = float(position_m[0, 2])
@@ -92,6 +94,9 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         "doppler_range_spread_hz": range_spread_hz, "range_extent_m": [float(near), float(far)],
         "band_over_depressions": range_spread_hz > doppler_cell_hz,
         "doppler_band_widest_hz": widest_hz, "n_doppler_auto": auto_doppler_cells(widest_hz, cpi=cpi, prf_hz=prf_hz),
+        # processing.range_oversample: auto, the power image's Nyquist rate (dsp/imaging.py)
+        "range_oversample_auto": (None if bandwidth_hz is None
+                                  else auto_range_oversample(float(bandwidth_hz), float(fs_hz))),
         "processing": {"method": method, "q": q_best if method == "decimation" else 1,
                        "range_curvature": curvature_m >= half_cell_m,
                        "doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2},
@@ -104,6 +109,7 @@ def plan_for_cube(cube, proc: dict) -> dict:
     t_ref_s = t_ref_seconds(cube.slow_time_s, proc["t_ref"])
     out = plan_geometry(cube.slow_time_s, cube.position_m, cube.velocity_mps, cube.scan_angle_deg,
                         fc_hz=cube.radar["fc_hz"], prf_hz=cube.radar["prf_hz"], fs_hz=cube.radar["fs_hz"],
+                        bandwidth_hz=cube.radar["bandwidth_hz"],
                         beamwidth_deg=cube.radar["beamwidth_3db_deg"],
                         reference_range_m=float(0.5 * (cube.range_m[0] + cube.range_m[-1])), t_ref_s=t_ref_s,
                         cpi=proc["cpi"], range_extent_m=(float(cube.range_m[0]), float(cube.range_m[-1])))
@@ -122,6 +128,7 @@ def plan_for_scenario(scn: dict) -> dict:
     r = slant_range_m(pos, targets[::stride])
     return plan_geometry(t, pos, vel, scan_angle_deg(t, ant["scan_start_deg"], ant["scan_rate_dps"]),
                          fc_hz=radar["fc_hz"], prf_hz=radar["prf_hz"], fs_hz=radar["fs_hz"],
+                         bandwidth_hz=radar["bandwidth_hz"],
                          beamwidth_deg=ant["beamwidth_3db_deg"], reference_range_m=float(np.median(r)),
                          t_ref_s=t_ref_seconds(t, scn["processing"]["t_ref"]), cpi=scn["processing"]["cpi"],
                          range_extent_m=(float(np.min(r)), float(np.max(r))))
@@ -152,6 +159,11 @@ def format_plan(plan: dict, name: str) -> str:
         f"  Doppler band         {plan['doppler_band_widest_hz']:9.1f} Hz  widest CPI band, "
         f"{plan['doppler_band_widest_hz'] / plan['doppler_cell_hz']:.1f} CPI Doppler cells: processing.n_doppler "
         f"auto gives {plan['n_doppler_auto']} (4 per cell)",
+    ]
+    if plan.get("range_oversample_auto") is not None:
+        lines.append(f"  range oversampling   x {plan['range_oversample_auto']} (processing.range_oversample auto: "
+                     f"the power image's Nyquist rate, ceil(2 bandwidth / fs))")
+    lines += [
         "  decimation (eq. 20): " + ", ".join(
             f"Q={r['q']}: spread {r['ambiguity_spread']}, residual {r['residual_walk_m']:.2f} m"
             for r in plan["decimation"] if r["q"] in (1, 5, 10, 20, 25, 50, 100)),

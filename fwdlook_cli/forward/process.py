@@ -306,7 +306,9 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                    "radial_accel_mps2": geo["radial_accel_mps2"],
                    "doppler_spread_hz": geo.get("doppler_spread_hz"),
                    # the zoomed Doppler cells per CPI (n_doppler: auto resolved), where a CPI Doppler stage ran
-                   "n_doppler": geo.get("n_doppler") if "doppler_spectra" in names else None},
+                   "n_doppler": geo.get("n_doppler") if "doppler_spectra" in names else None,
+                   # the image's range oversampling (range_oversample: auto resolved)
+                   "range_oversample": geo.get("range_oversample")},
         "t_ref_s": geo["t_ref_s"],
         "calibration": geo["calibration"].to_json(),
         "scenario_sha256": scenario_hash(scn),

@@ -121,7 +121,10 @@ FORWARD_SCHEMA: dict[str, Any] = {
                            "(PRF / cpi) over the scan's widest CPI band (forward/motion.py::auto_doppler_cells)"),
         "doppler_window": Field(choice("none", "hamming", "hann", "taylor"), "none",
                                 "slow-time window of each CPI before the Doppler zoom"),
-        "range_oversample": Field(integer(1, 16), 4, "band-limited range oversampling of the image"),
+        "range_oversample": Field(auto_or(integer(1, 16)), "auto",
+                                  "band-limited range oversampling of the image; auto: the power image's Nyquist "
+                                  "rate, ceil(2 bandwidth / fs) (2 for the paper's radar; dsp/imaging.py::"
+                                  "auto_range_oversample)"),
         "angle_step_deg": Field(num(1e-4, 1.0), 0.05, "angle bin of the monopulse image"),
         "threshold_db": Field(num(-50.0, 100.0), 12.0,
                               "Doppler cells projected only above this many dB over the CPI noise floor"),
