@@ -138,7 +138,7 @@ def test_auto_doppler_cells_of_a_band_of_the_whole_prf():
 def test_n_doppler_auto_in_the_chain_is_the_stages_own_band(tmp_path):
     """On the paper cube (a = 50) auto resolves to the Doppler stage's own widest band, 926.5 Hz = 11.9
     resolution cells of 78.1 Hz: 48 cells; the stage runs with them, metrics.json reports them, fwdlook
-    plan predicts them, and the default stays 64."""
+    plan predicts them, and it is the default (since issue 11's thirty-sixth round; 64 before)."""
     import json
 
     from fwdlook_cli.forward.chain import build_forward_stages
@@ -171,4 +171,4 @@ def test_n_doppler_auto_in_the_chain_is_the_stages_own_band(tmp_path):
     assert m["params"]["n_doppler"] == 48
     assert json.loads((tmp_path / "auto" / "metrics.json").read_text())["params"]["n_doppler"] == 48
     default = load_scenario(root / "scenarios" / "paper_fig6_a50.yaml")
-    assert default["processing"]["n_doppler"] == 64
+    assert default["processing"]["n_doppler"] == "auto"

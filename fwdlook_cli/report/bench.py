@@ -195,9 +195,9 @@ def run_bench(paper_scenario=SCENARIOS / "paper_fig6_a50.yaml", tiny_scenario=SC
 
     _step(9, n, "the floor: the chain's transforms and stage bytes alone")
     for method in ("decimation", "tracking"):
+        n_doppler, range_oversample = _resolved_image_sizes(paper, cube, method)
         floor = chain_floor(*cube.sum.shape, method=method, q=paper["processing"]["q"],
-                            cpi=paper["processing"]["cpi"], n_doppler=paper["processing"]["n_doppler"],
-                            range_oversample=_resolved_range_oversample(paper, cube))
+                            cpi=paper["processing"]["cpi"], n_doppler=n_doppler, range_oversample=range_oversample)
         for item, seconds in floor.items():
             out[f"floor_{method}_{item}"] = seconds
         # how near the chain is to its floor: both long (70-210 ms) and timed in the same process, so the
@@ -343,16 +343,16 @@ def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, re
                   f"and {one['second_core_gain_chain_tracking']:.2f} x")
 
 
+def _resolved_image_sizes(scn: dict, cube, method: str) -> tuple[int, int]:
+    """``processing.n_doppler`` and ``range_oversample`` as the chain resolves them for ``method``
+    (``auto``: the widest CPI band's count, ``forward/motion.py``, and the power image's Nyquist rate,
+    ``dsp/imaging.py``), from the chain's own geometry."""
+    from ..forward.chain import build_forward_stages
+
+    _, _, geo = build_forward_stages(cube, dict(scn["processing"], method=method))
+    return int(geo["n_doppler"]), int(geo["range_oversample"])
+
+
 if __name__ == "__main__":
     print_bench("--json" in sys.argv[1:], scaling="--scaling" in sys.argv[1:])
 
-
-def _resolved_range_oversample(scn: dict, cube) -> int:
-    """The scenario's ``processing.range_oversample`` as the chain resolves it (``auto``: the power
-    image's Nyquist rate for the cube's radar, ``dsp.imaging.auto_range_oversample``)."""
-    from ..dsp.imaging import auto_range_oversample
-
-    factor = scn["processing"]["range_oversample"]
-    if factor == "auto":
-        return auto_range_oversample(cube.radar["bandwidth_hz"], cube.radar["fs_hz"])
-    return int(factor)

@@ -116,7 +116,7 @@ FORWARD_SCHEMA: dict[str, Any] = {
                                  "speed of the boresight Doppler that fixes the ambiguity number F (eq. 16-17): "
                                  "at t_ref, or the initial v of the paper (the same for t_ref = start)"),
         "t_ref": Field(choice("start", "centre"), "centre", "time the corrected image refers to"),
-        "n_doppler": Field(auto_or(integer(4, 4096)), 64,
+        "n_doppler": Field(auto_or(integer(4, 4096)), "auto",
                            "zoomed Doppler cells per CPI over the main-beam band; auto: 4 per CPI resolution cell "
                            "(PRF / cpi) over the scan's widest CPI band (forward/motion.py::auto_doppler_cells)"),
         "doppler_window": Field(choice("none", "hamming", "hann", "taylor"), "none",
