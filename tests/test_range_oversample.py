@@ -98,3 +98,40 @@ def test_plan_gives_the_auto_factor():
     plan = plan_for_scenario(load_scenario(root / "scenarios" / "paper_fig6_a50.yaml"))
     assert plan["range_oversample_auto"] == 2
     assert "range oversampling   x 2" in format_plan(plan, "paper")
+
+
+def test_the_scaling_series_holds_the_doppler_cells_fixed(monkeypatch):
+    """``fwdlook bench --scaling`` times the chain at a fixed count of zoomed Doppler cells: with
+    ``n_doppler: auto`` the count follows the band in CPI resolution cells, cpi B / PRF, which falls as
+    the series raises the PRF with the pulse count (the exponents would then measure the scene)."""
+    from fwdlook_cli.forward.chain import build_forward_stages
+    from fwdlook_cli.report import benchtools
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    root = Path(__file__).resolve().parents[1]
+    paper = load_scenario(root / "scenarios" / "paper_fig6_a50.yaml")
+    seen = []
+
+    def fake_time_chain(cube, scn, repeats=3, rss=True):
+        _, _, geo = build_forward_stages(cube, scn["processing"])
+        seen.append((cube.n_pulses, geo["n_doppler"], geo["range_oversample"]))
+        stage = {"range_fft": 1e-3}
+        return {"stages_s": stage, "total_s": 1e-3, "stages_user_cpu_s": stage, "user_cpu_s": 1e-3,
+                "stages_system_cpu_s": stage, "system_cpu_s": 1e-3}
+
+    monkeypatch.setattr(benchtools, "time_chain", fake_time_chain)
+    benchtools.scaling_series(paper, methods=("tracking",), pulses=(1250, 5000), range_bins=(128, 256))
+    assert {(n, d) for n, d, _ in seen} == {(1250, benchtools.SCALING_N_DOPPLER), (5000, benchtools.SCALING_N_DOPPLER),
+                                          (2500, benchtools.SCALING_N_DOPPLER)}
+    assert {k for _, _, k in seen} == {2}
+    # what auto would have given: fewer cells as the PRF rises
+    auto = [build_forward_stages(*_cube_and_proc(benchtools, paper, n))[2]["n_doppler"] for n in (1250, 5000)]
+    assert auto[0] > auto[1]
+
+
+def _cube_and_proc(benchtools, paper, n_pulses):
+    from fwdlook_cli.forward.simulate import simulate_scenario
+
+    scn = benchtools.scaling_scenario(paper, n_pulses, 128)
+    cube, _ = simulate_scenario(scn)
+    return cube, dict(scn["processing"], method="tracking")
