@@ -80,7 +80,7 @@ def focus_range_oversample(range_m, position_m, position_ref_m, fc_hz: float, ra
     where its range bandwidth (:func:`focus_range_rate`) passes the native sampling rate, the image
     sampled on the native grid aliases, and its FFT oversampling is no longer its interpolation (the
     range error at (0, 1200) m from 1000 m of height: -0.14 m on the native samples, -0.71 m
-    oversampled x 4).  (``processing.range_oversample: auto`` takes a factor that samples that band,
+    oversampled x 4).  (``processing.range_oversample: auto`` takes at least x 4 there,
     :func:`auto_focus_range_oversample`.)"""
     dr = float(range_m[1] - range_m[0])
     needed_rate = focus_range_rate(range_m, position_m, position_ref_m, fc_hz, resolution_m=resolution_m)

@@ -355,4 +355,3 @@ def _resolved_image_sizes(scn: dict, cube, method: str) -> tuple[int, int]:
 
 if __name__ == "__main__":
     print_bench("--json" in sys.argv[1:], scaling="--scaling" in sys.argv[1:])
-
