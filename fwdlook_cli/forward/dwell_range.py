@@ -102,13 +102,10 @@ def auto_focus_range_oversample(cube, position_ref_m, image_factor: int) -> int:
     the band's): range errors -0.151 / -0.155, 0.038 / 0.012, 0.063 / 0.048 and -0.129 / -0.184 m,
     3 dB widths within 0.2 m, azimuths equal to 1e-4 deg, at twice the dwell stage's time (162-201
     against 312-416 ms)."""
-    resolution_m = C_MPS / (2.0 * float(cube.radar["bandwidth_hz"]))
-    rate = focus_range_rate(cube.range_m, cube.position_m, position_ref_m, cube.radar["fc_hz"],
-                            resolution_m=resolution_m)
-    dr = float(cube.range_m[1] - cube.range_m[0])
-    if rate * dr <= 1.0:
-        return int(image_factor)
-    return max(int(image_factor), STEEP_FOCUS_OVERSAMPLE)
+    fine = focus_range_oversample(cube.range_m, cube.position_m, position_ref_m, cube.radar["fc_hz"],
+                                  STEEP_FOCUS_OVERSAMPLE,
+                                  resolution_m=C_MPS / (2.0 * float(cube.radar["bandwidth_hz"])))
+    return max(int(image_factor), fine)          # (fine is 1 where the native grid holds the band)
 
 
 def dwell_duration_s(cube) -> float:
