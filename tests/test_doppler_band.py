@@ -95,12 +95,12 @@ def test_heading_inside_the_beam_gives_the_maximum_doppler():
     assert hi[0] - lo[0] == pytest.approx(width, abs=1e-6)
 
 
-@pytest.mark.parametrize("theta, expected_cells", [(20.0, None), (0.0, 8), (80.0, None)])
-def test_auto_doppler_cells_sample_the_widest_band_at_two_per_resolution_cell(theta, expected_cells):
+@pytest.mark.parametrize("theta, expected_cells", [(20.0, None), (0.0, 16), (80.0, None)])
+def test_auto_doppler_cells_sample_the_widest_band_at_four_per_resolution_cell(theta, expected_cells):
     """``processing.n_doppler: auto`` against the closed form: forward flight at 240 m/s, the beam at
     theta, depression phi: the band is 2 v cos(phi) (cos(theta - h) - cos(theta + h)) / lambda
     = 4 v cos(phi) sin(theta) sin(h) / lambda (h half the 3 dB beamwidth), at least 4 resolution cells
-    PRF / cpi: ceil(2 cpi band / PRF) cells (8 on boresight, where the band is the 4-cell minimum)."""
+    PRF / cpi: ceil(4 cpi band / PRF) cells (16 on boresight, where the band is the 4-cell minimum)."""
     from fwdlook_cli.forward.motion import auto_doppler_cells, widest_cpi_band_hz
 
     def auto(data, **kw):
@@ -112,88 +112,33 @@ def test_auto_doppler_cells_sample_the_widest_band_at_two_per_resolution_cell(th
             "velocity_mps": np.tile([0.0, v, 0.0], (m, 1))}
     band = 4.0 * v * np.cos(np.radians(phi)) * np.sin(np.radians(theta)) * np.sin(np.radians(BW / 2)) / LAM
     band = min(max(band, 4.0 * PRF / CPI), PRF)
-    want = int(np.ceil(2.0 * CPI * band / PRF - 1e-9))
+    want = int(np.ceil(4.0 * CPI * band / PRF - 1e-9))
     assert expected_cells is None or want == expected_cells
     got = auto(data, cpi=CPI, follow_speed=True, depression_deg=phi, fc_hz=FC, beamwidth_deg=BW, prf_hz=PRF)
     assert got == want
     # a scan: the widest CPI band sets the one count of every CPI
     scan = dict(data, scan_angle_deg=np.repeat([0.0, theta, -0.5 * theta], CPI))
     assert auto(scan, cpi=CPI, follow_speed=True, depression_deg=phi, fc_hz=FC, beamwidth_deg=BW,
-                prf_hz=PRF) == max(want, 8)
-
-
-def _whole_prf_band():
-    """Fast flight (600 m/s) and a 30 deg beam at 60 deg: every CPI's band is the whole PRF."""
-    m = 2 * CPI
-    return {"slow_time_s": np.arange(m) / PRF, "scan_angle_deg": np.full(m, 60.0),
-            "velocity_mps": np.tile([0.0, 600.0, 0.0], (m, 1))}, dict(depression_deg=3.0, beamwidth_deg=30.0)
+                prf_hz=PRF) == max(want, 16)
 
 
 def test_auto_doppler_cells_of_a_band_of_the_whole_prf():
-    """Where the band reaches the PRF (fast flight, wide beam) auto gives 2 cells per resolution cell over
-    it, 2 cpi cells; 4 cpi with the IAA estimator, which resolves finer than a cell."""
-    from fwdlook_cli.forward.motion import IAA_AUTO_CELLS_PER_RESOLUTION, auto_doppler_cells, widest_cpi_band_hz
+    """Where the band reaches the PRF (fast flight, wide beam) auto gives 4 cells per resolution cell over
+    it: 4 cpi cells."""
+    from fwdlook_cli.forward.motion import auto_doppler_cells, widest_cpi_band_hz
 
-    data, geom = _whole_prf_band()
-    band = widest_cpi_band_hz(data, cpi=CPI, follow_speed=True, fc_hz=FC, prf_hz=PRF, **geom)
-    assert band == pytest.approx(PRF) and auto_doppler_cells(band, cpi=CPI, prf_hz=PRF) == 2 * CPI
-    assert auto_doppler_cells(band, cpi=CPI, prf_hz=PRF, per_resolution_cell=IAA_AUTO_CELLS_PER_RESOLUTION) == 4 * CPI
-
-
-def _power_interpolated(power, f_lo_hz, f_new_hz, degree):
-    """A power spectrum sampled at M cells (k + 1/2) PRF / M from ``f_lo_hz`` over the whole PRF, taken as
-    the trigonometric polynomial of ``degree`` through the samples and evaluated at ``f_new_hz``: numpy
-    alone (a direct sum over the samples; nothing of the stage)."""
-    m = power.shape[-1]
-    u = (np.arange(m) + 0.5) / m                                            # cell centres, cycles of the PRF
-    lags = np.arange(-degree, degree + 1)
-    coef = np.exp(-2j * np.pi * np.outer(lags, u)) @ power.T / m             # [lags, rows]
-    u_new = (np.asarray(f_new_hz) - f_lo_hz) / PRF
-    return np.real(np.exp(2j * np.pi * np.outer(u_new, lags)) @ coef).T
-
-
-def test_auto_cells_hold_the_cpi_power_spectrum_whole():
-    """The claim behind ``n_doppler: auto`` (2 cells per resolution cell): a CPI's power spectrum is a
-    trigonometric polynomial of degree cpi - 1, so the stage's power at 2 cpi cells over the PRF gives,
-    interpolated (numpy, :func:`_power_interpolated`), the power the same stage computes on a grid 8 times
-    finer: to 1e-5 of the peak, for echoes at arbitrary Doppler frequencies.  On the native grid
-    (1 per cell, the complex spectrum's Nyquist rate, not the power's) the same interpolation misses by
-    more than 5 % of the peak."""
-    data, geom = _whole_prf_band()
-    m = data["slow_time_s"].shape[0]
-    rng = np.random.default_rng(7)
-    n_range = 6
-    t = data["slow_time_s"]
-    x = np.zeros((m, n_range), np.complex128)
-    for r in range(n_range):                     # three echoes per range cell, random Doppler and amplitude
-        for f, a in zip(rng.uniform(0, PRF, 3), rng.normal(size=3) + 1j * rng.normal(size=3)):
-            x[:, r] += a * np.exp(2j * np.pi * np.mod(f * t, 1.0))
-    d = tone_stage([0.0, 600.0, 0.0], 60.0, 0.0, n_cpi=2, n_range=n_range)
-    d.vars["sum"].data[...] = x.astype(np.complex64)
-    kw = dict(cpi=CPI, window="none", fc_hz=FC, prf_hz=PRF, follow_speed=True, **geom)
-
-    def power(n_doppler):
-        out = doppler_spectra(d, n_doppler=n_doppler, **kw)
-        z = np.asarray(out["sum_z"], np.complex128)                         # [cpi, cell, range]
-        return np.abs(np.moveaxis(z, 1, 2)) ** 2, np.asarray(out["doppler_hz"])
-
-    fine, f_fine = power(16 * CPI)
-    peak = float(fine.max())
-    for cells, ok in ((2 * CPI, True), (CPI, False)):
-        coarse, f_coarse = power(cells)
-        f_lo = float(f_coarse[0, 0]) - 0.5 * PRF / cells
-        assert float(f_fine[0, 0]) - 0.5 * PRF / (16 * CPI) == pytest.approx(f_lo, abs=1e-6)   # the same band
-        est = np.stack([_power_interpolated(coarse[i], f_lo, f_fine[i], min(CPI - 1, (cells - 1) // 2))
-                        for i in range(coarse.shape[0])])
-        err = float(np.max(np.abs(est - fine))) / peak
-        assert (err < 1e-5) if ok else (err > 0.05), (cells, err)
+    m = 2 * CPI
+    data = {"slow_time_s": np.arange(m) / PRF, "scan_angle_deg": np.full(m, 60.0),
+            "velocity_mps": np.tile([0.0, 600.0, 0.0], (m, 1))}
+    band = widest_cpi_band_hz(data, cpi=CPI, follow_speed=True, depression_deg=3.0, fc_hz=FC, beamwidth_deg=30.0,
+                              prf_hz=PRF)
+    assert band == pytest.approx(PRF) and auto_doppler_cells(band, cpi=CPI, prf_hz=PRF) == 4 * CPI
 
 
 def test_n_doppler_auto_in_the_chain_is_the_stages_own_band(tmp_path):
     """On the paper cube (a = 50) auto resolves to the Doppler stage's own widest band, 926.5 Hz = 11.9
-    resolution cells of 78.1 Hz: 24 cells (48 with the IAA estimator); the stage runs with them,
-    metrics.json reports them, fwdlook plan predicts them, and it is the default (since issue 11's
-    thirty-sixth round, at 4 per cell until its thirty-seventh; 64 before)."""
+    resolution cells of 78.1 Hz: 48 cells; the stage runs with them, metrics.json reports them, fwdlook
+    plan predicts them, and it is the default (since issue 11's thirty-sixth round; 64 before)."""
     import json
 
     from fwdlook_cli.forward.chain import build_forward_stages
@@ -211,22 +156,19 @@ def test_n_doppler_auto_in_the_chain_is_the_stages_own_band(tmp_path):
         if st.name == "doppler_spectra":
             break
     n = st.params["n_doppler"]
-    assert n == geo["n_doppler"] == 24 and data["sum_z"].shape[1] == n
+    assert n == geo["n_doppler"] == 48 and data["sum_z"].shape[1] == n
     f_z = data["doppler_hz"]                                   # cell centres (i + 1/2) band / n from f_lo
     widest = float(np.max((f_z[:, -1] - f_z[:, 0]) * n / (n - 1)))
     cpi, prf = scn["processing"]["cpi"], cube.radar["prf_hz"]
     assert widest == pytest.approx(926.5, abs=0.5)
-    assert n == int(np.ceil(2 * widest * cpi / prf - 1e-9))
-    iaa = dict(scn["processing"], doppler_estimator="iaa")
-    assert build_forward_stages(cube, iaa)[2]["n_doppler"] == int(np.ceil(4 * widest * cpi / prf - 1e-9)) == 48
+    assert n == int(np.ceil(4 * widest * cpi / prf - 1e-9))
     # fwdlook plan predicts the same band and count, from the scenario alone and from the cube
     from fwdlook_cli.forward.plan import plan_for_cube, plan_for_scenario
 
     for plan in (plan_for_scenario(scn), plan_for_cube(cube, scn["processing"])):
-        assert plan["n_doppler_auto"] == 24 and plan["n_doppler_auto_iaa"] == 48
-        assert plan["doppler_band_widest_hz"] == pytest.approx(widest, rel=1e-3)
+        assert plan["n_doppler_auto"] == 48 and plan["doppler_band_widest_hz"] == pytest.approx(widest, rel=1e-3)
     m = process_cube(cube, scn, tmp_path / "auto", png=False, quiet=True)
-    assert m["params"]["n_doppler"] == 24
-    assert json.loads((tmp_path / "auto" / "metrics.json").read_text())["params"]["n_doppler"] == 24
+    assert m["params"]["n_doppler"] == 48
+    assert json.loads((tmp_path / "auto" / "metrics.json").read_text())["params"]["n_doppler"] == 48
     default = load_scenario(root / "scenarios" / "paper_fig6_a50.yaml")
     assert default["processing"]["n_doppler"] == "auto"

@@ -30,10 +30,9 @@ from .keystone_fast import keystone_both, keystone_both_blocked
 from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
 from ..dsp.imaging import auto_range_oversample
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
-from .motion import (AUTO_CELLS_PER_RESOLUTION, IAA_AUTO_CELLS_PER_RESOLUTION, DopplerPhaseHistory,
-                     auto_doppler_cells, beam_range_history_m, boresight_doppler_spread_hz, bulk_range_history_m,
-                     cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion, keystone_residual_envelope_m,
-                     reference_depression_deg, unit_vector, widest_cpi_band_hz)
+from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history_m, boresight_doppler_spread_hz,
+                     bulk_range_history_m, cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion,
+                     keystone_residual_envelope_m, reference_depression_deg, unit_vector, widest_cpi_band_hz)
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData
@@ -394,14 +393,12 @@ def build_forward_stages(cube, proc: dict):
                                                 float(cube.range_m[-1]), geo["depression_deg"], geo["v_ref"],
                                                 cube.radar["fc_hz"], prf, proc["cpi"])
     geo["n_doppler"] = proc["n_doppler"]
-    if geo["n_doppler"] == "auto":       # the widest CPI band, 2 cells per resolution cell (4 for IAA: motion.py)
+    if geo["n_doppler"] == "auto":       # the widest CPI band at 4 cells per resolution cell (motion.py)
         widest_hz = widest_cpi_band_hz(
             {"slow_time_s": cube.slow_time_s, "scan_angle_deg": cube.scan_angle_deg, "velocity_mps": cube.velocity_mps},
             cpi=proc["cpi"], follow_speed=bool(proc["doppler_centroid"]), depression_deg=band_depressions,
             fc_hz=cube.radar["fc_hz"], beamwidth_deg=cube.radar["beamwidth_3db_deg"], prf_hz=prf)
-        iaa = proc.get("doppler_estimator", "fft") == "iaa"
-        geo["n_doppler"] = auto_doppler_cells(widest_hz, cpi=proc["cpi"], prf_hz=prf, per_resolution_cell=(
-            IAA_AUTO_CELLS_PER_RESOLUTION if iaa else AUTO_CELLS_PER_RESOLUTION))
+        geo["n_doppler"] = auto_doppler_cells(widest_hz, cpi=proc["cpi"], prf_hz=prf)
     geo["range_oversample"] = proc["range_oversample"]
     if geo["range_oversample"] == "auto":  # the power image's Nyquist rate (dsp/imaging.py)
         geo["range_oversample"] = auto_range_oversample(cube.radar["bandwidth_hz"], cube.radar["fs_hz"])

@@ -227,8 +227,7 @@ def cpi_means(data, cpi: int, follow_speed: bool):
     return t_cpi, t_cpi.mean(axis=1), beam_c, vel
 
 
-AUTO_CELLS_PER_RESOLUTION = 2       # processing.n_doppler: auto, zoomed cells per CPI resolution cell (Nyquist)
-IAA_AUTO_CELLS_PER_RESOLUTION = 4   # the same with processing.doppler_estimator: iaa, which resolves finer than a cell
+AUTO_CELLS_PER_RESOLUTION = 4       # processing.n_doppler: auto, zoomed cells per CPI resolution cell
 
 
 def widest_cpi_band_hz(data, *, cpi: int, follow_speed: bool, depression_deg, fc_hz: float, beamwidth_deg: float,
@@ -246,14 +245,8 @@ def auto_doppler_cells(band_hz: float, *, cpi: int, prf_hz: float,
     (the scan's widest, :func:`widest_cpi_band_hz`) at ``per_resolution_cell`` cells per native
     resolution cell PRF / cpi: ``ceil(per_resolution_cell * cpi * band / PRF)``, 4 to 4096.
 
-    2 per cell (the default) is the Nyquist rate of the power image: the power spectrum of a CPI of
-    ``cpi`` pulses, |sum_n w_n x_n e^{-j 2 pi f n / PRF}|^2, is a trigonometric polynomial of degree
-    cpi - 1 in f, so samples PRF / (2 cpi) apart hold it whole (the range axis' argument,
-    ``dsp.imaging.auto_range_oversample``).  A single sample still straddles: a point midway between two
-    zoomed cells loses sinc^2(1 / (2 per_resolution_cell)) of its peak in either (rectangular window):
-    0.91 dB at 2 per cell, 0.22 dB at 4; the image sums both cells' power.  The IAA estimator
-    (``processing.doppler_estimator: iaa``) resolves finer than a cell and takes
-    :data:`IAA_AUTO_CELLS_PER_RESOLUTION`.  One count serves every CPI (the spectra are one array), so
-    the widest band sets it: 8 cells for a band of the 4-cell minimum, 2 cpi for a band of the whole PRF
-    (steep depression)."""
+    A band of B Hz holds B cpi / PRF resolution cells; a point midway between two zoomed cells loses
+    sinc^2(1 / (2 per_resolution_cell)) of its peak (rectangular window): 0.22 dB at 4 per cell,
+    0.91 dB at 2.  One count serves every CPI (the spectra are one array), so the widest band sets it:
+    16 cells for a band of the 4-cell minimum, 4 cpi for a band of the whole PRF (steep depression)."""
     return int(min(4096, max(4, np.ceil(per_resolution_cell * float(band_hz) * cpi / prf_hz - 1e-9))))

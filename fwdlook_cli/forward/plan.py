@@ -25,8 +25,7 @@ import numpy as np
 
 from ..dsp.geometry import C_MPS, ambiguity_number
 from ..dsp.imaging import auto_range_oversample
-from .motion import (IAA_AUTO_CELLS_PER_RESOLUTION, auto_doppler_cells, boresight_doppler_spread_hz,
-                     doppler_band_depressions, widest_cpi_band_hz)
+from .motion import auto_doppler_cells, boresight_doppler_spread_hz, doppler_band_depressions, widest_cpi_band_hz
 
 
 def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf_hz, fs_hz,
@@ -95,8 +94,6 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         "doppler_range_spread_hz": range_spread_hz, "range_extent_m": [float(near), float(far)],
         "band_over_depressions": range_spread_hz > doppler_cell_hz,
         "doppler_band_widest_hz": widest_hz, "n_doppler_auto": auto_doppler_cells(widest_hz, cpi=cpi, prf_hz=prf_hz),
-        "n_doppler_auto_iaa": auto_doppler_cells(widest_hz, cpi=cpi, prf_hz=prf_hz,
-                                                 per_resolution_cell=IAA_AUTO_CELLS_PER_RESOLUTION),
         # processing.range_oversample: auto, the power image's Nyquist rate (dsp/imaging.py)
         "range_oversample_auto": (None if bandwidth_hz is None
                                   else auto_range_oversample(float(bandwidth_hz), float(fs_hz))),
@@ -161,8 +158,7 @@ def format_plan(plan: dict, name: str) -> str:
            if plan["band_over_depressions"] else "ok (one depression, eq. 25)"),
         f"  Doppler band         {plan['doppler_band_widest_hz']:9.1f} Hz  widest CPI band, "
         f"{plan['doppler_band_widest_hz'] / plan['doppler_cell_hz']:.1f} CPI Doppler cells: processing.n_doppler "
-        f"auto gives {plan['n_doppler_auto']} (2 per cell, the power's Nyquist rate; "
-        f"{plan['n_doppler_auto_iaa']} with doppler_estimator iaa)",
+        f"auto gives {plan['n_doppler_auto']} (4 per cell)",
     ]
     if plan.get("range_oversample_auto") is not None:
         lines.append(f"  range oversampling   x {plan['range_oversample_auto']} (processing.range_oversample auto: "

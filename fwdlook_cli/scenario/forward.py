@@ -117,9 +117,8 @@ FORWARD_SCHEMA: dict[str, Any] = {
                                  "at t_ref, or the initial v of the paper (the same for t_ref = start)"),
         "t_ref": Field(choice("start", "centre"), "centre", "time the corrected image refers to"),
         "n_doppler": Field(auto_or(integer(4, 4096)), "auto",
-                           "zoomed Doppler cells per CPI over the main-beam band; auto: 2 per CPI resolution cell "
-                           "(PRF / cpi, the power's Nyquist rate; 4 with doppler_estimator iaa) over the scan's "
-                           "widest CPI band (forward/motion.py::auto_doppler_cells)"),
+                           "zoomed Doppler cells per CPI over the main-beam band; auto: 4 per CPI resolution cell "
+                           "(PRF / cpi) over the scan's widest CPI band (forward/motion.py::auto_doppler_cells)"),
         "doppler_window": Field(choice("none", "hamming", "hann", "taylor"), "none",
                                 "slow-time window of each CPI before the Doppler zoom"),
         "range_oversample": Field(auto_or(integer(1, 16)), "auto",
