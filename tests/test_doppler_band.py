@@ -135,6 +135,61 @@ def test_auto_doppler_cells_of_a_band_of_the_whole_prf():
     assert band == pytest.approx(PRF) and auto_doppler_cells(band, cpi=CPI, prf_hz=PRF) == 4 * CPI
 
 
+def _power_interpolated(power, f_lo_hz, f_new_hz, degree):
+    """A power spectrum sampled at M cells (k + 1/2) PRF / M from ``f_lo_hz`` over the whole PRF, taken as
+    the trigonometric polynomial of ``degree`` through the samples and evaluated at ``f_new_hz``: numpy
+    alone (a direct sum over the samples; nothing of the stage)."""
+    m = power.shape[-1]
+    u = (np.arange(m) + 0.5) / m                                            # cell centres, cycles of the PRF
+    lags = np.arange(-degree, degree + 1)
+    coef = np.exp(-2j * np.pi * np.outer(lags, u)) @ power.T / m             # [lags, rows]
+    u_new = (np.asarray(f_new_hz) - f_lo_hz) / PRF
+    return np.real(np.exp(2j * np.pi * np.outer(u_new, lags)) @ coef).T
+
+
+def test_auto_cells_hold_the_cpi_power_spectrum_whole():
+    """``n_doppler: auto`` samples the CPI's power spectrum past its Nyquist rate.  The power spectrum of a
+    CPI is a trigonometric polynomial of degree cpi - 1, so the stage's power at 2 cpi cells over the PRF
+    (2 per resolution cell) gives, interpolated (numpy, :func:`_power_interpolated`), the power the same
+    stage computes on a grid 16 times finer, to 1e-5 of the peak, for echoes at arbitrary Doppler
+    frequencies; so does auto's 4 cpi.  On the native grid (1 per cell: the complex spectrum's Nyquist
+    rate, not the power's) the same interpolation misses by more than 5 % of the peak."""
+    from fwdlook_cli.forward.motion import auto_doppler_cells, widest_cpi_band_hz
+
+    m = 2 * CPI
+    t = np.arange(m) / PRF
+    data = {"slow_time_s": t, "scan_angle_deg": np.full(m, 60.0), "velocity_mps": np.tile([0.0, 600.0, 0.0], (m, 1))}
+    geom = dict(depression_deg=3.0, beamwidth_deg=30.0)              # every CPI's band is the whole PRF
+    auto = auto_doppler_cells(widest_cpi_band_hz(data, cpi=CPI, follow_speed=True, fc_hz=FC, prf_hz=PRF, **geom),
+                              cpi=CPI, prf_hz=PRF)
+    assert auto == 4 * CPI
+    rng = np.random.default_rng(7)
+    n_range = 6
+    d = tone_stage([0.0, 600.0, 0.0], 60.0, 0.0, n_cpi=2, n_range=n_range)
+    x = np.zeros((m, n_range), np.complex128)
+    for r in range(n_range):                     # three echoes per range cell, random Doppler and amplitude
+        for f, a in zip(rng.uniform(0, PRF, 3), rng.normal(size=3) + 1j * rng.normal(size=3)):
+            x[:, r] += a * np.exp(2j * np.pi * np.mod(f * t, 1.0))
+    d.vars["sum"].data[...] = x.astype(np.complex64)
+    kw = dict(cpi=CPI, window="none", fc_hz=FC, prf_hz=PRF, follow_speed=True, **geom)
+
+    def power(n_doppler):
+        out = doppler_spectra(d, n_doppler=n_doppler, **kw)
+        z = np.asarray(out["sum_z"], np.complex128)                         # [cpi, cell, range]
+        return np.abs(np.moveaxis(z, 1, 2)) ** 2, np.asarray(out["doppler_hz"])
+
+    fine, f_fine = power(16 * CPI)
+    peak = float(fine.max())
+    for cells, ok in ((auto, True), (2 * CPI, True), (CPI, False)):
+        coarse, f_coarse = power(cells)
+        f_lo = float(f_coarse[0, 0]) - 0.5 * PRF / cells
+        assert float(f_fine[0, 0]) - 0.5 * PRF / (16 * CPI) == pytest.approx(f_lo, abs=1e-6)   # the same band
+        est = np.stack([_power_interpolated(coarse[i], f_lo, f_fine[i], min(CPI - 1, (cells - 1) // 2))
+                        for i in range(coarse.shape[0])])
+        err = float(np.max(np.abs(est - fine))) / peak
+        assert (err < 1e-5) if ok else (err > 0.05), (cells, err)
+
+
 def test_n_doppler_auto_in_the_chain_is_the_stages_own_band(tmp_path):
     """On the paper cube (a = 50) auto resolves to the Doppler stage's own widest band, 926.5 Hz = 11.9
     resolution cells of 78.1 Hz: 48 cells; the stage runs with them, metrics.json reports them, fwdlook
