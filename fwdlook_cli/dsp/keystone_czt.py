@@ -71,10 +71,12 @@ class KeystonePlan:
     Per call the work is one length-``n`` FFT and two length-``L`` FFTs along axis 0,
     batched over all columns with ``workers=-1``, and three element-wise products.  The
     plan stores the input chirp (``n x n_cols``) and the filter spectrum
-    (``L x n_cols``), and caches the output chirp (``n x n_cols``) of the last few
-    ambiguities it was called with (a new ambiguity costs one extra chirp evaluation):
-    about 20 MB plus 5 MB per cached ambiguity for ``n = 2500``, ``n_cols = 256`` in
-    complex64; a call peaks at about 15 MB of temporaries and result.  A plan built with scalar
+    (``L x n_cols``), and caches the chirps of the last few ambiguities it was called with
+    (a new ambiguity costs one extra chirp evaluation: for a scalar F != 0 an input chirp
+    with eq. (22)'s per-column constant folded in, ``n x n_cols``, and the output chirp,
+    ``n x n_cols`` or per alpha with ``period``): about 20 MB plus 5-10 MB per cached
+    ambiguity for ``n = 2500``, ``n_cols = 256`` in complex64; a call peaks at about 15 MB
+    of temporaries and result.  A plan built with scalar
     `alpha` and `t0_index` applies to any number of columns.
 
     References
@@ -158,32 +160,43 @@ class KeystonePlan:
 
     # ----------------------------------------------------------------------------
     def _post_chirp(self, ambiguity):
+        """(input chirp, output chirp) for ambiguity number(s) ``ambiguity``, the most recent few cached.
+
+        For one scalar F the per-column constant of eq. (22), exp(j 2 pi F (1 - alpha) t0) / n, is
+        folded into that F's input chirp (a constant per column commutes with the column's linear
+        transform), and the output chirp is the per-alpha one: [n, period] for a plan with ``period``
+        (the groups share it, broadcast over them where it is applied: no [n, n_cols] output chirp
+        gathered or read), else gathered to the columns; for per-column F, [n, n_cols]."""
         F = _per_column(ambiguity, "ambiguity", integer=True)
         _n_cols(F, n_cols=self.n_cols)
         key = (F.size, F.tobytes())
-        post = self._post_cache.get(key)
-        if post is None:
+        chirps = self._post_cache.get(key)
+        if chirps is None:
             m = np.arange(self.n_slow, dtype=np.float64)[:, None]
             a_u, inv = self._alpha_unique, self._alpha_inverse
             base = (a_u / self.n_slow) * (self._c_min * m + 0.5 * m**2)   # [n, n_unique]
+            pre = self._pre
             if F.size == 1:
                 # eq. (22) corrected: exp(j 2 pi F tau), tau = alpha m' + (1-alpha) t0: the alpha m'
                 # part per distinct alpha, the constant (1-alpha) t0 part and the 1/n per column, each
                 # factor's phase reduced in float64 and taken in the plan's precision
                 f = float(F.reshape(-1)[0])
                 post = _cis(base + np.mod(f * a_u * m, 1.0), self.dtype)
-                post = post if inv is None else post[:, inv]
-                col = (_cis(np.mod(f * (1.0 - self.alpha) * self.t0_index, 1.0)) if f != 0.0
-                       else np.ones(self.n_cols, np.complex128)) / self.n_slow
-                post *= col.astype(self.dtype)[None, :]
+                if f != 0.0:                            # the column constant into the input chirp
+                    col = _cis(np.mod(f * (1.0 - self.alpha) * self.t0_index, 1.0)) / self.n_slow
+                    pre = pre * col.astype(self.dtype)[None, :]
+                else:
+                    post *= self.dtype.type(1.0 / self.n_slow)
+                if self._period is None and inv is not None:    # per alpha, gathered to the columns
+                    post = post[:, inv]
             else:
                 tau = self.alpha * m + (1.0 - self.alpha) * self.t0_index
                 post = _cis((base if inv is None else base[:, inv]) + np.mod(F * tau, 1.0), self.dtype)
                 post *= self.dtype.type(1.0 / self.n_slow)
             if len(self._post_cache) >= self._POST_CACHE_SIZE:
                 self._post_cache.pop(next(iter(self._post_cache)), None)
-            self._post_cache[key] = post
-        return post
+            chirps = self._post_cache[key] = (pre, post)
+        return chirps
 
     def post_cycles_f0(self):
         """The F = 0 output chirp's phase per column, in cycles (float64 [n_slow, n_cols]), without
@@ -252,16 +265,17 @@ class KeystonePlan:
             raise ValueError(f"out has shape {out.shape} and dtype {out.dtype}; expected {x.shape}, {self.dtype}")
         if self.n_cols not in (1, nc):
             raise ValueError(f"x has {nc} columns, the plan expects {self.n_cols}")
+        pre = self._pre
         if post is None:
-            post = self._post_chirp(ambiguity)
-        if post.shape[1] not in (1, nc):
+            pre, post = self._post_chirp(ambiguity)
+        grouped_post = post.shape[1] != nc and self._period is not None and post.shape[1] == self._period
+        if post.shape[1] not in (1, nc) and not grouped_post:
             raise ValueError(f"ambiguity has {post.shape[1]} columns, x has {nc}")
         if x.dtype != self.dtype:
             x = x.astype(self.dtype)
 
         X = sfft.fft(x, axis=0, workers=self.workers).reshape(n, nc)   # slow-time spectrum, FFT order
         buf = np.empty((L, nc), dtype=self.dtype)
-        pre = self._pre
         # centre the Doppler index while applying the input chirp (no fftshift pass)
         np.multiply(X[: n - s], pre[s:], out=buf[s:n])
         np.multiply(X[n - s :], pre[:s], out=buf[:s])
@@ -275,6 +289,15 @@ class KeystonePlan:
             grouped *= self._filt[:, None, :]
         buf = sfft.ifft(buf, axis=0, workers=self.workers, overwrite_x=True)
         # output chirp W^(m'^2/2 + c_min m') / n and ambiguity correction exp(j2pi F tau)
+        if grouped_post:                           # [n, period] over the groups
+            grouped = (n, nc // self._period, self._period)
+            into = out if out is not None and out.shape == grouped else None
+            y = np.multiply(buf[:n].reshape(grouped), post[:, None, :], out=into)
+            if out is None:
+                return y.reshape(x.shape)
+            if into is None:                       # another layout of out: written through its own shape
+                out[...] = y.reshape(out.shape)
+            return out
         if out is None and x.ndim == 2:
             return np.multiply(buf[:n], post)
         shape = x.shape
