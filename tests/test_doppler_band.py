@@ -151,9 +151,9 @@ def test_auto_cells_hold_the_cpi_power_spectrum_whole():
     """``n_doppler: auto`` samples the CPI's power spectrum past its Nyquist rate.  The power spectrum of a
     CPI is a trigonometric polynomial of degree cpi - 1, so the stage's power at 2 cpi cells over the PRF
     (2 per resolution cell) gives, interpolated (numpy, :func:`_power_interpolated`), the power the same
-    stage computes on a grid 16 times finer, to 1e-5 of the peak, for echoes at arbitrary Doppler
-    frequencies; so does auto's 4 cpi.  On the native grid (1 per cell: the complex spectrum's Nyquist
-    rate, not the power's) the same interpolation misses by more than 5 % of the peak."""
+    stage computes at 16 cells per resolution cell, to 1e-5 of the peak (4.4e-7 here), for echoes at
+    arbitrary Doppler frequencies; so does auto's 4 cpi (4.7e-7).  On the native grid (1 per cell: the complex spectrum's Nyquist
+    rate, not the power's) the same interpolation misses by more than 5 % of the peak (47 % here)."""
     from fwdlook_cli.forward.motion import auto_doppler_cells, widest_cpi_band_hz
 
     m = 2 * CPI

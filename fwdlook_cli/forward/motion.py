@@ -250,8 +250,8 @@ def auto_doppler_cells(band_hz: float, *, cpi: int, prf_hz: float,
     0.91 dB at 2.  2 per cell is already the Nyquist rate of the CPI's power spectrum (a trigonometric
     polynomial of degree cpi - 1 in f), which holds a point's power whole; 4 per cell is kept because
     the CPI image is a histogram of the cells' monopulse angles, and its fill grows with the count past
-    that rate (README, "Doppler cells": at 2 per cell the Fig. 8 scene's image has 15 % empty pixels
-    against 4 %, SSIM 0.24 against 0.29).  One count serves every CPI (the spectra are one array), so
+    that rate (README, "Doppler cells": at 2 per cell `beam`'s image of the Fig. 8 scene has 15 % empty
+    pixels against 4 %, SSIM 0.24 against 0.29).  One count serves every CPI (the spectra are one array), so
     the widest band sets it: 16 cells for a band of the 4-cell minimum, 4 cpi for a band of the whole
     PRF (steep depression)."""
     return int(min(4096, max(4, np.ceil(per_resolution_cell * float(band_hz) * cpi / prf_hz - 1e-9))))
