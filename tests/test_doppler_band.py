@@ -122,17 +122,27 @@ def test_auto_doppler_cells_sample_the_widest_band_at_four_per_resolution_cell(t
                 prf_hz=PRF) == max(want, 16)
 
 
-def test_auto_doppler_cells_of_a_band_of_the_whole_prf():
-    """Where the band reaches the PRF (fast flight, wide beam) auto gives 4 cells per resolution cell over
-    it: 4 cpi cells."""
+WHOLE_PRF = dict(velocity_mps=[0.0, 600.0, 0.0], scan_deg=60.0, depression_deg=3.0, beamwidth_deg=30.0)
+
+
+def _whole_prf_auto_cells():
+    """(band, auto count) of two CPIs of fast flight (600 m/s) with a 30 deg beam at 60 deg, where every
+    CPI's band is the whole PRF."""
     from fwdlook_cli.forward.motion import auto_doppler_cells, widest_cpi_band_hz
 
     m = 2 * CPI
-    data = {"slow_time_s": np.arange(m) / PRF, "scan_angle_deg": np.full(m, 60.0),
-            "velocity_mps": np.tile([0.0, 600.0, 0.0], (m, 1))}
-    band = widest_cpi_band_hz(data, cpi=CPI, follow_speed=True, depression_deg=3.0, fc_hz=FC, beamwidth_deg=30.0,
-                              prf_hz=PRF)
-    assert band == pytest.approx(PRF) and auto_doppler_cells(band, cpi=CPI, prf_hz=PRF) == 4 * CPI
+    data = {"slow_time_s": np.arange(m) / PRF, "scan_angle_deg": np.full(m, WHOLE_PRF["scan_deg"]),
+            "velocity_mps": np.tile(WHOLE_PRF["velocity_mps"], (m, 1))}
+    band = widest_cpi_band_hz(data, cpi=CPI, follow_speed=True, depression_deg=WHOLE_PRF["depression_deg"], fc_hz=FC,
+                              beamwidth_deg=WHOLE_PRF["beamwidth_deg"], prf_hz=PRF)
+    return band, auto_doppler_cells(band, cpi=CPI, prf_hz=PRF)
+
+
+def test_auto_doppler_cells_of_a_band_of_the_whole_prf():
+    """Where the band reaches the PRF (fast flight, wide beam) auto gives 4 cells per resolution cell over
+    it: 4 cpi cells."""
+    band, auto = _whole_prf_auto_cells()
+    assert band == pytest.approx(PRF) and auto == 4 * CPI
 
 
 def _power_interpolated(power, f_lo_hz, f_new_hz, degree):
@@ -152,26 +162,22 @@ def test_auto_cells_hold_the_cpi_power_spectrum_whole():
     CPI is a trigonometric polynomial of degree cpi - 1, so the stage's power at 2 cpi cells over the PRF
     (2 per resolution cell) gives, interpolated (numpy, :func:`_power_interpolated`), the power the same
     stage computes at 16 cells per resolution cell, to 1e-5 of the peak (4.4e-7 here), for echoes at
-    arbitrary Doppler frequencies; so does auto's 4 cpi (4.7e-7).  On the native grid (1 per cell: the complex spectrum's Nyquist
-    rate, not the power's) the same interpolation misses by more than 5 % of the peak (47 % here)."""
-    from fwdlook_cli.forward.motion import auto_doppler_cells, widest_cpi_band_hz
-
+    arbitrary Doppler frequencies; so does auto's 4 cpi (4.7e-7).  On the native grid (1 per cell: the
+    complex spectrum's Nyquist rate, not the power's) the same interpolation misses by more than 5 % of
+    the peak (47 % here)."""
+    _, auto = _whole_prf_auto_cells()
     m = 2 * CPI
     t = np.arange(m) / PRF
-    data = {"slow_time_s": t, "scan_angle_deg": np.full(m, 60.0), "velocity_mps": np.tile([0.0, 600.0, 0.0], (m, 1))}
-    geom = dict(depression_deg=3.0, beamwidth_deg=30.0)              # every CPI's band is the whole PRF
-    auto = auto_doppler_cells(widest_cpi_band_hz(data, cpi=CPI, follow_speed=True, fc_hz=FC, prf_hz=PRF, **geom),
-                              cpi=CPI, prf_hz=PRF)
-    assert auto == 4 * CPI
     rng = np.random.default_rng(7)
     n_range = 6
-    d = tone_stage([0.0, 600.0, 0.0], 60.0, 0.0, n_cpi=2, n_range=n_range)
+    d = tone_stage(WHOLE_PRF["velocity_mps"], WHOLE_PRF["scan_deg"], 0.0, n_cpi=2, n_range=n_range)
     x = np.zeros((m, n_range), np.complex128)
     for r in range(n_range):                     # three echoes per range cell, random Doppler and amplitude
         for f, a in zip(rng.uniform(0, PRF, 3), rng.normal(size=3) + 1j * rng.normal(size=3)):
             x[:, r] += a * np.exp(2j * np.pi * np.mod(f * t, 1.0))
     d.vars["sum"].data[...] = x.astype(np.complex64)
-    kw = dict(cpi=CPI, window="none", fc_hz=FC, prf_hz=PRF, follow_speed=True, **geom)
+    kw = dict(cpi=CPI, window="none", fc_hz=FC, prf_hz=PRF, follow_speed=True,
+              depression_deg=WHOLE_PRF["depression_deg"], beamwidth_deg=WHOLE_PRF["beamwidth_deg"])
 
     def power(n_doppler):
         out = doppler_spectra(d, n_doppler=n_doppler, **kw)

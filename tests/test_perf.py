@@ -159,6 +159,9 @@ def test_a_plan_applied_to_strided_views_writes_what_the_gathered_columns_give(t
     out = np.full(wide.shape, 7 + 7j, np.complex64)
     assert np.shares_memory(plan.apply(view, ambiguity=2, out=out[:, :, k]), out)     # written in place
     np.testing.assert_array_equal(out[:, :, k].reshape(64, -1), plan(gathered, ambiguity=2))
+    flat = np.empty_like(gathered)                          # a 2-D output for the grouped plan: the same
+    assert plan.apply(gathered, ambiguity=2, out=flat) is flat
+    np.testing.assert_array_equal(flat, plan(gathered, ambiguity=2))
     untouched = np.ones(n_f, bool)
     untouched[k] = False
     assert np.all(out[:, :, untouched] == 7 + 7j)
