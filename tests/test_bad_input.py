@@ -181,6 +181,8 @@ SCENARIO_CASES = [
     ("amplitude-overflows", _set("scene.amplitude", 1.0e300), [], ["scene.amplitude", "<= 10000"]),
     ("name-climbs-out-of-runs", _set("name", ".."), [], ["name", "'..'", "one folder"]),
     ("name-with-a-slash", _set("name", "../mine"), [], ["name", "one folder", "no '/'"]),
+    ("pulse-longer-than-its-interval", _set("radar.pulse_width_s", 1.0e-3), [],
+     ["radar.pulse_width_s", "0.001", "duty cycle", "1 / radar.prf_hz = 0.0005"]),
 ]
 
 
@@ -269,6 +271,13 @@ def _drop_position(f):
     del f["platform/position_m"]
 
 
+def _attr(group, key, value):
+    def fn(f):
+        f[group].attrs[key] = value
+
+    return fn
+
+
 def _truncated(good, tmp_path):
     path = tmp_path / "cube.h5"
     shutil.copyfile(good, path)
@@ -298,6 +307,26 @@ CUBE_CASES = [
     ("non-numeric-radar-prf", _h5_edit(_bad_prf_attr), ["/radar", "prf_hz", "'fast'"]),
     ("wrong-format-attr", _h5_edit(_wrong_format), ["format", "'netcdf-radar'", "'fwdlook-raw'"]),
     ("bad-format-version", _h5_edit(_bad_format_version), ["format_version", "'one'"]),
+    # each of these once ended in a traceback (the attribute's kind unchecked) or a 191 GiB allocation
+    ("format-an-array", _h5_edit(_attr("/", "format", np.array([1.0, 2.0]))), ["format", "'fwdlook-raw'"]),
+    ("format-version-inf", _h5_edit(_attr("/", "format_version", np.inf)), ["format_version", "inf"]),
+    ("antenna-pattern-an-array", _h5_edit(_attr("antenna", "pattern", np.array([1.0, 2.0]))),
+     ["/antenna", "pattern", "expected a name"]),
+    ("antenna-beta-text", _h5_edit(_attr("antenna", "beta_per_deg2", "abc")), ["/antenna", "beta_per_deg2", "number"]),
+    ("antenna-slope-inf", _h5_edit(_attr("antenna", "monopulse_slope_per_deg", np.inf)),
+     ["/antenna", "monopulse_slope_per_deg", "positive"]),
+    ("antenna-gain-nan", _h5_edit(_attr("antenna", "diff_gain_db", np.nan)), ["/antenna", "diff_gain_db", "finite"]),
+    ("bandwidth-3-hz", _h5_edit(_attr("radar", "bandwidth_hz", 3.0)),
+     ["/radar", "bandwidth_hz", "time-bandwidth"]),
+    ("resolution-over-the-window", _h5_edit(lambda f: (f["radar"].attrs.__setitem__("bandwidth_hz", 1.0e5),
+                                                       f["radar"].attrs.__setitem__("pulse_width_s", 1.0e-5))),
+     ["/radar", "bandwidth_hz", "longer than the range window", "77 samples"]),
+    ("sampled-below-the-band", _h5_edit(_attr("radar", "bandwidth_hz", 30.0e6)), ["/radar", "fs_hz", "bandwidth_hz"]),
+    ("pulse-width-zero", _h5_edit(_attr("radar", "pulse_width_s", 0.0)), ["/radar", "pulse_width_s", "positive"]),
+    ("pulse-longer-than-its-interval", _h5_edit(_attr("radar", "pulse_width_s", 1.0e-3)),
+     ["/radar", "pulse_width_s", "duty cycle", "1 / prf_hz"]),
+    ("range-weighting-unknown", _h5_edit(_attr("radar", "range_weighting", "kaiser")),
+     ["/radar", "range_weighting", "'kaiser'", "hamming"]),
     ("truncated-file", _truncated, ["truncated"]),
     ("text-file-named-h5", _text_file, ["HDF5"]),
     ("missing-cube-file", _missing_cube, ["not found"]),
@@ -308,7 +337,7 @@ CUBE_CASES = [
 # error there (see test_info_lists_foreign_hdf5); every other broken cube fails both commands.
 CUBE_PARAMS = [pytest.param(command, *case, id=f"{case[0]}-{command}")
                for case in CUBE_CASES for command in ("validate", "info")
-               if not (command == "info" and case[0] == "wrong-format-attr")]
+               if not (command == "info" and case[0] in ("wrong-format-attr", "format-an-array"))]
 
 
 @pytest.mark.parametrize("command, case_id, build, fragments", CUBE_PARAMS)
@@ -382,3 +411,101 @@ def test_set_overrides_resolved_value(tmp_path, capsys):
     assert code == 0, err
     assert scenario_hash(changed)[:16] in out_set
     assert scenario_hash(base)[:16] in out_base
+
+
+# ----------------------------------------------------------------------------------------------
+# Every key of a resolved scenario (every default filled in) given a value of the wrong kind
+# ----------------------------------------------------------------------------------------------
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+
+
+def _leaves(node, path=()):
+    for key, value in node.items():
+        if isinstance(value, dict):
+            yield from _leaves(value, path + (key,))
+        else:
+            yield path + (key,)
+
+
+@pytest.mark.parametrize("name", ["tiny", "paper_fig8_a50", "isar_theta3"])
+def test_every_key_refuses_a_mapping_in_one_line(tmp_path, capsys, name):
+    """No key of any scenario kind (points, extended image, ISAR) takes a mapping where a value goes:
+    each is refused with exit 2 and one line naming the file and the key's whole path, never a
+    traceback (the top-level ``kind`` once raised TypeError: a mapping is unhashable)."""
+    from fwdlook_cli.scenario.loader import dump_scenario
+
+    resolved_text = dump_scenario(load_scenario(SCENARIOS / f"{name}.yaml"))
+    leaves = list(_leaves(yaml.safe_load(resolved_text)))
+    assert len(leaves) > 20                      # the whole schema, defaults included
+    for i, path in enumerate(leaves):
+        raw = yaml.safe_load(resolved_text)
+        node = raw
+        for key in path[:-1]:
+            node = node[key]
+        node[path[-1]] = {"a": 1}
+        scenario = tmp_path / f"{i}.yaml"
+        scenario.write_text(yaml.safe_dump(raw, sort_keys=False), encoding="utf-8")
+        code, out, err = run_cli(["validate", scenario], capsys)
+        assert_bad_input(code, out, err, scenario, [".".join(path)])
+
+
+def test_a_far_isar_object_is_refused_by_its_window_size_before_simulation(tmp_path, capsys):
+    """The auto window holds the object's range minimum on its straight track; for an object 1e12 m out
+    that minimum lies 1e11 m nearer than its dwell, and the window's size was once checked over the
+    dwell alone, so the simulator tried to allocate 24 GiB.  Now the check sizes the window the
+    simulator builds (``scenario.isar.auto_range_extent_m``)."""
+    raw = yaml.safe_load((SCENARIOS / "isar_theta3.yaml").read_text(encoding="utf-8"))
+    raw["target"]["range_m"] = 1.0e12
+    scenario = tmp_path / "far.yaml"
+    scenario.write_text(yaml.safe_dump(raw, sort_keys=False), encoding="utf-8")
+    output = tmp_path / "out" / "raw.h5"
+    code, out, err = run_cli(["simulate", scenario, "-o", output], capsys)
+    assert_bad_input(code, out, err, scenario, ["radar.range_window_m = auto", "GiB"])
+    assert_nothing_written(tmp_path, output)
+
+
+def test_the_isar_window_holds_what_the_size_check_counted():
+    """The simulator's auto range axis spans the extent the check sized (its kernel reach and guard
+    samples aside): the same function gives both."""
+    from fwdlook_cli.scenario.isar import auto_range_extent_m, isar_geometry, scatterer_ranges_m
+    from fwdlook_cli.isar.simulate import simulate_isar_scenario
+
+    scn = load_scenario(SCENARIOS / "isar_theta3.yaml", overrides=["radar.n_pulses=600"])
+    t, pos0, vel, _ = isar_geometry(scn)
+    near, far = auto_range_extent_m(pos0, vel, scatterer_ranges_m(pos0, vel, t))
+    cube, _ = simulate_isar_scenario(scn)
+    reach_m = 299_792_458.0 * scn["radar"]["pulse_width_s"] / 2.0
+    assert cube.range_m[0] <= near - reach_m + 1e-6 and cube.range_m[-1] >= far + reach_m - 1e-6
+
+
+def test_a_pattern_file_under_another_pattern_is_said_to_be_unread(tmp_path, capsys):
+    """``antenna.pattern_file`` is only read with ``antenna.pattern: table``; set beside gaussian2 it
+    would be ignored silently, and the cube simulated with the Gaussian beams.  It is valid, and said."""
+    scenario = _set("antenna.pattern_file", "measured.csv")(tmp_path)
+    code, out, err = run_cli(["validate", scenario], capsys)
+    assert code == 0, err
+    assert "antenna.pattern_file = 'measured.csv' is not read" in err and "gaussian2" in err
+
+
+def test_a_noise_record_of_the_wrong_kind_is_said_and_left_out(good_cube, tmp_path, capsys):
+    """/echo's ``noise_*`` attributes only record what the simulator drew; one that is no number (a
+    text here; it once stopped `info` with a TypeError) is said once and left out, and the cube is read."""
+    path = _h5_edit(_attr("echo", "noise_snr_db", "abc"))(good_cube, tmp_path)
+    for command in ("validate", "info"):
+        code, out, err = run_cli([command, path], capsys)
+        assert code == 0, err
+        assert "noise_snr_db = 'abc' is not a number; ignored" in err
+    assert "SNR             unknown" in out         # no SNR on record
+
+
+def test_a_zero_amplitude_target_has_no_peak_loss(good_cube, tmp_path, capsys):
+    """A truth target of amplitude 0 (a recorded cube's surveyed point of unknown strength) has no
+    ideal peak to lose against: its peak loss is null in metrics.json (it once made the file invalid
+    JSON: Infinity), and the run finishes."""
+    import json
+
+    path = _h5_edit(lambda f: f["truth/targets/amplitude"].__setitem__(slice(None), 0.0))(good_cube, tmp_path)
+    code, out, err = run_cli(["process", path, "-o", tmp_path / "run", "-q"], capsys)
+    assert code == 0, err
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert all(t.get("peak_loss_db") is None for t in metrics["targets"])

@@ -488,3 +488,58 @@ def test_only_cubes_read_from_files_are_checked_against_their_antenna(tmp_path, 
     assert _cli(["process", tmp_path / "sim" / "raw.h5", "-o", tmp_path / "file", "-q"]) == 0
     assert _cli(["run", tiny, "--raw", tmp_path / "sim" / "raw.h5", "-o", tmp_path / "raw", "-q"]) == 0
     assert len(calls) == 2
+
+
+@pytest.mark.parametrize("factor", [2.0, 0.5])
+def test_process_refuses_auto_where_the_data_contradict_the_antenna_slope(tmp_path, capsys, factor):
+    """/antenna's monopulse slope twice or half what the data measure (an antenna group of another
+    antenna): read through it, every angle would be half or twice what it is, and `auto` took it as it
+    was (0.25 deg RMS on the tiny scene, no warning).  `process` refuses `auto` in one line naming the
+    file, both slopes and the allowed values, `info` says it on its `check` line, and `data` places the
+    points as the untouched cube does."""
+    import h5py
+    import json
+    import re
+
+    good, _ = _good_and_flipped_cubes(tmp_path)
+    wrong = tmp_path / "wrong_slope.h5"
+    wrong.write_bytes(good.read_bytes())
+    with h5py.File(wrong, "r+") as f:
+        f["antenna"].attrs["monopulse_slope_per_deg"] = f["antenna"].attrs["monopulse_slope_per_deg"] * factor
+    capsys.readouterr()
+    assert _cli(["process", wrong, "-o", tmp_path / "auto", "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(wrong) in err[0] and "processing.monopulse_calibration = auto" in err[0], err
+    assert "monopulse slope" in err[0] and "times the data's" in err[0] and "allowed: data" in err[0]
+    percent = float(re.search(r"\(([+-]\d+) %\)", err[0]).group(1))      # /antenna's against the data's
+    assert abs(percent - 100 * (factor - 1)) < 10 * factor                  # the data's slope within 5 %
+    assert not (tmp_path / "auto" / "metrics.json").exists()
+    assert _cli(["info", wrong]) == 0
+    assert "monopulse slope" in capsys.readouterr().out
+    runs = {}
+    for tag, path, sets in (("good", good, []), ("data", wrong, ["--set", "processing.monopulse_calibration=data"])):
+        assert _cli(["process", path, "-o", tmp_path / tag, "-q", *sets]) == 0, tag
+        runs[tag] = json.loads((tmp_path / tag / "metrics.json").read_text())
+    truth = np.array([t["true_azimuth_deg"] for t in runs["good"]["targets"]])
+    az = {tag: np.array([t["meas_azimuth_deg"] for t in m["targets"]], dtype=float) for tag, m in runs.items()}
+    good_err = np.nanmax(np.abs(az["good"] - truth))
+    assert np.nanmax(np.abs(az["data"] - truth)) < max(2 * good_err, 0.1)
+
+
+@pytest.mark.parametrize("overrides", [["antenna.pattern=sinc2"], ["antenna.diff_gain_db=3"],
+                                       ["antenna.squint_deg=1.9"], ["antenna.diff_phase_deg=30"]],
+                         ids=["sinc2", "gain3dB", "squint1.9", "phase30"])
+def test_the_slope_check_passes_fwdlooks_own_antennas(overrides):
+    """No false alarm on cubes whose /antenna is right: sinc2 beams (whose ratio curve the data's tanh
+    fits least well: 7 % apart at boresight, under the 20 % bar), a 3 dB difference-channel gain (the
+    data measure slope x gain), a wide squint and a 30 deg difference-channel phase."""
+    from fwdlook_cli.forward.calibration import SLOPE_CONTRADICTION, antenna_contradiction, calibration_for_cube
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    cube, _ = simulate_scenario(load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "isolated_a50.yaml",
+                                              overrides=overrides))
+    cal = calibration_for_cube(cube, "data")
+    rel = cal.stats["cube_effective_slope_per_deg"] / cal.stats["effective_slope_per_deg"] - 1.0
+    assert abs(rel) < SLOPE_CONTRADICTION / 2, rel          # a margin of 2 under the bar
+    assert antenna_contradiction(cube, cal) is None

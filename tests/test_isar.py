@@ -340,3 +340,48 @@ def test_a_range_minimum_far_outside_the_dwell_is_refused_before_its_padding(tmp
     for fragment in (str(scenario), "processing.n0_pulses", "-1e+09", "GiB", "allowed: a range minimum within"):
         assert fragment in err, (fragment, err)
     assert not (tmp_path / "r" / "metrics.json").exists()
+
+
+# ----------------------------------------------------------------------------------------------
+# A recorded ISAR cube whose truth or echo holds nothing to measure
+# ----------------------------------------------------------------------------------------------
+def _edited(cube, edit):
+    out = copy.copy(cube)
+    out.truth = {k: np.array(v, copy=True) for k, v in cube.truth.items()}
+    out.sum = np.array(cube.sum, copy=True)
+    edit(out)
+    return out
+
+
+def test_a_cube_with_nothing_to_measure_gives_null_metrics_not_a_traceback():
+    """Each of these once ended the chain's outputs in an exception (a cube read from a file, where the
+    truth is the recorder's, not the simulator's): an all-zero echo (nothing returned: ValueError
+    'profile is all zero'), a truth amplitude of 0 (the ideal integrated peak 0: ZeroDivisionError), and
+    a truth that puts the reference scatterer's track off the image's range axis (argmax of an empty
+    gate).  Each now gives the measures it can and null for the rest; the unedited cube the numbers."""
+    scn = scenario(radar={"n_pulses": 600})
+    cube, _ = simulate_isar_scenario(scn)
+    base = run(cube, scn)[1]["summary"]
+    assert base["integration_gain_db"] is not None and math.isfinite(base["migration_span_cells"])
+    edits = {"zero echo": lambda c: c.sum.fill(0), "zero amplitude": lambda c: c.truth["amplitude"].fill(0.0),
+             "track off the axis": lambda c: c.truth["x_m"].__iadd__(5000.0)}
+    for name, edit in edits.items():
+        summary = run(_edited(cube, edit), scn)[1]["summary"]
+        assert summary["integration_gain_db"] is None, name
+    gone = run(_edited(cube, edits["track off the axis"]), scn)[1]["summary"]
+    assert gone["migration_span_cells"] is None or not math.isfinite(gone["migration_span_cells"])
+
+
+def test_a_truth_at_rest_gives_no_range_model(caplog):
+    """ISAR images a moving object (the scenario refuses a zero velocity); a recorded truth at rest has
+    no range curve to give (eq. 7: its v^2 is 0, and n0 = -r0 rdot / v^2 once divided by it).  The
+    truth model is then None, said in one warning: keystone2_n0, which needs it, is refused as for a
+    cube without truth, and keystone2_n0_est takes the model from the data."""
+    scn = scenario(radar={"n_pulses": 600})
+    cube, _ = simulate_isar_scenario(scn)
+    rest = _edited(cube, lambda c: [c.truth[k].fill(0.0) for k in ("vx_mps", "vy_mps", "vz_mps")])
+    with pytest.raises(BadInput, match="no /truth/targets geometry"):
+        run(rest, scn, correction="keystone2_n0")
+    assert "at rest" in caplog.text
+    _, metrics = run(rest, scn, correction="keystone2_n0_est")
+    assert metrics["params"]["range_model_source"] == "estimate"

@@ -34,6 +34,17 @@ def test_running_max_of_a_lone_spike_is_the_window_around_it():
         np.testing.assert_array_equal(lit, np.arange(20 - (size - 1) // 2, 20 + size // 2 + 1))
 
 
+def test_running_max_of_a_window_far_wider_than_the_axis_is_the_row_maximum():
+    """A window of 10^9 samples over 77 (the calibration's sidelobe reach, 8 resolution cells, of a cube
+    whose band is narrow against its sampling rate): every window holds the whole row, so the answer is
+    the row's maximum, as scipy's for a window just past twice the axis, without padding the row by
+    the window (which once asked for 191 GiB)."""
+    x = np.random.default_rng(3).standard_normal((4, 77)).astype(np.float32)
+    got = running_max(x, 10**9, axis=1)
+    np.testing.assert_array_equal(got, maximum_filter1d(x, 2 * 77 + 1, axis=1, mode="nearest"))
+    np.testing.assert_array_equal(got, np.broadcast_to(x.max(axis=1, keepdims=True), x.shape))
+
+
 def test_running_max_rejects_an_empty_window():
     with pytest.raises(ValueError, match="size 0"):
         running_max(np.ones(4), 0)

@@ -123,6 +123,25 @@ def test_sweep_rejects_unknown_keys_and_bad_grid(tmp_path, capsys):
     assert exc.value.code == 2 and "grids" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("key, value", [
+    ("config", 7), ("config", ["a.yaml"]), ("config", {"a": 1}),                # once: TypeError on a path
+    ("combine", [{"a": 1}]), ("combine", [["processing.q"]]),                  # once: unhashable
+    ("keep_stages", "no"), ("keep_stages", [1]),                               # once: bool() of anything
+    ("set", [7]), ("set", ["processing.q"]), ("name", ["a"])])
+def test_a_sweep_files_keys_of_the_wrong_kind_are_one_line(tmp_path, capsys, key, value):
+    """Each of the sweep file's own keys takes one kind of value; any other is refused with exit 2 and
+    one line naming the file, the key and the value, before any point runs (no output folder)."""
+    raw = {"scenarios": [str(ROOT / "scenarios" / "tiny.yaml")], "grid": {"processing.q": [4, 8]}, key: value}
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", str(path), "-o", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1, err
+    assert str(path) in err[0] and f"{key} = " in err[0] and "Traceback" not in err[0]
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize("path", sorted((ROOT / "configs" / "sweeps").glob("*.yaml")), ids=lambda p: p.name)
 def test_every_shipped_sweep_resolves_every_point(path, tmp_path):
     """The sweep files the README and `make reproduce` name: each point a valid scenario (a typo in a

@@ -17,11 +17,35 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.fft
 from .geometry import C_MPS
 
 TABLE_OVERSAMPLE = 64  # table points per range sample
 RANGE_GUARD_SAMPLES = 8  # guard samples of an automatic range axis beyond the kernel's reach
+
+
+WEIGHTINGS = ("none", "hamming", "hann", "taylor")
+
+
+def pulse_rule_broken(*, bandwidth_hz: float, fs_hz: float, pulse_width_s: float | None, prf_hz: float,
+                      prefix: str = ""):
+    """The first rule a radar's pulse breaks, as (key, value, why), else None: complex sampling of the
+    compressed pulse (fs >= B), a time-bandwidth product of at least 1 (the compressed pulse no longer
+    than the transmitted one), and a duty cycle below 1 (a pulse shorter than the pulse interval).  The
+    other keys named in ``why`` carry ``prefix`` (the scenario's ``radar.``).  ``pulse_width_s`` None: a
+    cube that does not record it (only the first rule)."""
+    if fs_hz < bandwidth_hz:
+        return "fs_hz", fs_hz, (f"must be >= {prefix}bandwidth_hz = {bandwidth_hz:g} (complex sampling of the "
+                                f"compressed pulse)")
+    if pulse_width_s is None:
+        return None
+    if bandwidth_hz * pulse_width_s < 1.0:
+        return "bandwidth_hz", bandwidth_hz, (f"must be >= 1 / {prefix}pulse_width_s = {1.0 / pulse_width_s:g} (a "
+                                              f"time-bandwidth product of at least 1: the compressed pulse no "
+                                              f"longer than the transmitted one)")
+    if pulse_width_s * prf_hz >= 1.0:
+        return "pulse_width_s", pulse_width_s, (f"must be shorter than the pulse interval 1 / {prefix}prf_hz = "
+                                                f"{1.0 / prf_hz:g} s (a duty cycle below 1)")
+    return None
 
 
 def weighting(name: str, n: int) -> np.ndarray:
@@ -36,7 +60,7 @@ def weighting(name: str, n: int) -> np.ndarray:
         from scipy.signal.windows import taylor  # heavy import, only when asked for
 
         return taylor(n, nbar=4, sll=35, sym=True)
-    raise ValueError(f"weighting {name!r}; allowed: none, hamming, hann, taylor")
+    raise ValueError(f"weighting {name!r}; allowed: {', '.join(WEIGHTINGS)}")
 
 
 @dataclass(frozen=True)
@@ -54,6 +78,8 @@ class CompressedPulse:
         t = (np.arange(n_chirp) - (n_chirp - 1) / 2) * dt
         chirp = np.exp(1j * np.pi * (self.bandwidth_hz / self.pulse_width_s) * t**2)
         reference = chirp * weighting(self.weighting, n_chirp)
+        import scipy.fft       # here, not at the top: the scenario and cube readers import WEIGHTINGS
+
         n_fft = scipy.fft.next_fast_len(2 * n_chirp - 1)
         corr = scipy.fft.ifft(scipy.fft.fft(chirp, n_fft) * np.conj(scipy.fft.fft(reference, n_fft)))
         corr = np.concatenate([corr[-(n_chirp - 1):], corr[:n_chirp]])  # lags -(n-1)..(n-1)
@@ -91,6 +117,8 @@ def auto_range_axis_m(range_min_m, range_max_m, fs_hz, pulse: CompressedPulse):
     dr = C_MPS / (2.0 * fs_hz)
     reach = C_MPS * pulse.support_s / 2.0 + RANGE_GUARD_SAMPLES * dr
     near = np.floor((range_min_m - reach) / dr) * dr
+    import scipy.fft
+
     n = scipy.fft.next_fast_len(int(np.ceil((range_max_m + reach - near) / dr)) + 1)
     return near + dr * np.arange(n)
 

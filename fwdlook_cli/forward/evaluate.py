@@ -249,15 +249,16 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
     # else the dwell's last CPI), for every usable target at once
     meas = meas_row.astype(np.float64)
     ideal = amplitude[t_row] * sigma[t_row, c_row] ** 2 * cg
-    best = _best_ratio_rows(meas / ideal, starts[usable])        # (the usable dwells tile the rows)
     loss_db = np.full(n_t, np.nan)
-    loss_db[usable] = 20 * np.log10(np.maximum(meas[best], 1e-30) / ideal[best])
+    with np.errstate(divide="ignore", invalid="ignore"):     # a target of amplitude 0 has no loss: None
+        best = _best_ratio_rows(meas / ideal, starts[usable])    # (the usable dwells tile the rows)
+        loss_db[usable] = 20 * np.log10(np.maximum(meas[best], 1e-30) / ideal[best])
     out = []
     for k in range(n_t):
         if not usable[k]:
             out.append({"peak_loss_db": None, "islr_db": None, "pslr_db": None, "range_width_3db_m": None})
             continue
-        out.append({"peak_loss_db": float(loss_db[k]), "islr_db": _f(islr[k]), "pslr_db": _f(pslr[k]),
+        out.append({"peak_loss_db": _f(loss_db[k]), "islr_db": _f(islr[k]), "pslr_db": _f(pslr[k]),
                     "range_width_3db_m": _f(width[k])})
     return out
 

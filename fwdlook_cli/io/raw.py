@@ -18,6 +18,7 @@ import numpy as np
 from . import backing
 from .cube import RADAR_KEYS, RawCube
 from ..dsp.geometry import C_MPS
+from ..dsp.pulse import WEIGHTINGS, pulse_rule_broken
 from ..dsp.keystone_common import carrier_floor_text
 from ..errors import BadInput
 from .describe import _plain
@@ -164,11 +165,11 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     fmt = f.attrs.get("format")
     if isinstance(fmt, bytes):
         fmt = fmt.decode()
-    if fmt != RAW_FORMAT:
+    if not isinstance(fmt, str) or fmt != RAW_FORMAT:
         raise BadInput(f"{source}: / attribute format = {shown(fmt)}; allowed: {RAW_FORMAT!r}")
     try:
         version = int(f.attrs.get("format_version", -1))
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         version = None
     if version != RAW_FORMAT_VERSION:
         raise BadInput(f"{source}: / attribute format_version = {shown(f.attrs.get('format_version'))}; "
@@ -184,7 +185,7 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
         log.warning(f"{source}: {hint}")
     echo_sum = _array(f, "echo/sum", source, kind=np.complex64, shape=(n_p, n_r), complex_ok=True)
     channels = _plain(f.attrs.get("channels", "sum,diff"))
-    if channels == "sum" and "diff" not in f["echo"]:
+    if isinstance(channels, str) and channels == "sum" and "diff" not in f["echo"]:
         echo_diff = None  # single-channel cube (ISAR): / attribute channels = "sum"
     else:
         echo_diff = _array(f, "echo/diff", source, kind=np.complex64, shape=(n_p, n_r), complex_ok=True)
@@ -224,10 +225,11 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     for key, value in radar_grp.attrs.items():
         if key not in radar:
             radar[key] = value.decode() if isinstance(value, bytes) else _plain(value)
+    _check_optional_radar(radar, source)
     _check_pulse_timing(slow_time_s, radar["prf_hz"], source)
-    _check_radar_values(radar, dr[0], source)
+    _check_radar_values(radar, dr[0], n_r, source)
     antenna = _read_antenna(f, source)
-    noise = {k[len("noise_"):]: _plain(v) for k, v in f["echo"].attrs.items() if k.startswith("noise_")}
+    noise = _read_noise(f["echo"].attrs, source)
     truth = None
     tg = f.get("truth/targets")
     if isinstance(tg, h5py.Group):
@@ -290,8 +292,29 @@ def _check_pulse_timing(slow_time_s: np.ndarray, prf_hz: float, source: str) -> 
                        f"{prf_axis_hz:.9g} Hz; allowed: within {PRF_TOLERANCE:g} (relative) of that rate")
 
 
-def _check_radar_values(radar: dict, range_step_m: float, source: str) -> None:
-    """What the chain's physics needs of the /radar attributes besides being positive numbers."""
+def _check_optional_radar(radar: dict, source: str) -> None:
+    """The /radar attributes a cube may leave out (``pulse_width_s``, ``range_weighting``: where known,
+    the ISAR metrics' closed form uses them): where given, of the kind they must be."""
+    if "pulse_width_s" in radar:
+        value = radar["pulse_width_s"]
+        try:
+            value = float(value)
+        except (TypeError, ValueError):
+            raise BadInput(f"{source}: /radar attribute pulse_width_s = {shown(value)}: expected a number") from None
+        if not (np.isfinite(value) and value > 0):
+            raise BadInput(f"{source}: /radar attribute pulse_width_s = {shown(value)}: must be a positive number")
+        radar["pulse_width_s"] = value
+    weighting = radar.get("range_weighting", "none")
+    if not isinstance(weighting, str) or weighting not in WEIGHTINGS:
+        raise BadInput(f"{source}: /radar attribute range_weighting = {shown(weighting)}; allowed: "
+                       f"{', '.join(WEIGHTINGS)}")
+
+
+def _check_radar_values(radar: dict, range_step_m: float, n_range: int, source: str) -> None:
+    """What the chain's physics needs of the /radar attributes besides being positive numbers: the
+    scenario's own rules on the pulse (fs >= B, B T >= 1: scenario/forward.py), and a range window at
+    least one resolution cell c / (2 B) long (a narrower band has no range to image, and every profile
+    measured in resolution cells would span millions of samples)."""
     why = carrier_floor_text(radar["fc_hz"], radar["fs_hz"])
     if why:
         raise BadInput(f"{source}: /radar attribute fc_hz = {radar['fc_hz']:g}: {why}")
@@ -304,6 +327,17 @@ def _check_radar_values(radar: dict, range_step_m: float, source: str) -> None:
         raise BadInput(f"{source}: /radar attribute fs_hz = {radar['fs_hz']:.9g}: /axes/range_m steps "
                        f"{range_step_m:.6g} m, c / (2 fs_hz) = {step_m:.6g} m; allowed: within "
                        f"{RANGE_STEP_TOLERANCE:g} (relative): fs_hz is the rate of the range samples")
+    band_hz, fs_hz = radar["bandwidth_hz"], radar["fs_hz"]
+    broken = pulse_rule_broken(bandwidth_hz=band_hz, fs_hz=fs_hz, pulse_width_s=radar.get("pulse_width_s"),
+                               prf_hz=radar["prf_hz"])
+    if broken:
+        key, value, why = broken
+        raise BadInput(f"{source}: /radar attribute {key} = {value:.9g}: {why}")
+    if n_range * band_hz / fs_hz < 1.0:
+        raise BadInput(f"{source}: /radar attribute bandwidth_hz = {band_hz:.9g}: its resolution cell "
+                       f"c / (2 B) = {C_MPS / (2.0 * band_hz):.6g} m is longer than the range window "
+                       f"({n_range} samples of {range_step_m:.6g} m); allowed: B >= fs_hz / {n_range} = "
+                       f"{fs_hz / n_range:.6g} Hz")
 
 
 def _read_antenna(f: h5py.File, source: str) -> dict:
@@ -327,15 +361,45 @@ def _read_antenna(f: h5py.File, source: str) -> dict:
             raise BadInput(f"{source}: /antenna/ratio: not strictly increasing with ratio_offset_deg; allowed: "
                            f"a ratio curve monotone over the main lobe")
         antenna["ratio_offset_deg"], antenna["ratio"] = offset, ratio
-    for key in ("monopulse_slope_per_deg", "squint_deg", "diff_gain_db", "diff_phase_deg"):
+    if "pattern" in antenna and not isinstance(antenna["pattern"], str):
+        raise BadInput(f"{source}: /antenna attribute pattern = {shown(antenna['pattern'])}: expected a name "
+                       f"(e.g. gaussian2, sinc2, table)")
+    for key in ANTENNA_NUMBERS:
         if key in antenna:
             try:
                 value = float(antenna[key])
             except (TypeError, ValueError):
-                raise BadInput(f"{source}: /antenna attribute {key} = {antenna[key]!r}: expected a number") from None
-            if key == "monopulse_slope_per_deg" and not value > 0:
+                raise BadInput(f"{source}: /antenna attribute {key} = {shown(antenna[key])}: "
+                               f"expected a number") from None
+            if key in ANTENNA_POSITIVE and not (np.isfinite(value) and value > 0):
                 raise BadInput(f"{source}: /antenna attribute {key} = {value!r}: must be a positive number")
+            if not np.isfinite(value) and not (np.isnan(value) and key in ANTENNA_MAY_BE_NAN):
+                raise BadInput(f"{source}: /antenna attribute {key} = {value!r}: must be a finite number"
+                               + (" (or NaN: not given)" if key in ANTENNA_MAY_BE_NAN else ""))
             antenna[key] = value
     return antenna
+
+
+ANTENNA_NUMBERS = ("monopulse_slope_per_deg", "squint_deg", "diff_gain_db", "diff_phase_deg", "beta_per_deg2",
+                   "crossover_db", "main_lobe_deg")
+ANTENNA_POSITIVE = ("monopulse_slope_per_deg", "beta_per_deg2", "main_lobe_deg")
+ANTENNA_MAY_BE_NAN = ("squint_deg", "crossover_db")      # a measured table has neither (dsp/antenna.py)
+
+
+def _read_noise(attrs, source: str) -> dict:
+    """/echo's ``noise_*`` attributes (what the simulator drew: informational, never used by the chain):
+    the real scalars as they are (NaN or Inf included: a noiseless cube's SNR is Inf); anything else is
+    said and left out."""
+    noise = {}
+    for key, value in attrs.items():
+        if not key.startswith("noise_"):
+            continue
+        value = _plain(value)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            noise[key[len("noise_"):]] = value
+        else:
+            log.warning(f"{source}: /echo attribute {key} = {shown(value)} is not a number; ignored "
+                        f"(it only records the simulated noise)")
+    return noise
 
 

@@ -72,6 +72,8 @@ def _cut_metrics(line, idx, spacing, factor=16):
 
     line = np.asarray(line)
     n = len(line)
+    if not np.any(line):                   # nothing returned here (an all-zero echo): nothing to measure
+        return _Cut(float(idx), 0.0, math.nan, math.nan, math.nan)
     fine = np.abs(oversample_profile(line, factor)[: (n - 1) * factor + 1]) ** 2
     lo = max(1, int((idx - 1.5) * factor))
     hi = min(len(fine) - 1, int((idx + 1.5) * factor) + 1)
@@ -84,6 +86,14 @@ def _cut_metrics(line, idx, spacing, factor=16):
         pm = profile_metrics(line[a:idx + 2 * int(ANALYSIS_WINDOW_CELLS) + 1], spacing=spacing,
                              window_cells=ANALYSIS_WINDOW_CELLS)
     return _Cut(pos / factor, peak, pm.width_3db, pm.pslr_db, pm.islr_db)
+
+
+def _gain_db(peak_power, ideal_amplitude):
+    """The image peak against the ideally integrated one; None where either is missing or zero (nothing
+    returned; a truth amplitude of 0: a recorded cube's surveyed point of unknown strength)."""
+    if peak_power is None or not peak_power > 0 or not ideal_amplitude > 0:
+        return None
+    return 10.0 * math.log10(peak_power / ideal_amplitude**2)
 
 
 def _measure_peak(image, i, j, dr_m, df_hz):
@@ -197,9 +207,9 @@ def isar_outputs(final: StageData, cube, processing: dict):
                 })
             if k == 0:  # integration gain: the image maximum wherever the migration smeared it
                 lo_m, hi_m = (float(rng[0]) + g * dr for g in gate)
-                i, j, _ = gated_peak(0.5 * (lo_m + hi_m), 0.5 * (hi_m - lo_m), pred_f, wide_f)
-                _, _, peak = _measure_peak(img, i, j, dr, df)
-                row["integration_gain_db"] = 10.0 * math.log10(max(peak, 1e-300) / ideal**2)
+                at = gated_peak(0.5 * (lo_m + hi_m), 0.5 * (hi_m - lo_m), pred_f, wide_f)
+                peak = _measure_peak(img, at[0], at[1], dr, df)[2] if at is not None else None
+                row["integration_gain_db"] = _gain_db(peak, ideal)   # (None: the track off the image)
             rows.append(row)
         ref_row = rows[0]
     else:
@@ -208,7 +218,7 @@ def isar_outputs(final: StageData, cube, processing: dict):
         ref_row = {"peak_power": peak, "range_width_3db_m": rm.width_3db,
                    "cross_range_width_3db_m": am.width_3db * abs(xscale), "islr_db": rm.islr_db,
                    "pslr_db": rm.pslr_db, "azimuth_islr_db": am.islr_db, "azimuth_pslr_db": am.pslr_db,
-                   "integration_gain_db": 10.0 * math.log10(max(peak, 1e-300) / ideal**2)}
+                   "integration_gain_db": _gain_db(peak, ideal)}
     span, _, _ = migration_span_cells(final["echo_rc"], gate=gate)      # in range samples c / (2 fs)
     spans = span_units(span, fs_hz=float(cube.radar["fs_hz"]), bandwidth_hz=float(cube.radar["bandwidth_hz"]))
 

@@ -1,12 +1,15 @@
 """ISAR geometry: eq. (13) corrected, the straight-line range model and the truth at any time."""
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..dsp.geometry import C_MPS
+
+log = logging.getLogger(__name__)
 
 
 def n0_pulses_eq13(range_m, theta0_deg, speed_mps, prf_hz):
@@ -62,6 +65,10 @@ def _truth_line_model(cube, k=0) -> LineModel | None:
     v = np.array([tr["vx_mps"][k], tr["vy_mps"][k], tr["vz_mps"][k]])
     p = np.array([tr["x_m"][k], tr["y_m"][k], tr["z_m"][k]]) + v * t_mid
     r0 = float(np.linalg.norm(p))
+    if not (r0 > 0 and float(v @ v) > 0):    # at rest, or at the radar: no range curve to model (eq. 7)
+        log.warning(f"/truth/targets: scatterer {k} is {'at rest' if r0 > 0 else 'at the radar'}; its truth "
+                    f"gives no range model, which comes from the data instead")
+        return None
     return LineModel(r0, float(p @ v) / r0, float(v @ v), float(t_mid))
 
 

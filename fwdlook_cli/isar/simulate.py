@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dsp.geometry import C_MPS
-from ..scenario.isar import isar_geometry, scatterer_ranges_m
+from ..scenario.isar import auto_range_extent_m, isar_geometry, scatterer_ranges_m
 
 BEAMWIDTH_NOT_USED_DEG = 10.0  # /radar beamwidth_3db_deg of ISAR cubes: a wide beam, not simulated
 
@@ -52,9 +52,7 @@ def simulate_isar_scenario(scn: dict):
     r_kn = scatterer_ranges_m(pos0, vel, slow_time_s)                  # eq. (7), exact
     dr = C_MPS / (2.0 * fs)
     if radar["range_window_m"] == "auto":
-        vhat = vel / np.linalg.norm(vel)
-        r_closest = np.linalg.norm(pos0 - (pos0 @ vhat)[:, None] * vhat[None, :], axis=1)
-        range_m = auto_range_axis_m(min(r_kn.min(), r_closest.min()), r_kn.max(), fs, pulse)
+        range_m = auto_range_axis_m(*auto_range_extent_m(pos0, vel, r_kn), fs, pulse)
     else:
         near, far = radar["range_window_m"]
         range_m = near + dr * np.arange(int(np.floor((far - near) / dr)) + 1)

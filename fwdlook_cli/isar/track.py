@@ -46,6 +46,9 @@ def migration_span_cells(echo_rc, *, smooth=SPAN_SMOOTH_PULSES, gate=None):
     in range samples, over the pulses where the target is present.  ``gate = (lo, hi)`` (range samples)
     restricts the peak search to one scatterer's track.  Returns (span, positions, present).
     """
+    n_range = np.shape(echo_rc)[1]
+    if gate is not None and not (gate[1] >= 0 and gate[0] <= n_range - 1):   # the track is off the axis
+        return math.nan, np.full(np.shape(echo_rc)[0], math.nan), np.zeros(np.shape(echo_rc)[0], bool)
     pos, peak = peak_track(echo_rc, gate=gate)
     present = peak >= 0.25 * np.median(peak)
     track = pos[present]

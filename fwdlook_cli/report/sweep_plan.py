@@ -33,21 +33,29 @@ def load_sweep(path: str) -> dict:
     if not isinstance(grid, dict) or not all(isinstance(v, list) and v for v in grid.values()):
         raise BadInput(f"{path}: grid: expected a mapping of key.path to a non-empty list of values")
     sets = raw.get("set") or []
-    if not isinstance(sets, list):
-        raise BadInput(f"{path}: set: expected a list of KEY.PATH=VALUE strings")
+    if not isinstance(sets, list) or not all(isinstance(s, str) and "=" in s for s in sets):
+        raise BadInput(f"{path}: set = {shown(sets)}: expected a list of KEY.PATH=VALUE strings")
     combine = raw.get("combine") or []
-    if not isinstance(combine, list) or any(c not in grid for c in combine):
-        raise BadInput(f"{path}: combine: expected a list of grid keys; allowed: {', '.join(grid)}")
-    name = str(raw.get("name", p.stem))
+    if not isinstance(combine, list) or any(not isinstance(c, str) or c not in grid for c in combine):
+        raise BadInput(f"{path}: combine = {shown(combine)}: expected a list of grid keys; allowed: "
+                       f"{', '.join(grid)}")
+    config = raw.get("config")
+    if config is not None and (not isinstance(config, str) or not config.strip()):
+        raise BadInput(f"{path}: config = {shown(config)}: expected a processing preset file (a path)")
+    keep_stages = raw.get("keep_stages", False)
+    if not isinstance(keep_stages, bool):
+        raise BadInput(f"{path}: keep_stages = {shown(keep_stages)}: expected true or false")
+    name = raw.get("name", p.stem)
     try:
+        if not isinstance(name, str):
+            raise ValueError("expected a string")
         folder_name(name)                 # the default output folder is runs/sweep-<name>
     except ValueError as exc:
         raise BadInput(f"{path}: name = {shown(name)}: {exc}") from None
     base = p.parent
     return {"name": name, "source": str(path), "scenarios": [str((base / s).resolve()) for s in scen],
-            "combine": combine, "keep_stages": bool(raw.get("keep_stages", False)),
-            "set": [str(s) for s in sets], "grid": grid,
-            "config": str((base / raw["config"]).resolve()) if raw.get("config") else None}
+            "combine": combine, "keep_stages": keep_stages, "set": list(sets), "grid": grid,
+            "config": str((base / config).resolve()) if config else None}
 
 
 def _label(point: dict) -> str:

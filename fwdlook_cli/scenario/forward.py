@@ -1,6 +1,7 @@
 """The forward-looking scenario kind: its schema beside its defaults, derived quantities, cross-field checks."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -9,6 +10,7 @@ import numpy as np
 from ..dsp.antenna import AntennaDesignError, antenna_from_scenario
 from ..dsp.geometry import platform_state, range_extent_m
 from ..dsp.keystone_common import carrier_floor_text
+from ..dsp.pulse import WEIGHTINGS, pulse_rule_broken
 from ..errors import BadInput
 from .fields import folder_name, _show, Field, calibration_setting, amplitude, auto_or, boolean, choice, integer, num, optional, points_list, range_window, text, vector
 
@@ -32,7 +34,7 @@ FORWARD_SCHEMA: dict[str, Any] = {
                                 "[near, far] slant range recorded, or auto: sized from scene and motion"),
         "n_pulses": Field(auto_or(integer(2, 10_000_000)), "auto",
                           "pulses recorded; auto: scan duration x PRF"),
-        "range_weighting": Field(choice("none", "hamming", "hann", "taylor"), "none",
+        "range_weighting": Field(choice(*WEIGHTINGS), "none",
                                  "amplitude weighting of the matched filter (range sidelobes)"),
     },
     "antenna": {
@@ -119,7 +121,7 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "n_doppler": Field(auto_or(integer(4, 4096)), "auto",
                            "zoomed Doppler cells per CPI over the main-beam band; auto: 4 per CPI resolution cell "
                            "(PRF / cpi) over the scan's widest CPI band (forward/motion.py::auto_doppler_cells)"),
-        "doppler_window": Field(choice("none", "hamming", "hann", "taylor"), "none",
+        "doppler_window": Field(choice(*WEIGHTINGS), "none",
                                 "slow-time window of each CPI before the Doppler zoom"),
         "range_oversample": Field(auto_or(integer(1, 16)), "auto",
                                   "band-limited range oversampling of the image; auto: the power image's Nyquist "
@@ -194,8 +196,18 @@ def scene_points(scn: dict):
     return pts, amps
 
 
+_SAID: set[str] = set()          # warnings already logged by this process (a sweep loads a scenario per point)
+
+
 def _antenna_checks(ant: dict, source: str) -> None:
-    """The antenna design must be buildable; a pattern file is made absolute (relative to the scenario)."""
+    """The antenna design must be buildable; a pattern file is made absolute (relative to the scenario).
+    A pattern file under another pattern is not read, and the user is told so (once per process)."""
+    if ant["pattern"] != "table" and ant["pattern_file"]:
+        said = (f"{source}: antenna.pattern_file = {_show(ant['pattern_file'])} is not read: antenna.pattern is "
+                f"{ant['pattern']} (set antenna.pattern: table to use the measured pattern)")
+        if said not in _SAID:
+            _SAID.add(said)
+            logging.getLogger(__name__).warning(said)
     if ant["pattern"] == "table":
         if not ant["pattern_file"]:
             raise BadInput(f"{source}: antenna.pattern_file: required when antenna.pattern is table")
@@ -224,13 +236,11 @@ def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None
         from .sizes import forward_sizes_check
 
         forward_sizes_check(scn, source)        # before any array: pulses, scatterers, echo bytes
-    if radar["fs_hz"] < radar["bandwidth_hz"]:
-        raise BadInput(f"{source}: radar.fs_hz = {radar['fs_hz']:g}: must be >= radar.bandwidth_hz "
-                       f"= {radar['bandwidth_hz']:g} (complex sampling of the compressed pulse)")
-    if radar["bandwidth_hz"] * radar["pulse_width_s"] < 1.0:
-        raise BadInput(f"{source}: radar.bandwidth_hz = {radar['bandwidth_hz']:g}: must be >= 1 / "
-                       f"radar.pulse_width_s = {1.0 / radar['pulse_width_s']:g} (a time-bandwidth product of "
-                       f"at least 1: the compressed pulse no longer than the transmitted one)")
+    broken = pulse_rule_broken(bandwidth_hz=radar["bandwidth_hz"], fs_hz=radar["fs_hz"],
+                               pulse_width_s=radar["pulse_width_s"], prf_hz=radar["prf_hz"], prefix="radar.")
+    if broken:
+        key, value, why = broken
+        raise BadInput(f"{source}: radar.{key} = {value:g}: {why}")
     why = carrier_floor_text(radar["fc_hz"], radar["fs_hz"])
     if why:
         raise BadInput(f"{source}: radar.fc_hz = {radar['fc_hz']:g}: {why.replace('fs_hz', 'radar.fs_hz')}")

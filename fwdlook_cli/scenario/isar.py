@@ -10,6 +10,7 @@ import numpy as np
 
 from ..dsp.geometry import C_MPS
 from ..dsp.keystone_common import carrier_floor_text
+from ..dsp.pulse import WEIGHTINGS, pulse_rule_broken
 from ..errors import BadInput
 from .fields import folder_name, REQUIRED, Field, amplitude, auto_or, choice, integer, num, optional, range_window, vector
 
@@ -40,7 +41,7 @@ ISAR_SCHEMA: dict = {
                                 "[near, far] slant range recorded, or auto: the dwell's ranges, the "
                                 "closest-approach range and the compressed pulse's reach"),
         "n_pulses": Field(integer(16, 10_000_000), 6000, "pulses in the observation (the dwell)"),
-        "range_weighting": Field(choice("none", "hamming", "hann", "taylor"), "none",
+        "range_weighting": Field(choice(*WEIGHTINGS), "none",
                                  "amplitude weighting of the matched filter (range sidelobes)"),
     },
     "target": {
@@ -79,13 +80,11 @@ ISAR_SCHEMA: dict = {
 
 def isar_checks(scn: dict, source: str) -> None:
     radar, tg = scn["radar"], scn["target"]
-    if radar["fs_hz"] < radar["bandwidth_hz"]:
-        raise BadInput(f"{source}: radar.fs_hz = {radar['fs_hz']:g}: must be >= radar.bandwidth_hz "
-                       f"= {radar['bandwidth_hz']:g} (complex sampling of the compressed pulse)")
-    if radar["bandwidth_hz"] * radar["pulse_width_s"] < 1.0:
-        raise BadInput(f"{source}: radar.bandwidth_hz = {radar['bandwidth_hz']:g}: must be >= 1 / "
-                       f"radar.pulse_width_s = {1.0 / radar['pulse_width_s']:g} (a time-bandwidth product of "
-                       f"at least 1: the compressed pulse no longer than the transmitted one)")
+    broken = pulse_rule_broken(bandwidth_hz=radar["bandwidth_hz"], fs_hz=radar["fs_hz"],
+                               pulse_width_s=radar["pulse_width_s"], prf_hz=radar["prf_hz"], prefix="radar.")
+    if broken:
+        key, value, why = broken
+        raise BadInput(f"{source}: radar.{key} = {value:g}: {why}")
     if not any(tg["velocity_mps"]):
         raise BadInput(f"{source}: target.velocity_mps = [0, 0, 0]: must be non-zero (ISAR images a "
                        f"moving object)")
@@ -107,9 +106,14 @@ def isar_checks(scn: dict, source: str) -> None:
                            f"use auto")
     from ..limits import check_cube_bytes  # before the echo is allocated (issue 12)
 
-    near, far = radar["range_window_m"] if radar["range_window_m"] != "auto" else (r.min() - reach, r.max() + reach)
+    if radar["range_window_m"] != "auto":
+        near, far = radar["range_window_m"]
+    else:                                         # the simulator's window (its guard samples aside)
+        near, far = auto_range_extent_m(pos0, vel, r)
+        near, far = near - reach, far + reach
     check_cube_bytes(source, f"radar.range_window_m = {radar['range_window_m']} at radar.fs_hz = "
-                     f"{radar['fs_hz']:g}", (far - near) * 2.0 * radar["fs_hz"] / C_MPS + 1, len(t), channels=1, setting=None)
+                     f"{radar['fs_hz']:g}", (far - near) * 2.0 * radar["fs_hz"] / C_MPS + 1, len(t), channels=1,
+                     setting=None)
     why = carrier_floor_text(radar["fc_hz"], radar["fs_hz"])    # after the size: a huge fs is first a size
     if why:
         raise BadInput(f"{source}: radar.fc_hz = {radar['fc_hz']:g}: {why.replace('fs_hz', 'radar.fs_hz')}")
@@ -135,6 +139,18 @@ def isar_geometry(scn: dict):
     amp = tg["amplitude"]
     amps = np.asarray(amp if isinstance(amp, list) else [amp] * len(offsets), dtype=np.float64)
     return slow_time_s, pos0, vel, amps
+
+
+def auto_range_extent_m(pos0_m, velocity_mps, ranges_m):
+    """(nearest, farthest) slant range the auto range window must hold: every scatterer's range over the
+    dwell (``ranges_m``, [K, N]) and its range minimum on its straight track (its closest approach, which
+    the range-minimum shift n0 refers to, inside the dwell or not).  The simulator's window and the
+    size check before it both come from here."""
+    vel = np.asarray(velocity_mps, dtype=np.float64)
+    pos0 = np.asarray(pos0_m, dtype=np.float64)
+    vhat = vel / np.linalg.norm(vel)
+    closest_m = np.linalg.norm(pos0 - (pos0 @ vhat)[:, None] * vhat[None, :], axis=1)
+    return float(min(ranges_m.min(), closest_m.min())), float(ranges_m.max())
 
 
 def scatterer_ranges_m(pos0_m, velocity_mps, slow_time_s):

@@ -93,7 +93,7 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, chec
         raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
     raw = apply_overrides(raw, overrides, source)
     kind = raw.get("kind", "forward")
-    if kind not in SCHEMAS:
+    if not isinstance(kind, str) or kind not in SCHEMAS:        # (a list or mapping is unhashable)
         raise BadInput(f"{source}: kind = {_show(kind)}: allowed: {', '.join(SCHEMAS)}")
     resolved = _resolve(raw, SCHEMAS[kind], "", source)
     if kind == "forward":
