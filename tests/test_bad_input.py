@@ -173,6 +173,7 @@ SCENARIO_CASES = [
     ("set-invalid-yaml-value", _copy_tiny, ["--set", "platform.accel_mps2=[0, 30"],
      ["platform.accel_mps2", "invalid YAML"]),
     ("set-through-a-leaf", _copy_tiny, ["--set", "radar.prf_hz.x=1"], ["radar.prf_hz", "not a mapping"]),
+    ("set-with-an-empty-key", _copy_tiny, ["--set", "processing..q=1"], ["processing..q=1", "an empty key"]),
     # values the chain cannot process (each ran before, with a traceback, an overflow or 24 GB)
     ("carrier-below-half-fs", _set("radar.fc_hz", 1.0e7), [],
      ["radar.fc_hz", "1e+07", "radar.fs_hz / 2 = 1.2e+07"]),

@@ -11,6 +11,7 @@ import math
 import struct
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fwdlook_cli.cli import main
@@ -142,6 +143,73 @@ def test_report_without_metrics_exits_2(tmp_path, capsys):
     assert str(empty) in lines[0] and "metrics.json" in lines[0]
     assert out == ""
     assert not (tmp_path / "rep").exists()
+
+
+def _edit_target(key, value):
+    def edit(m):
+        if value is KeyError:
+            del m["targets"][0][key]
+        else:
+            m["targets"][0][key] = value
+    return edit
+
+
+@pytest.mark.parametrize("edit, named", [
+    (lambda m: m.update(summary=[]), "summary = []"),
+    (lambda m: m.update(timing_s="fast"), "timing_s = 'fast'"),
+    (lambda m: m["timing_s"].update(keystone="fast"), "timing_s.keystone = 'fast'"),
+    (lambda m: m.update(params=7), "params = 7"),
+    (lambda m: m.update(targets="all"), "targets = 'all'"),
+    (lambda m: m["targets"].__setitem__(0, None), "targets[0] = null"),
+    (_edit_target("x_m", KeyError), "targets[0].x_m = null"),
+    (_edit_target("true_range_m", "far"), "targets[0].true_range_m = 'far'"),
+    (_edit_target("meas_azimuth_deg", [1.0]), "targets[0].meas_azimuth_deg = [1.0]"),
+], ids=["summary", "timing", "timing-value", "params", "targets", "target", "x-missing", "true-range",
+        "meas-azimuth"])
+def test_report_of_a_damaged_metrics_json_is_one_line(tiny_runs, tmp_path, capsys, edit, named):
+    """A run directory's metrics.json edited by hand or damaged: the parts the report reads are checked
+    against the kinds CONTRACT.md section 5 gives them, and a wrong one is one line naming the file and
+    the key (each of these once ended in a traceback inside a figure or a table), nothing written."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_runs[0], run)
+    metrics = json.loads((run / "metrics.json").read_text())
+    edit(metrics)
+    (run / "metrics.json").write_text(json.dumps(metrics))
+    code, out, err = run_cli(["report", run, "-o", tmp_path / "rep"], capsys)
+    lines = err.splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert str(run / "metrics.json") in lines[0] and named in lines[0], lines[0]
+    assert not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("name, change, named", [
+    ("range_m", lambda a: a[::-1], "/range_m"),
+    ("angle_deg", lambda a: a[:, None], "/angle_deg"),
+    ("real_beam", lambda a: a[..., None], "/real_beam: shape"),
+    ("real_beam", lambda a: np.array(b"abc"), "/real_beam: dtype"),
+    ("ground_x_m", lambda a: a[:0], "/ground_x_m"),
+    ("ground_image", lambda a: a.astype(np.complex64), "/ground_image: dtype"),
+])
+def test_report_of_a_damaged_image_h5_is_one_line(tiny_runs, tmp_path, capsys, name, change, named):
+    """image.h5's axes and images are checked before a figure is drawn: an axis not 1-D, not finite or
+    not increasing, an image of another shape or of no real numbers is one line naming the dataset
+    (each of these once ended in a traceback from matplotlib or scipy)."""
+    import shutil
+
+    import h5py
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_runs[0], run)
+    with h5py.File(run / "image.h5", "r+") as f:
+        data = change(f[name][()])
+        del f[name]
+        f[name] = data
+    code, out, err = run_cli(["report", run, "-o", tmp_path / "rep"], capsys)
+    lines = err.splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert str(run / "image.h5") in lines[0] and named in lines[0], lines[0]
 
 
 def test_reproduce_sec41_equals_closed_forms():

@@ -6,6 +6,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from ..errors import BadInput
 from ..limits import shown
 
 
@@ -34,3 +35,27 @@ def describe_h5(path: str | Path) -> str:
 
         f.visititems(visit)
     return "\n".join(lines)
+
+
+def checked_axis(f, path, name: str) -> np.ndarray:
+    """An axis of an image file (image.h5): 1-D, finite, strictly increasing (what the report's cuts and
+    meshes need); else BadInput naming the dataset."""
+    a = np.asarray(f[name][()])
+    if (a.ndim != 1 or a.dtype.kind not in "fiu" or a.size == 0 or not np.all(np.isfinite(a))
+            or np.any(np.diff(a) <= 0)):
+        raise BadInput(f"{path}: /{name}: {a.dtype} {list(a.shape)}; expected a strictly increasing 1-D axis "
+                       f"of finite numbers")
+    return a.astype(np.float64, copy=False)
+
+
+def checked_grid(f, path, name: str, rows: str, cols: str) -> np.ndarray:
+    """A 2-D image of an image file over its axes ``rows`` x ``cols``: real numbers of that shape; else
+    BadInput naming the dataset."""
+    g = np.asarray(f[name][()])
+    n_rows, n_cols = f[rows].shape[:1] or (0,), f[cols].shape[:1] or (0,)
+    if g.dtype.kind not in "fiu":
+        raise BadInput(f"{path}: /{name}: dtype {g.dtype} not allowed; allowed: real numbers (power)")
+    if g.ndim != 2 or g.shape != (n_rows[0], n_cols[0]):
+        raise BadInput(f"{path}: /{name}: shape {list(g.shape)}, expected [{rows}, {cols}] = "
+                       f"[{n_rows[0]}, {n_cols[0]}]")
+    return g

@@ -41,12 +41,14 @@ def ground_figure(run, out: Path) -> tuple[str | None, str]:
     import h5py
 
     from .plots import image_panels
+    from ..io.describe import checked_axis, checked_grid
 
     path = Path(run.path) / "image.h5"
     with h5py.File(path, "r") as f:
         if not all(isinstance(f.get(k), h5py.Dataset) for k in ("ground_image", "ground_x_m", "ground_y_m")):
             return None, f"{path}: no /ground_image; ground-plane figure skipped"
-        img, gx, gy = f["ground_image"][()], f["ground_x_m"][()], f["ground_y_m"][()]
+        gx, gy = checked_axis(f, path, "ground_x_m"), checked_axis(f, path, "ground_y_m")
+        img = checked_grid(f, path, "ground_image", "ground_y_m", "ground_x_m")
     targets = run.metrics.get("targets") or []
     markers = None
     if targets:

@@ -32,7 +32,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BadInput
+from ..io.describe import checked_axis, checked_grid
 from ..io.h5 import atomic_write_text
+from ..limits import shown
 from .tables import SIG_DIGITS, fmt_value, md_table, summary_rows
 
 MAX_TARGET_ROWS = 70
@@ -79,7 +81,41 @@ def read_metrics(run_dir: str | Path) -> dict:
     for key in ("method", "summary", "timing_s"):
         if key not in metrics:
             raise BadInput(f"{path}: {key}: missing; required: method, summary, timing_s (CONTRACT.md 5)")
+    _check_metrics_shape(metrics, path)
     return metrics
+
+
+TARGET_NUMBERS = ("id", "x_m", "y_m", "true_range_m", "true_azimuth_deg")     # CONTRACT.md 5, always given
+TARGET_NUMBERS_OR_NULL = ("meas_range_m", "meas_azimuth_deg", "range_error_m", "azimuth_error_deg",
+                          "islr_db", "pslr_db")                               # null (or absent) where undetected
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_metrics_shape(metrics: dict, path: Path) -> None:
+    """The parts of metrics.json the report reads, of the kind CONTRACT.md section 5 gives them: a file
+    edited by hand or damaged is one line naming the key, not a traceback in a figure."""
+    for key in ("summary", "timing_s", "params"):
+        if key in metrics and not isinstance(metrics[key], dict):
+            raise BadInput(f"{path}: {key} = {shown(metrics[key])}: expected a JSON object")
+    bad = [k for k, v in metrics["timing_s"].items() if v is not None and not _is_number(v)]
+    if bad:
+        raise BadInput(f"{path}: timing_s.{bad[0]} = {shown(metrics['timing_s'][bad[0]])}: expected seconds")
+    targets = metrics.get("targets", [])
+    if not isinstance(targets, list):
+        raise BadInput(f"{path}: targets = {shown(targets)}: expected a list of target objects")
+    for i, target in enumerate(targets):
+        if not isinstance(target, dict):
+            raise BadInput(f"{path}: targets[{i}] = {shown(target)}: expected a target object")
+        for key in TARGET_NUMBERS:
+            if not _is_number(target.get(key)):
+                raise BadInput(f"{path}: targets[{i}].{key} = {shown(target.get(key))}: expected a number "
+                               f"(CONTRACT.md 5)")
+        for key in TARGET_NUMBERS_OR_NULL:
+            if target.get(key) is not None and not _is_number(target[key]):
+                raise BadInput(f"{path}: targets[{i}].{key} = {shown(target[key])}: expected a number or null")
 
 
 def read_image(run_dir: str | Path) -> tuple[dict | None, str]:
@@ -94,16 +130,13 @@ def read_image(run_dir: str | Path) -> tuple[dict | None, str]:
         with h5py.File(path, "r") as f:
             if not all(isinstance(f.get(k), h5py.Dataset) for k in ("image", "range_m", "angle_deg")):
                 return None, f"{path}: no /image, /range_m, /angle_deg datasets; image figures skipped"
-            out = {k: f[k][()] for k in ("image", "range_m", "angle_deg")}
-            for k in ("real_beam", "range_native_m"):
-                if isinstance(f.get(k), h5py.Dataset):
-                    out[k] = f[k][()]
+            out = {"range_m": checked_axis(f, path, "range_m"), "angle_deg": checked_axis(f, path, "angle_deg")}
+            out["image"] = checked_grid(f, path, "image", "range_m", "angle_deg")
+            if all(isinstance(f.get(k), h5py.Dataset) for k in ("real_beam", "range_native_m")):
+                out["range_native_m"] = checked_axis(f, path, "range_native_m")
+                out["real_beam"] = checked_grid(f, path, "real_beam", "range_native_m", "angle_deg")
     except OSError:
         raise BadInput(f"{path}: not a readable HDF5 file (truncated or not HDF5)") from None
-    img = out["image"]
-    if img.ndim != 2 or img.shape != (len(out["range_m"]), len(out["angle_deg"])):
-        raise BadInput(f"{path}: /image: shape {list(img.shape)}, expected [range_m, angle_deg] = "
-                       f"[{len(out['range_m'])}, {len(out['angle_deg'])}]")
     return out, ""
 
 
@@ -319,7 +352,8 @@ def write_figures(runs: list[Run], out: Path, *, target_xy=DEFAULT_TARGET_XY_M) 
                                              f"interpolated x{PROFILE_INTERP} (cubic), truth dashed")
     series = []
     for run in runs:
-        det = [t for t in run.metrics.get("targets") or [] if t.get("detected") and t.get("range_error_m") is not None]
+        det = [t for t in run.metrics.get("targets") or [] if t.get("detected") and t.get("range_error_m") is not None
+               and t.get("azimuth_error_deg") is not None]
         if det:
             series.append({"label": run.label, "x_m": [t["x_m"] for t in det],
                            "range_error_m": [t["range_error_m"] for t in det],

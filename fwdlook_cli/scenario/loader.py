@@ -65,9 +65,12 @@ def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...], source: s
         if "=" not in item:
             raise BadInput(f"{source}: --set {item!r}: expected KEY.PATH=VALUE")
         key, value_text = item.split("=", 1)
-        parts = [p for p in key.strip().split(".") if p]
-        if not parts:
+        parts = key.strip().split(".")
+        if not key.strip():
             raise BadInput(f"{source}: --set {item!r}: empty key path")
+        if not all(parts):                 # 'processing..q', '.q': a typo, not a path
+            raise BadInput(f"{source}: --set {item!r}: an empty key in the path; expected KEY.PATH=VALUE, "
+                           f"e.g. processing.q=25")
         value = yaml_load(value_text, f"{source}: --set {key}")
         node = raw
         for i, part in enumerate(parts[:-1]):
