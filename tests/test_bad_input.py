@@ -510,3 +510,22 @@ def test_a_zero_amplitude_target_has_no_peak_loss(good_cube, tmp_path, capsys):
     assert code == 0, err
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert all(t.get("peak_loss_db") is None for t in metrics["targets"])
+
+
+def test_the_chains_own_largest_arrays_are_sized_before_they_are_allocated(good_cube, tmp_path, capsys,
+                                                                            monkeypatch):
+    """Settings the schema allows can ask for arrays far beyond the cube: an angle step of 1e-4 deg with
+    x16 range oversampling makes the tiny cube's dwell image a grid of 319 502 x 1 232 cells, which
+    once took the process past 23 GB until the kernel ended it; 4096 Doppler cells in CPIs of 2 pulses
+    make its spectra 1 GB.  Both are sized from the settings before the chain starts (limits.py::
+    check_processing_sizes, the cube's size limit), one line each, nothing written."""
+    sets = ["--set", "processing.imaging=dwell", "--set", "processing.range_oversample=16",
+            "--set", "processing.angle_step_deg=0.0001"]
+    code, out, err = run_cli(["process", good_cube, "-o", tmp_path / "fine", *sets], capsys)
+    assert_bad_input(code, out, err, good_cube, ["processing.angle_step_deg = 0.0001", "319,502 angles",
+                                                 "1,232 ranges", "11.7 GiB", "over the default limit"])
+    assert not (tmp_path / "fine" / "metrics.json").exists()
+    monkeypatch.setenv("FWDLOOK_MAX_CUBE_BYTES", str(512 * 2**20))
+    sets = ["--set", "processing.n_doppler=4096", "--set", "processing.cpi=2", "--set", "processing.q=1"]
+    code, out, err = run_cli(["process", good_cube, "-o", tmp_path / "cells", *sets], capsys)
+    assert_bad_input(code, out, err, good_cube, ["processing.n_doppler = 4096", "200 CPIs", "$FWDLOOK_MAX_CUBE_BYTES"])

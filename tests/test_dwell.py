@@ -411,3 +411,46 @@ def test_steep_fine_focus_with_the_joint_fit(tmp_path, capsys):
     assert settings["focus_oversample"] == m["params"]["range_oversample"] == 4
     assert settings["fit_half_width_deg"] > 0
     assert m["summary"]["detected"] == m["summary"]["n_targets"]
+
+
+def test_dwell_imaging_refuses_a_slope_no_beam_of_its_width_has(tmp_path):
+    """The dwell weights (and the joint fit's dictionary) model the sum beam as two Gaussian beams,
+    exp(-beta d^2) cosh(k d); a slope of 5 /deg for a 6 deg beam put their peak 25 deg off boresight at
+    exp(64) and ended the fit in a traceback (an empty dictionary after the overflow).  It is refused in
+    one line naming the setting; the same slope with CPI imaging, which inverts tanh(k d) alone, runs."""
+    from fwdlook_cli.errors import BadInput
+    from fwdlook_cli.io.raw import read_raw, write_raw
+
+    cube, _ = simulate_scenario(tiny_scenario())
+    write_raw(tmp_path / "tiny.h5", cube)
+    cube = read_raw(tmp_path / "tiny.h5")
+    scn = tiny_scenario()
+    for fit in ("joint", "none"):
+        scn["processing"].update(imaging="dwell", dwell_fit=fit, monopulse_calibration=5.0)
+        with pytest.raises(BadInput, match=r"processing.monopulse_calibration = 5: with imaging: dwell, a slope "
+                                           r"of at most 0.626 per deg for a 6 deg beam"):
+            process_cube(cube, scn, tmp_path / f"dwell_{fit}", quiet=True, png=False)
+    scn["processing"].update(imaging="cpi")
+    process_cube(cube, scn, tmp_path / "cpi", quiet=True, png=False)
+    assert (tmp_path / "cpi" / "metrics.json").exists()
+
+
+@pytest.mark.parametrize("pattern", ["gaussian2", "sinc2"])
+def test_every_antenna_fwdlook_designs_is_within_the_dwell_slope_bound(pattern):
+    """The bound's margin, from the designs themselves: over beamwidths 2-10 deg and squints up to the
+    widest each pattern allows, the boresight slope over the Gaussian dip limit sqrt(2 beta) (beta the
+    cube's own for gaussian2, the -3 dB Gaussian pair's otherwise, as the dwell weights take it) reaches
+    0.82 (Gaussian beams at the design's fold, before the dip) and 0.91 (sinc2 beams), under half the
+    refusal's 2."""
+    from fwdlook_cli.dsp.antenna import max_squint_deg
+    from fwdlook_cli.forward.calibration import SLOPE_BEAM_FACTOR
+
+    worst = 0.0
+    for bw in (2.0, 4.0, 6.0, 10.0):
+        fallback_beta = MonopulseAntenna(bw).beta_per_deg2
+        for squint in np.linspace(0.05, max_squint_deg(pattern, bw), 12):
+            ant = MonopulseAntenna(bw, squint, pattern=pattern)
+            beta = ant.beta_per_deg2 if pattern == "gaussian2" else fallback_beta
+            worst = max(worst, ant.slope_per_deg / np.sqrt(2.0 * beta))
+    assert worst == pytest.approx({"gaussian2": 0.82, "sinc2": 0.91}[pattern], abs=0.01)
+    assert worst < SLOPE_BEAM_FACTOR / 2

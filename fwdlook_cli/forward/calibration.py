@@ -392,3 +392,37 @@ def antenna_contradiction(cube, data_calibration: Calibration | None = None) -> 
                 f"{cube_slope:.4g} ({100.0 * (cube_slope / data_slope - 1.0):+.0f} %): its angles would be "
                 f"{data_slope / cube_slope:.2f} times the data's; /antenna is wrong or belongs to another antenna")
     return None
+
+
+SLOPE_BEAM_FACTOR = 2.0    # the largest slope the dwell weights take, in units of the Gaussian dip limit
+
+
+def check_slope_forms_a_beam(cal: Calibration, cube) -> None:
+    """The dwell weights model the sum beam as two Gaussian beams, exp(-beta d^2) cosh(k d)
+    (``forward.dwell.pattern_weight``), whose maximum stays on boresight while k^2 <= 2 beta (the
+    boresight-dip limit).  A slope above twice that limit is no antenna of this beamwidth (fwdlook's own designs
+    reach 0.82 of it with Gaussian beams and 0.91 with sinc2 beams at their widest squint): its modelled
+    two-way weight peaks k / (4 beta) off boresight at exp(k^2 / (8 beta)) and overflowed the joint
+    fit's dictionary (a slope of 5 /deg for a 6 deg beam: exp(64)).  BadInput naming where the slope
+    came from (``cal.source``)."""
+    slope_per_deg, beamwidth_deg = float(cal.slope_per_deg), float(cube.radar["beamwidth_3db_deg"])
+    limit = SLOPE_BEAM_FACTOR * float(np.sqrt(2.0 * pattern_beta_per_deg2(cube)))
+    if slope_per_deg <= limit:
+        return
+    where = {"setting": f"processing.monopulse_calibration = {slope_per_deg:g}",
+             "cube": f"/antenna monopulse_slope_per_deg = {slope_per_deg:g}"}.get(
+                 cal.source, f"the monopulse slope from the data, {slope_per_deg:.4g} /deg,")
+    raise BadInput(f"{where}: with imaging: dwell, a slope of at most {limit:.3g} per deg for a "
+                   f"{beamwidth_deg:g} deg beam (twice the largest two Gaussian beams of that width can have, "
+                   f"{limit / SLOPE_BEAM_FACTOR:.3g}); allowed: a slope that fits the beam, or imaging: cpi")
+
+
+def pattern_beta_per_deg2(cube) -> float:
+    """beta of the Gaussian beams (the dwell weights' envelope): the cube's, or, for a cube without
+    ``/antenna``, the one of two beams crossing at -3 dB with its sum beamwidth (the ratio itself comes
+    from the calibration in use, never from this)."""
+    if cube.antenna and "beta_per_deg2" in cube.antenna:
+        return float(cube.antenna["beta_per_deg2"])
+    from ..dsp.antenna import MonopulseAntenna
+
+    return MonopulseAntenna(cube.radar["beamwidth_3db_deg"]).beta_per_deg2

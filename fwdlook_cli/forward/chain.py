@@ -36,6 +36,7 @@ from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData
+from ..limits import check_processing_sizes
 from .monopulse import monopulse_image   # noqa: F401 (stage 7, forward/monopulse.py; chain.monopulse_image)
 
 
@@ -402,6 +403,11 @@ def build_forward_stages(cube, proc: dict):
     geo["range_oversample"] = proc["range_oversample"]
     if geo["range_oversample"] == "auto":  # the power image's Nyquist rate (dsp/imaging.py)
         geo["range_oversample"] = auto_range_oversample(cube.radar["bandwidth_hz"], cube.radar["fs_hz"])
+    span_deg = float(np.ptp(cube.scan_angle_deg)) + 2.0 * cube.radar["beamwidth_3db_deg"]   # the image's angles
+    check_processing_sizes(n_range=cube.n_range, range_oversample=int(geo["range_oversample"]),
+                           n_angle=int(np.ceil(span_deg / proc["angle_step_deg"])) + 2,
+                           angle_step_deg=proc["angle_step_deg"], imaging=proc["imaging"],
+                           n_cpi=cube.n_pulses // proc["cpi"], n_doppler=0 if backing.active() else geo["n_doppler"])
     src = StageData()
     src.add("slow_time_s", cube.slow_time_s, ("slow_time_s",), "s", "slow time")
     src.add("range_m", cube.range_m, ("range_m",), "m", "slant range")

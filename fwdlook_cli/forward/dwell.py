@@ -78,6 +78,7 @@ from .monopulse import subaperture_real_beam
 from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
+from .calibration import check_slope_forms_a_beam, pattern_beta_per_deg2
 from .dwell_fit import start_fit_region
 from .dwell_range import (auto_focus_range_oversample, dwell_duration_s, dwell_stage_params, ground_points,
                           iso_doppler_range)
@@ -490,17 +491,6 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     return out
 
 
-def pattern_beta_per_deg2(cube) -> float:
-    """beta of the Gaussian beams (the dwell weights' envelope): the cube's, or, for a cube without
-    ``/antenna``, the one of two beams crossing at -3 dB with its sum beamwidth (the ratio itself comes
-    from the calibration in use, never from this)."""
-    if cube.antenna and "beta_per_deg2" in cube.antenna:
-        return float(cube.antenna["beta_per_deg2"])
-    from ..dsp.antenna import MonopulseAntenna
-
-    return MonopulseAntenna(cube.radar["beamwidth_3db_deg"]).beta_per_deg2
-
-
 def dwell_stages(cube, proc: dict, geo: dict):
     """The stage(s) that replace ``doppler_spectra`` + ``monopulse_image`` when imaging == dwell."""
     from ..runner import Stage
@@ -509,6 +499,7 @@ def dwell_stages(cube, proc: dict, geo: dict):
     if proc["range_oversample"] == "auto":     # at least x 4 where the dwell must be focused on the fine grid
         geo["range_oversample"] = auto_focus_range_oversample(cube, geo["p_ref"], geo["range_oversample"])
     cal = geo["calibration"]                     # the chain's monopulse calibration (slope, imbalance, offset)
+    check_slope_forms_a_beam(cal, cube)
     two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
     step_deg = float(np.median(np.abs(np.diff(cube.scan_angle_deg))))          # scan per pulse
     # sub-aperture: the beam moves SUB_APERTURE_DEG (40 pulses for the paper's 30 deg/s at 2.5 kHz)
