@@ -385,3 +385,17 @@ def test_a_truth_at_rest_gives_no_range_model(caplog):
     assert "at rest" in caplog.text
     _, metrics = run(rest, scn, correction="keystone2_n0_est")
     assert metrics["params"]["range_model_source"] == "estimate"
+
+
+def test_another_recorders_range_taper_is_kept_and_named():
+    """A recorded cube's /radar range_weighting that fwdlook does not know (here 'blackman') is read as
+    it is (the forward chain never uses it); the ISAR integration gain's closed form N a |p(0)| then
+    cannot know the taper's loss and says so in its reference (it once raised ValueError)."""
+    scn = scenario(radar={"n_pulses": 600})
+    cube, _ = simulate_isar_scenario(scn)
+    known = run(cube, scn)[1]["summary"]
+    cube.radar = dict(cube.radar, range_weighting="blackman")
+    summary = run(cube, scn)[1]["summary"]
+    assert known["integration_gain_reference"] == "closed_form N a |p(0)|"
+    assert "range_weighting 'blackman' unknown" in summary["integration_gain_reference"]
+    assert summary["integration_gain_db"] == pytest.approx(known["integration_gain_db"])   # unweighted: |p(0)| = 1

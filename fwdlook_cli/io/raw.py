@@ -305,9 +305,9 @@ def _check_optional_radar(radar: dict, source: str) -> None:
             raise BadInput(f"{source}: /radar attribute pulse_width_s = {shown(value)}: must be a positive number")
         radar["pulse_width_s"] = value
     weighting = radar.get("range_weighting", "none")
-    if not isinstance(weighting, str) or weighting not in WEIGHTINGS:
-        raise BadInput(f"{source}: /radar attribute range_weighting = {shown(weighting)}; allowed: "
-                       f"{', '.join(WEIGHTINGS)}")
+    if not isinstance(weighting, str) or not weighting.strip():
+        raise BadInput(f"{source}: /radar attribute range_weighting = {shown(weighting)}: expected a name "
+                       f"(fwdlook's own: {', '.join(WEIGHTINGS)}; another recorder's is kept as it is)")
 
 
 def _check_radar_values(radar: dict, range_step_m: float, n_range: int, source: str) -> None:

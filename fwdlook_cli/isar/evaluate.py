@@ -37,15 +37,17 @@ def _jsonable(obj):
 
 def _ideal_peak(cube, n_pulses):
     """N a |p(0)| of the reference scatterer (closed form), or N x median raw per-pulse peak."""
-    from ..dsp.pulse import CompressedPulse
+    from ..dsp.pulse import WEIGHTINGS, CompressedPulse
 
     r = cube.radar
     if cube.truth:
-        p0 = 1.0
-        if "pulse_width_s" in r:
-            p0 = float(abs(CompressedPulse(r["bandwidth_hz"], float(r["pulse_width_s"]), r["fs_hz"],
-                                           str(r.get("range_weighting", "none")))(0.0)))
-        return n_pulses * float(cube.truth["amplitude"][0]) * p0, "closed_form N a |p(0)|"
+        p0, kind = 1.0, "closed_form N a |p(0)|"
+        weighting = str(r.get("range_weighting", "none"))
+        if "pulse_width_s" in r and weighting in WEIGHTINGS:
+            p0 = float(abs(CompressedPulse(r["bandwidth_hz"], float(r["pulse_width_s"]), r["fs_hz"], weighting)(0.0)))
+        elif weighting not in WEIGHTINGS:      # another recorder's taper: its loss |p(0)| is not known here
+            kind = f"closed_form N a (|p(0)| = 1: range_weighting {weighting!r} unknown)"
+        return n_pulses * float(cube.truth["amplitude"][0]) * p0, kind
     _, peak = peak_track(cube.sum)
     return n_pulses * float(np.sqrt(np.median(peak))), "N x median per-pulse peak amplitude (no truth)"
 
