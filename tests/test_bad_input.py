@@ -349,6 +349,15 @@ def test_bad_cube(good_cube, tmp_path, capsys, command, case_id, build, fragment
     assert list(tmp_path.rglob("*.partial")) == []
 
 
+def test_info_lists_a_file_whose_format_is_an_array(good_cube, tmp_path, capsys):
+    """`info` lists any HDF5 file; a root `format` that is an array (no fwdlook file's) once ended in
+    "truth value of an array is ambiguous": it is another file, listed generically, exit 0."""
+    path = _h5_edit(_attr("/", "format", np.array([1.0, 2.0])))(good_cube, tmp_path)
+    code, out, err = run_cli(["info", path], capsys)
+    assert code == 0, err
+    assert "/echo/sum" in out and "fwdlook raw cube" not in out
+
+
 def test_info_lists_foreign_hdf5(good_cube, tmp_path, capsys):
     """A non-fwdlook-raw HDF5 file is described generically by `info` (exit 0), rejected by `validate`."""
     path = _h5_edit(_wrong_format)(good_cube, tmp_path)

@@ -19,8 +19,8 @@ def describe(path: str) -> str:
     except OSError:
         raise BadInput(f"{path}: not a readable HDF5 file (truncated or not HDF5)") from None
     if isinstance(fmt, bytes):
-        fmt = fmt.decode()
-    if fmt == "fwdlook-raw":
+        fmt = fmt.decode(errors="replace")
+    if isinstance(fmt, str) and fmt == "fwdlook-raw":      # (an array there is some other file's: listed)
         return describe_raw(path)
     from ..io.describe import describe_h5
 
