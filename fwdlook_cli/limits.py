@@ -53,12 +53,14 @@ IMAGE_BYTES_PER_CELL = {"dwell": 32, "cpi": 8}   # peak RSS over the image grid,
 
 
 def check_processing_sizes(*, n_range: int, range_oversample: int, n_angle: int, angle_step_deg: float,
-                           imaging: str, n_cpi: int, n_doppler: int, limit: int | None = None) -> None:
+                           imaging: str, n_cpi: int, n_doppler: int, spectra_in_memory: bool = True,
+                           limit: int | None = None) -> None:
     """The chain's own largest arrays, derived from its settings before any is allocated: the image
     grid (``n_angle`` bins of ``angle_step_deg`` x the range samples x ``range_oversample``), at the
     bytes per cell the imaging was measured to peak at, and (CPI imaging) the Doppler spectra, both
-    channels in complex64.  Each against the size limit the cube has (``FWDLOOK_MAX_CUBE_BYTES`` or the
-    default): a fine angle step once took the dwell image past 23 GB and the kernel ended it."""
+    channels in complex64, unless they are file-backed (``--out-of-core``).  Each against the size limit
+    the cube has (``FWDLOOK_MAX_CUBE_BYTES`` or the default): a fine angle step once took the dwell
+    image past 23 GB and the kernel ended it."""
     limit = max_cube_bytes() if limit is None else limit
     cells = n_angle * n_range * range_oversample
     image_bytes = cells * IMAGE_BYTES_PER_CELL[imaging]
@@ -69,7 +71,7 @@ def check_processing_sizes(*, n_range: int, range_oversample: int, n_angle: int,
                        f"{IMAGE_BYTES_PER_CELL[imaging]} bytes a cell); over {limit_source(None)} = {gib(limit)}; "
                        f"allowed: a coarser angle step or range oversampling")
     spectra_bytes = 16 * n_cpi * n_doppler * n_range
-    if imaging == "cpi" and spectra_bytes > limit:
+    if imaging == "cpi" and spectra_in_memory and spectra_bytes > limit:
         raise BadInput(f"processing.n_doppler = {n_doppler}: the Doppler spectra of {n_cpi:,} CPIs x {n_doppler} "
                        f"cells x {n_range:,} ranges, both channels, need {gib(spectra_bytes)}; over "
                        f"{limit_source(None)} = {gib(limit)}; allowed: fewer cells (auto) or --out-of-core")

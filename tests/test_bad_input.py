@@ -17,6 +17,7 @@ import pytest
 import yaml
 
 from fwdlook_cli.cli import main
+from fwdlook_cli.errors import BadInput
 from fwdlook_cli.scenario.loader import load_scenario, scenario_hash
 from fwdlook_cli.io.raw import write_raw
 from fwdlook_cli.forward.simulate import simulate_scenario
@@ -474,20 +475,6 @@ def test_a_far_isar_object_is_refused_by_its_window_size_before_simulation(tmp_p
     assert_nothing_written(tmp_path, output)
 
 
-def test_the_isar_window_holds_what_the_size_check_counted():
-    """The simulator's auto range axis spans the extent the check sized (its kernel reach and guard
-    samples aside): the same function gives both."""
-    from fwdlook_cli.scenario.isar import auto_range_extent_m, isar_geometry, scatterer_ranges_m
-    from fwdlook_cli.isar.simulate import simulate_isar_scenario
-
-    scn = load_scenario(SCENARIOS / "isar_theta3.yaml", overrides=["radar.n_pulses=600"])
-    t, pos0, vel, _ = isar_geometry(scn)
-    near, far = auto_range_extent_m(pos0, vel, scatterer_ranges_m(pos0, vel, t))
-    cube, _ = simulate_isar_scenario(scn)
-    reach_m = 299_792_458.0 * scn["radar"]["pulse_width_s"] / 2.0
-    assert cube.range_m[0] <= near - reach_m + 1e-6 and cube.range_m[-1] >= far + reach_m - 1e-6
-
-
 def test_a_pattern_file_under_another_pattern_is_said_to_be_unread(tmp_path, capsys):
     """``antenna.pattern_file`` is only read with ``antenna.pattern: table``; set beside gaussian2 it
     would be ignored silently, and the cube simulated with the Gaussian beams.  It is valid, and said."""
@@ -524,17 +511,31 @@ def test_a_zero_amplitude_target_has_no_peak_loss(good_cube, tmp_path, capsys):
 def test_the_chains_own_largest_arrays_are_sized_before_they_are_allocated(good_cube, tmp_path, capsys,
                                                                             monkeypatch):
     """Settings the schema allows can ask for arrays far beyond the cube: an angle step of 1e-4 deg with
-    x16 range oversampling makes the tiny cube's dwell image a grid of 319 502 x 1 232 cells, which
+    x16 range oversampling makes the tiny cube's dwell image a grid of 319 501 x 1 232 cells, which
     once took the process past 23 GB until the kernel ended it; 4096 Doppler cells in CPIs of 2 pulses
     make its spectra 1 GB.  Both are sized from the settings before the chain starts (limits.py::
     check_processing_sizes, the cube's size limit), one line each, nothing written."""
     sets = ["--set", "processing.imaging=dwell", "--set", "processing.range_oversample=16",
             "--set", "processing.angle_step_deg=0.0001"]
     code, out, err = run_cli(["process", good_cube, "-o", tmp_path / "fine", *sets], capsys)
-    assert_bad_input(code, out, err, good_cube, ["processing.angle_step_deg = 0.0001", "319,502 angles",
+    assert_bad_input(code, out, err, good_cube, ["processing.angle_step_deg = 0.0001", "319,501 angles",
                                                  "1,232 ranges", "11.7 GiB", "over the default limit"])
     assert not (tmp_path / "fine" / "metrics.json").exists()
     monkeypatch.setenv("FWDLOOK_MAX_CUBE_BYTES", str(512 * 2**20))
     sets = ["--set", "processing.n_doppler=4096", "--set", "processing.cpi=2", "--set", "processing.q=1"]
     code, out, err = run_cli(["process", good_cube, "-o", tmp_path / "cells", *sets], capsys)
     assert_bad_input(code, out, err, good_cube, ["processing.n_doppler = 4096", "200 CPIs", "$FWDLOOK_MAX_CUBE_BYTES"])
+
+
+def test_spectra_on_disk_are_not_held_to_the_memory_limit():
+    """With ``--out-of-core`` the Doppler spectra are file-backed, so their size is the disk's business:
+    the same settings refused in memory pass the check; the image grid is held to it either way."""
+    from fwdlook_cli.limits import check_processing_sizes
+
+    sizes = dict(n_range=77, range_oversample=2, n_angle=520, angle_step_deg=0.05, imaging="cpi", n_cpi=200,
+                 n_doppler=4096, limit=512 * 2**20)
+    with pytest.raises(BadInput, match="processing.n_doppler = 4096"):
+        check_processing_sizes(**sizes)
+    check_processing_sizes(**sizes, spectra_in_memory=False)
+    with pytest.raises(BadInput, match="processing.angle_step_deg"):
+        check_processing_sizes(**dict(sizes, n_angle=10**6), spectra_in_memory=False)

@@ -23,6 +23,14 @@ import numpy as np
 from .peaks import oversample_range
 
 
+def image_angle_grid(beam_deg, beamwidth_deg: float, angle_step_deg: float) -> np.ndarray:
+    """The monopulse image's angle axis: ``angle_step_deg`` bins from a beamwidth below the lowest beam
+    direction to a beamwidth above the highest (the CPI and the dwell image, and the chain's size check)."""
+    a0 = np.floor((np.min(beam_deg) - beamwidth_deg) / angle_step_deg) * angle_step_deg
+    n_a = int(np.ceil((np.max(beam_deg) + beamwidth_deg - a0) / angle_step_deg)) + 1
+    return a0 + angle_step_deg * np.arange(n_a)
+
+
 def auto_range_oversample(bandwidth_hz: float, fs_hz: float) -> int:
     """``processing.range_oversample: auto``: the smallest whole factor that samples the image's power
     at its Nyquist rate, ``ceil(2 B / fs)`` (1 to 16).

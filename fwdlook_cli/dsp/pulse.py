@@ -48,6 +48,14 @@ def pulse_rule_broken(*, bandwidth_hz: float, fs_hz: float, pulse_width_s: float
     return None
 
 
+def scenario_pulse_rule_text(radar: dict) -> str | None:
+    """The scenario kinds' wording of :func:`pulse_rule_broken` for their ``radar`` section (``radar.KEY
+    = value: why``), else None."""
+    broken = pulse_rule_broken(bandwidth_hz=radar["bandwidth_hz"], fs_hz=radar["fs_hz"],
+                               pulse_width_s=radar["pulse_width_s"], prf_hz=radar["prf_hz"], prefix="radar.")
+    return None if broken is None else f"radar.{broken[0]} = {broken[1]:g}: {broken[2]}"
+
+
 def weighting(name: str, n: int) -> np.ndarray:
     """Symmetric amplitude weighting: none, hamming, hann, or taylor (nbar 4, -35 dB sidelobes)."""
     if name == "none":

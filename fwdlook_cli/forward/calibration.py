@@ -384,7 +384,7 @@ def antenna_contradiction(cube, data_calibration: Calibration | None = None) -> 
         return (f"the data's difference/sum phase is {gap:+.0f} deg from /antenna's: the difference channel's "
                 f"sign is reversed against CONTRACT.md section 3, or /antenna is wrong")
     data_slope = cal.stats["effective_slope_per_deg"]
-    cube_slope = cal.stats.get("cube_effective_slope_per_deg", data_slope)
+    cube_slope = cal.stats["cube_effective_slope_per_deg"]        # set beside cube_diff_phase_deg
     sigma = cal.sigma.get("effective_slope_per_deg", np.inf)
     if (abs(cube_slope / data_slope - 1.0) > SLOPE_CONTRADICTION
             and abs(cube_slope - data_slope) > SLOPE_CONTRADICTION_SIGMA * sigma):

@@ -28,7 +28,7 @@ import scipy.fft
 from ..dsp.geometry import C_MPS, ambiguity_number
 from .keystone_fast import keystone_both, keystone_both_blocked
 from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
-from ..dsp.imaging import auto_range_oversample
+from ..dsp.imaging import auto_range_oversample, image_angle_grid
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history_m, boresight_doppler_spread_hz,
                      bulk_range_history_m, cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion,
@@ -403,11 +403,11 @@ def build_forward_stages(cube, proc: dict):
     geo["range_oversample"] = proc["range_oversample"]
     if geo["range_oversample"] == "auto":  # the power image's Nyquist rate (dsp/imaging.py)
         geo["range_oversample"] = auto_range_oversample(cube.radar["bandwidth_hz"], cube.radar["fs_hz"])
-    span_deg = float(np.ptp(cube.scan_angle_deg)) + 2.0 * cube.radar["beamwidth_3db_deg"]   # the image's angles
-    check_processing_sizes(n_range=cube.n_range, range_oversample=int(geo["range_oversample"]),
-                           n_angle=int(np.ceil(span_deg / proc["angle_step_deg"])) + 2,
+    n_angle = len(image_angle_grid(cube.scan_angle_deg, cube.radar["beamwidth_3db_deg"], proc["angle_step_deg"]))
+    check_processing_sizes(n_range=cube.n_range, range_oversample=int(geo["range_oversample"]), n_angle=n_angle,
                            angle_step_deg=proc["angle_step_deg"], imaging=proc["imaging"],
-                           n_cpi=cube.n_pulses // proc["cpi"], n_doppler=0 if backing.active() else geo["n_doppler"])
+                           n_cpi=cube.n_pulses // proc["cpi"], n_doppler=geo["n_doppler"],
+                           spectra_in_memory=not backing.active())
     src = StageData()
     src.add("slow_time_s", cube.slow_time_s, ("slow_time_s",), "s", "slow time")
     src.add("range_m", cube.range_m, ("range_m",), "m", "slant range")

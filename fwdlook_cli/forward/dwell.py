@@ -72,7 +72,7 @@ import scipy.sparse
 from ..dsp.antenna import two_way_width_for
 from ..dsp.geometry import C_MPS, azimuth_at_t_ref
 from ..dsp.blas import worker_threads
-from ..dsp.imaging import float32_floor, median_floor
+from ..dsp.imaging import float32_floor, image_angle_grid, median_floor
 from ..io import backing
 from .monopulse import subaperture_real_beam
 from ..dsp.peaks import oversample_range
@@ -91,13 +91,6 @@ DWELL_HALF_WIDTH_BEAMS = 0.75    # dwell of a direction: offsets within 0.75 two
 FIT_REGION_BEAMS = 1.5           # dwell_fit: the joint fit owns directions within 1.5 dwell half-widths of the
                                  # flight axis (4.8 deg: the mirror pairs closer than the dwell window and beyond)
 
-
-
-def image_angle_grid(beam_deg, beamwidth_deg, angle_step_deg):
-    """The monopulse image's angle axis (``chain.monopulse_image``'s convention)."""
-    a0 = np.floor((np.min(beam_deg) - beamwidth_deg) / angle_step_deg) * angle_step_deg
-    n_a = int(np.ceil((np.max(beam_deg) + beamwidth_deg - a0) / angle_step_deg)) + 1
-    return a0 + angle_step_deg * np.arange(n_a)
 
 
 def pattern_weight(offset_deg, beta_per_deg2, slope_per_deg):

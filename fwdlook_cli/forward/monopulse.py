@@ -11,7 +11,7 @@ import numpy as np
 
 from ..dsp.blas import worker_threads
 from ..dsp.geometry import azimuth_at_t_ref
-from ..dsp.imaging import azimuth_at_t_ref_cells, iter_kept_cells
+from ..dsp.imaging import azimuth_at_t_ref_cells, image_angle_grid, iter_kept_cells
 from ..io import backing
 from ..io.stagefile import StageData
 
@@ -55,9 +55,8 @@ def monopulse_image(data: StageData, *, slope_per_deg: float, beamwidth_deg: flo
     p_ref = np.asarray(position_ref_m, dtype=np.float64)
     beam_all = np.asarray(data["cpi_beam_deg"])
     pos_all = np.asarray(data["cpi_position_m"])
-    a0 = np.floor((beam_all.min() - beamwidth_deg) / angle_step_deg) * angle_step_deg
-    n_a = int(np.ceil((beam_all.max() + beamwidth_deg - a0) / angle_step_deg)) + 1
-    angle_deg = a0 + angle_step_deg * np.arange(n_a)
+    angle_deg = image_angle_grid(beam_all, beamwidth_deg, angle_step_deg)
+    a0, n_a = angle_deg[0], len(angle_deg)
     rb_power = np.zeros(data["sum_z"].shape[::2])                              # [n_cpi, n_r]
     cells = []
     # cells over the CPI level, oversampling only the Doppler rows that can hold one, one block of

@@ -49,13 +49,12 @@ def checked_axis(f, path, name: str) -> np.ndarray:
 
 
 def checked_grid(f, path, name: str, rows: str, cols: str) -> np.ndarray:
-    """A 2-D image of an image file over its axes ``rows`` x ``cols``: real numbers of that shape; else
-    BadInput naming the dataset."""
+    """A 2-D image of an image file over its axes ``rows`` x ``cols`` (each checked by
+    :func:`checked_axis` first): real numbers of that shape; else BadInput naming the dataset."""
     g = np.asarray(f[name][()])
-    n_rows, n_cols = f[rows].shape[:1] or (0,), f[cols].shape[:1] or (0,)
+    n_rows, n_cols = len(f[rows]), len(f[cols])          # (checked by checked_axis first: 1-D)
     if g.dtype.kind not in "fiu":
         raise BadInput(f"{path}: /{name}: dtype {g.dtype} not allowed; allowed: real numbers (power)")
-    if g.ndim != 2 or g.shape != (n_rows[0], n_cols[0]):
-        raise BadInput(f"{path}: /{name}: shape {list(g.shape)}, expected [{rows}, {cols}] = "
-                       f"[{n_rows[0]}, {n_cols[0]}]")
+    if g.ndim != 2 or g.shape != (n_rows, n_cols):
+        raise BadInput(f"{path}: /{name}: shape {list(g.shape)}, expected [{rows}, {cols}] = [{n_rows}, {n_cols}]")
     return g

@@ -211,7 +211,8 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     if not isinstance(radar_grp, h5py.Group):
         raise BadInput(f"{source}: /radar: group missing")
     radar = {}
-    for key in RADAR_KEYS:
+    optional = tuple(key for key in OPTIONAL_RADAR_NUMBERS if key in radar_grp.attrs)   # where recorded
+    for key in RADAR_KEYS + optional:
         if key not in radar_grp.attrs:
             raise BadInput(f"{source}: /radar attribute {key}: missing; required: {', '.join(RADAR_KEYS)}")
         value = radar_grp.attrs[key]
@@ -292,18 +293,12 @@ def _check_pulse_timing(slow_time_s: np.ndarray, prf_hz: float, source: str) -> 
                        f"{prf_axis_hz:.9g} Hz; allowed: within {PRF_TOLERANCE:g} (relative) of that rate")
 
 
+OPTIONAL_RADAR_NUMBERS = ("pulse_width_s",)   # positive numbers where a cube records them (the ISAR closed form)
+
+
 def _check_optional_radar(radar: dict, source: str) -> None:
-    """The /radar attributes a cube may leave out (``pulse_width_s``, ``range_weighting``: where known,
-    the ISAR metrics' closed form uses them): where given, of the kind they must be."""
-    if "pulse_width_s" in radar:
-        value = radar["pulse_width_s"]
-        try:
-            value = float(value)
-        except (TypeError, ValueError):
-            raise BadInput(f"{source}: /radar attribute pulse_width_s = {shown(value)}: expected a number") from None
-        if not (np.isfinite(value) and value > 0):
-            raise BadInput(f"{source}: /radar attribute pulse_width_s = {shown(value)}: must be a positive number")
-        radar["pulse_width_s"] = value
+    """``range_weighting``, which a cube may leave out (where known, the ISAR metrics' closed form uses
+    it): where given, a name."""
     weighting = radar.get("range_weighting", "none")
     if not isinstance(weighting, str) or not weighting.strip():
         raise BadInput(f"{source}: /radar attribute range_weighting = {shown(weighting)}: expected a name "

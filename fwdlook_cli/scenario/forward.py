@@ -10,7 +10,7 @@ import numpy as np
 from ..dsp.antenna import AntennaDesignError, antenna_from_scenario
 from ..dsp.geometry import platform_state, range_extent_m
 from ..dsp.keystone_common import carrier_floor_text
-from ..dsp.pulse import WEIGHTINGS, pulse_rule_broken
+from ..dsp.pulse import WEIGHTINGS, scenario_pulse_rule_text
 from ..errors import BadInput
 from .fields import folder_name, _show, Field, calibration_setting, amplitude, auto_or, boolean, choice, integer, num, optional, points_list, range_window, text, vector
 
@@ -236,11 +236,9 @@ def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None
         from .sizes import forward_sizes_check
 
         forward_sizes_check(scn, source)        # before any array: pulses, scatterers, echo bytes
-    broken = pulse_rule_broken(bandwidth_hz=radar["bandwidth_hz"], fs_hz=radar["fs_hz"],
-                               pulse_width_s=radar["pulse_width_s"], prf_hz=radar["prf_hz"], prefix="radar.")
+    broken = scenario_pulse_rule_text(radar)
     if broken:
-        key, value, why = broken
-        raise BadInput(f"{source}: radar.{key} = {value:g}: {why}")
+        raise BadInput(f"{source}: {broken}")
     why = carrier_floor_text(radar["fc_hz"], radar["fs_hz"])
     if why:
         raise BadInput(f"{source}: radar.fc_hz = {radar['fc_hz']:g}: {why.replace('fs_hz', 'radar.fs_hz')}")

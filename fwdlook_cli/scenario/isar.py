@@ -10,7 +10,7 @@ import numpy as np
 
 from ..dsp.geometry import C_MPS
 from ..dsp.keystone_common import carrier_floor_text
-from ..dsp.pulse import WEIGHTINGS, pulse_rule_broken
+from ..dsp.pulse import WEIGHTINGS, scenario_pulse_rule_text
 from ..errors import BadInput
 from .fields import folder_name, REQUIRED, Field, amplitude, auto_or, choice, integer, num, optional, range_window, vector
 
@@ -80,11 +80,9 @@ ISAR_SCHEMA: dict = {
 
 def isar_checks(scn: dict, source: str) -> None:
     radar, tg = scn["radar"], scn["target"]
-    broken = pulse_rule_broken(bandwidth_hz=radar["bandwidth_hz"], fs_hz=radar["fs_hz"],
-                               pulse_width_s=radar["pulse_width_s"], prf_hz=radar["prf_hz"], prefix="radar.")
+    broken = scenario_pulse_rule_text(radar)
     if broken:
-        key, value, why = broken
-        raise BadInput(f"{source}: radar.{key} = {value:g}: {why}")
+        raise BadInput(f"{source}: {broken}")
     if not any(tg["velocity_mps"]):
         raise BadInput(f"{source}: target.velocity_mps = [0, 0, 0]: must be non-zero (ISAR images a "
                        f"moving object)")
