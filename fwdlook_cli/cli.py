@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import signal
 import sys
 from pathlib import Path
 
 import click
 
 from . import __version__
-from .errors import BadInput
+from .errors import BadInput, Terminated
 from .limits import shown
 from .options import GroundMetres, json_option, quiet_option, set_option
 
@@ -89,9 +90,10 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
     from .scenario.overlay import resolve_with_config
 
     src = Path(source)
-    if src.suffix.lower() in (".h5", ".hdf5", ".hdf"):
+    if _is_cube_path(src):
         if raw:
             raise BadInput(f"{source}: give either a raw cube or --raw, not both")
+        _refuse_unused_sets(source, overrides)
         raw, raw_scn, name = source, {}, src.stem
         cube = read_raw(raw)          # read first: its channels decide the scenario kind
         if cube.diff is None or cube.attrs.get("scenario_kind") == "isar":
@@ -125,9 +127,36 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
     return scn, cube
 
 
+CUBE_SETTABLE = ("processing", "name")     # what a --set can change where the source is a cube
+
+
+def _refuse_unused_sets(source, overrides) -> None:
+    """A cube given as the source is processed with its own radar, antenna, motion and truth (CONTRACT.md
+    section 3): a --set of any other section would be recorded in scenario.yaml and used nowhere (it
+    was, silently)."""
+    for item in overrides or ():
+        key = str(item).split("=", 1)[0].strip()
+        if "=" in str(item) and key.split(".", 1)[0] not in CUBE_SETTABLE:
+            raise BadInput(f"--set {shown(str(item))}: {source} is processed with its own radar, antenna, "
+                           f"platform motion and truth (CONTRACT.md section 3), so {key} would change nothing; "
+                           f"allowed with a cube as the source: processing.* and name")
+
+
+def cube_scenario_note(source) -> str:
+    """The comment that heads scenario.yaml when a cube was the source: which of its sections the chain
+    used (the schema fills every section; a reader must not take the others for the cube's)."""
+    return (f"# processed from the cube {source}: the chain took the radar, antenna, platform motion and truth\n"
+            f"# from the cube itself (CONTRACT.md section 3); only name and processing below are this run's\n"
+            f"# settings, the other sections are the schema's defaults and were not used.\n")
+
+
 def _reads_cube(source, raw) -> bool:
     """Whether the command processes a cube read from a file (RAW.h5 as the source, or --raw)."""
-    return bool(raw) or Path(source).suffix.lower() in (".h5", ".hdf5", ".hdf")
+    return bool(raw) or _is_cube_path(source)
+
+
+def _is_cube_path(source) -> bool:
+    return Path(source).suffix.lower() in (".h5", ".hdf5", ".hdf")
 
 
 def _default_run_dir(scn, output):
@@ -135,7 +164,7 @@ def _default_run_dir(scn, output):
 
 
 def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", keep_stages="all",
-             out_of_core=False, from_file=False):
+             out_of_core=False, from_file=False, note=""):
     if scn["kind"] == "isar":
         from .isar.process import process_isar_cube
 
@@ -143,7 +172,8 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", ke
             raise BadInput(f"{source}: --keep-stages {keep_stages}: the ISAR chain keeps every stage; allowed: all")
         _refuse_out_of_core_isar(scn, source, out_of_core)
         try:
-            return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet)
+            return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet,
+                                     scenario_note=note)
         except BadInput as exc:         # a stage's refusal of a setting (e.g. processing.n0_pulses): the file too
             if str(exc).startswith("processing."):
                 raise BadInput(f"{source}: {exc}") from None
@@ -153,7 +183,7 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", ke
     if from_file:
         _check_antenna_against_data(scn, cube, source)
     return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source,
-                        keep_stages=keep_stages, release_cube=True)
+                        keep_stages=keep_stages, release_cube=True, scenario_note=note)
 
 
 def _antenna_checked(scn, cube) -> bool:
@@ -254,7 +284,8 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
         scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
         run_dir = _default_run_dir(scn, output)
         metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages, out_of_core,
-                           from_file=_reads_cube(source, raw))
+                           from_file=_reads_cube(source, raw),
+                           note=cube_scenario_note(source) if _is_cube_path(source) else "")
     _print_summary(metrics, run_dir, quiet)
 
 
@@ -292,7 +323,8 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
         if writes_raw:
             write_raw(run_dir / "raw.h5", cube)
         metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages, out_of_core,
-                           from_file=not writes_raw)
+                           from_file=not writes_raw,
+                           note=cube_scenario_note(scenario) if _is_cube_path(scenario) else "")
     _print_summary(metrics, run_dir, quiet)
     click.echo(str(run_dir / "metrics.json"))
 
@@ -379,7 +411,7 @@ def validate(path, overrides):
     from .io.raw import read_raw
 
     p = Path(path)
-    if p.suffix.lower() in (".h5", ".hdf5", ".hdf"):
+    if _is_cube_path(p):
         with read_without_holding():             # any size of cube: checked block by block, not held
             cube = read_raw(p)
         click.echo(f"{path}: valid raw cube, {cube.n_pulses} pulses x {cube.n_range} range samples")
@@ -409,6 +441,11 @@ def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene, backen
     """Timings measured in one process on the paper cube (ratios to one plain 2-D FFT)."""
     from .report.bench import print_bench
 
+    given = click.get_current_context().get_parameter_source
+    for name, flag, needs, present in (("shape", "--shape", "--write-cube", write_cube),
+                                       ("plot_path", "--plot", "--scaling", scaling)):
+        if given(name) == click.core.ParameterSource.COMMANDLINE and not present:
+            raise BadInput(f"{flag}: applies only with {needs}; allowed: {flag} together with {needs}")
     if write_cube:
         from .io.outputs import prepare_file
         from .limits import check_cube_bytes
@@ -420,6 +457,10 @@ def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene, backen
         click.echo(write_cube)
         return
 
+    if scaling:
+        from .io.extra_outputs import bench_png_path
+
+        plot_path = bench_png_path(plot_path, overwrite=overwrite)     # checked before the series (minutes)
     print_bench(as_json, scaling=scaling, plot_path=plot_path, repeats=repeats, scene=scene, backend=backend)
 
 
@@ -466,11 +507,17 @@ def _main(argv):
     from .dsp.blas import share_one_allocator_arena
 
     share_one_allocator_arena()          # the stages' thread pools: one allocator arena (dsp/blas.py)
+    from .io import signals
+
+    restore = signals.install(Terminated)  # SIGTERM cleanly, as Ctrl-C; neither inside HDF5's calls (io/signals.py)
     try:
         rv = cli.main(args=argv, prog_name="fwdlook", standalone_mode=False)
     except BadInput as exc:
         click.echo(f"fwdlook: error: {exc}", err=True)
         sys.exit(2)
+    except Terminated:
+        click.echo("fwdlook: terminated (SIGTERM)", err=True)
+        sys.exit(128 + signal.SIGTERM)
     except click.exceptions.Abort:
         click.echo("fwdlook: aborted", err=True)
         sys.exit(130)
@@ -480,6 +527,8 @@ def _main(argv):
         sys.exit(exc.exit_code)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
+    finally:
+        restore()
     sys.exit(rv if isinstance(rv, int) else 0)
 
 

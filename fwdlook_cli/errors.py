@@ -17,3 +17,8 @@ class BadInput(Exception):
 
 
 MAX_MESSAGE_CHARS = 1000
+
+
+class Terminated(BaseException):
+    """SIGTERM received by a command (``cli``): raised in its main thread so that every ``finally`` and
+    atomic writer runs (no ``.partial`` file left, no lock held), then exit code 143 (128 + SIGTERM)."""

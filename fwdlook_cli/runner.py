@@ -90,6 +90,7 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
         key = stage_key(st.name, st.params, key)
         keys.append(key)
         paths.append(stage_dir / f"{i + 1:02d}_{st.name}.h5")
+    _remove_other_chains_files(stage_dir, paths)
     # the first stage that must run: forced, missing, stale or damaged (every reused stage is read and
     # checked against its declared datasets, dtypes, shapes and digests: io/integrity.py)
     first = _first_to_run(paths, keys, recompute_from, keep, [names.index(n) for n in captured],
@@ -143,6 +144,18 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
     if first < len(stages) and first > 0 and not quiet:
         log.info(f"reused stages 1-{first} ({', '.join(names[:first])})")
     return data, timings, dict(zip(names, keys))
+
+
+def _remove_other_chains_files(stage_dir: Path, paths: list[Path]) -> None:
+    """Stage files of another chain in this run's ``stages/`` (a run directory reused for another method,
+    imaging or radar system: ISAR's ``02_rcmc.h5`` had stayed beside the forward stages, the dwell
+    image's beside the CPI image's) go: fwdlook's own stage files only (``io.outputs.h5_format``)."""
+    from .io.outputs import h5_format
+
+    mine = {p.name for p in paths}
+    for q in sorted(stage_dir.glob("[0-9][0-9]_*.h5")):
+        if q.name not in mine and q.is_file() and not q.is_symlink() and h5_format(q) == "fwdlook-stage":
+            q.unlink(missing_ok=True)
 
 
 def _rusage_split_s(who: str) -> tuple[float, float] | None:

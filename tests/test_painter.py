@@ -98,8 +98,48 @@ def test_a_painter_that_drew_leaves_by_its_closed_pipe_after_the_job(tmp_path):
         pending = start_image_png(tmp_path / "image.png", power, x, y, **kw)
         child.close()                                      # with the job in hand: finished, then gone
     assert os.WIFEXITED(child.exit_status)
-    assert (tmp_path / "image.png").exists() and not (tmp_path / "image.partial.png").exists()
+    # the child's drawing stays partial: only its command renames it (after the run's metrics.json)
+    assert not (tmp_path / "image.png").exists() and (tmp_path / "image.partial.png").exists()
     pending.finish()                                       # the child is gone: drawn here instead
+    assert [q.name for q in tmp_path.iterdir()] == ["image.png"]
+
+
+def test_the_painters_png_appears_only_when_its_command_renames_it(tmp_path):
+    power, x, y, kw = _picture()
+    with painting_checked():
+        pending = start_image_png(tmp_path / "image.png", power, x, y, **kw)
+        deadline = time.monotonic() + 60.0
+        while not (tmp_path / "image.partial.png").exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.3)                                    # drawn by now (about 0.1 s warm)
+        assert not (tmp_path / "image.png").exists()
+        pending.finish()
+    assert [q.name for q in tmp_path.iterdir()] == ["image.png"]
+
+
+def test_a_painter_with_a_job_in_hand_dies_with_its_killed_command(tmp_path):
+    """SIGKILL runs no handler in the command: the child, busy with a job, must not live on (it used to
+    finish and rename its PNG into the dead run, where the run's metrics.json had not been written,
+    and every rerun refused that PNG as not fwdlook's)."""
+    script = textwrap.dedent("""
+        import os, signal, sys, time
+        from fwdlook_cli.io.quicklook import painting
+        from fwdlook_cli.io import painter
+        with painting() as child:
+            child.submit("time:sleep", 60.0)             # a job that would keep it for a minute
+            print(child.pid, flush=True)
+            time.sleep(0.5)
+            os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    out = tmp_path / "pid.txt"             # (a pipe would be held open by a child that outlives it)
+    with open(out, "w") as fh:
+        res = subprocess.run([sys.executable, "-c", script], stdout=fh, timeout=60)
+    assert res.returncode == -signal.SIGKILL
+    pid = int(out.read_text().split()[0])
+    deadline = time.monotonic() + 10.0
+    while not _gone(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert _gone(pid)
 
 
 def test_the_painter_leaves_when_its_command_is_killed(tmp_path):

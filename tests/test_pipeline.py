@@ -371,3 +371,19 @@ def test_run_quiet_prints_only_the_metrics_path(tmp_path, capsys):
     assert code == 0 and err == ""
     assert out.strip() == str(tmp_path / "q" / "metrics.json")
     assert (tmp_path / "q" / "metrics.json").is_file()
+
+
+def test_a_run_folder_reused_for_another_chain_holds_that_chains_stage_files_only(tiny_raw, tmp_path, capsys):
+    """`decimation` (CPI image, seven stages) then `tracking` with the dwell image (six) into one folder:
+    the CPI chain's Doppler and image files go (they had stayed beside the dwell image's), a user's own
+    file in stages/ stays."""
+    run_dir = tmp_path / "run"
+    process(tiny_raw, run_dir, capsys, "--set", "processing.method=decimation")
+    assert (run_dir / "stages" / "07_monopulse_image.h5").exists()
+    mine = run_dir / "stages" / "99_mine.h5"
+    with h5py.File(mine, "w") as f:
+        f["x"] = np.arange(3)
+    process(tiny_raw, run_dir, capsys, "--set", "processing.method=tracking", "--set", "processing.imaging=dwell")
+    names = sorted(p.name for p in (run_dir / "stages").iterdir())
+    assert names == ["01_range_fft.h5", "02_decimate.h5", "03_keystone.h5", "04_regroup.h5",
+                     "05_range_curvature.h5", "06_dwell_image.h5", "99_mine.h5"], names

@@ -22,7 +22,8 @@ import h5py
 import numpy as np
 import pytest
 
-from fwdlook_cli.io import outputs
+from fwdlook_cli.errors import BadInput
+from fwdlook_cli.io import extra_outputs, outputs
 from fwdlook_cli.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -354,6 +355,22 @@ def test_a_refused_command_leaves_no_stages_folder(scn, tmp_path, capsys):
     assert sorted(p.name for p in d.iterdir()) == [outputs.LOCK_NAME]
 
 
+@pytest.mark.parametrize("exists", [False, True])
+@pytest.mark.parametrize("command", ["run", "process"])
+def test_a_command_refused_after_it_took_its_folder_leaves_nothing(scn, tmp_path, capsys, command, exists):
+    """A refusal that comes once the folder is made and locked (the cube of --raw is read after that)
+    leaves the folder as it was: not made, or without the lock file it would have made."""
+    d = tmp_path / "a" / "b"
+    if exists:
+        d.mkdir(parents=True)
+    code, out, err = run_cli([command, scn, "--raw", tmp_path / "nothere.h5", "-o", d, "-q"], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "nothere.h5" in err, err
+    if exists:
+        assert list(d.iterdir()) == []
+    else:
+        assert not (tmp_path / "a").exists()
+
+
 def test_bench_write_cube_is_guarded_and_bounded(tmp_path, capsys, monkeypatch):
     notes = tmp_path / "notes.txt"
     notes.write_text("precious\n")
@@ -367,6 +384,44 @@ def test_bench_write_cube_is_guarded_and_bounded(tmp_path, capsys, monkeypatch):
     code, out, err = run_cli(["bench", "--write-cube", tmp_path / "mid.h5", "--shape", "16384", "4096"], capsys)
     assert_refused(code, out, err, "--shape 16384 4096", "$FWDLOOK_MAX_CUBE_BYTES")
     assert list(tmp_path.glob("*.h5")) == []
+
+
+def test_bench_scaling_plot_is_guarded_before_the_series(tmp_path, capsys, monkeypatch):
+    """The series runs for minutes: its plot's path is checked first (a user's PNG had been overwritten
+    after the series, a regular file on the path had ended in a traceback)."""
+    from fwdlook_cli.report import bench
+
+    monkeypatch.setattr(bench, "print_bench", lambda *a, **k: pytest.fail("the series started"))
+    mine = tmp_path / "p.png"
+    mine.write_bytes(b"\x89PNG\r\n\x1a\n my own picture")
+    before = snapshot(mine)
+    code, out, err = run_cli(["bench", "--scaling", "--plot", mine], capsys)
+    assert_refused(code, out, err, str(mine), "not a plot of fwdlook bench --scaling", "--overwrite")
+    assert snapshot(mine) == before
+    (tmp_path / "f").write_text("a file")
+    code, out, err = run_cli(["bench", "--scaling", "--plot", tmp_path / "f" / "x.png"], capsys)
+    assert_refused(code, out, err, "is not a directory")
+    for argv, flag in ((["--shape", "64", "64"], "--shape"), (["--plot", tmp_path / "q.png"], "--plot")):
+        code, out, err = run_cli(["bench", *argv], capsys)
+        assert_refused(code, out, err, flag, "applies only with")
+
+
+def test_a_bench_plot_is_recognised_by_its_pngs_software_text(tmp_path):
+    """matplotlib writes the mark, the guard's own PNG reader finds it (and nothing in another PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(1, 1))
+    fig.subplots().plot([0, 1])
+    fig.savefig(tmp_path / "ours.png", metadata={"Software": extra_outputs.BENCH_PNG_SOFTWARE})
+    fig.savefig(tmp_path / "theirs.png")
+    assert extra_outputs.png_software(tmp_path / "ours.png") == extra_outputs.BENCH_PNG_SOFTWARE
+    assert extra_outputs.png_software(tmp_path / "theirs.png").startswith("Matplotlib")
+    assert extra_outputs.bench_png_path(tmp_path / "ours.png") == tmp_path / "ours.png"
+    with pytest.raises(BadInput):
+        extra_outputs.bench_png_path(tmp_path / "theirs.png")
 
 
 def test_force_and_from_stage_together_are_refused(tiny_raw, tmp_path, capsys):
@@ -998,3 +1053,65 @@ def test_every_scaling_shape_is_a_cube_the_reader_accepts(tmp_path):
     write_scaling_cube(tmp_path / "wide.h5", 128, 4096, paper)
     cube = read_raw(tmp_path / "wide.h5")
     assert cube.range_m[0] > 0 and cube.n_range == 4096
+
+
+def test_sigterm_ends_a_command_cleanly_without_a_partial_file(tmp_path):
+    """SIGTERM (a scheduler's or a container's stop) is handled as Ctrl-C is: the command's atomic
+    writers remove their partial files, exit 143 with one line (it had left raw.h5.partial behind)."""
+    import signal
+
+    out = tmp_path / "cube.h5"
+    proc = subprocess.Popen([sys.executable, "-c", "from fwdlook_cli.cli import main; main()", "simulate",
+                             str(ROOT / "scenarios" / "paper_fig6_a50.yaml"), "-o", str(out), "-q"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120.0
+    while not out.with_name(out.name + ".partial").exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.002)
+    assert proc.poll() is None, "finished before its partial file was seen"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert err.strip().splitlines() == ["fwdlook: terminated (SIGTERM)"]
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("setting", ["radar.prf_hz=5", "platform.accel_mps2=[0,30,0]", "scene.kind=points",
+                                     "noise.snr_db=3", "kind=isar"])
+def test_a_set_that_a_cube_source_would_ignore_is_refused(tiny_raw, tmp_path, capsys, setting):
+    """A cube as the source is processed with its own radar, antenna, motion and truth (CONTRACT.md
+    section 3): a --set of another section changed nothing and was recorded in scenario.yaml as if it
+    had (radar.prf_hz=5 beside the cube's 2000 Hz)."""
+    code, out, err = run_cli(["process", tiny_raw, "-o", tmp_path / "r", "--set", setting], capsys)
+    assert_refused(code, out, err, setting, str(tiny_raw), "processing.* and name")
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_cube_sources_scenario_yaml_says_what_the_chain_used(tiny_raw, tmp_path, capsys):
+    import yaml
+
+    code, out, err = run_cli(["process", tiny_raw, "-o", tmp_path / "r", "--set", "processing.q=8",
+                              "--set", "name=mine", "-q"], capsys)
+    assert code == 0, err
+    text = (tmp_path / "r" / "scenario.yaml").read_text()
+    assert text.startswith(f"# processed from the cube {tiny_raw}:") and "were not used" in text
+    scn = yaml.safe_load(text)
+    assert scn["processing"]["q"] == 8 and scn["name"] == "mine"
+
+
+def test_a_fifo_where_an_output_goes_is_refused_not_waited_on(tmp_path, capsys):
+    """Checking whether a file at an output's path is fwdlook's opened it: a FIFO there blocked the
+    command for good. Not a regular file: refused as any other file fwdlook did not write."""
+    os.mkfifo(tmp_path / "out.h5")
+    code, out, err = run_cli(["simulate", TINY, "-o", tmp_path / "out.h5"], capsys)
+    assert_refused(code, out, err, "out.h5", "not a fwdlook raw cube")
+    (tmp_path / "r").mkdir()
+    os.mkfifo(tmp_path / "r" / "metrics.json")
+    code, out, err = run_cli(["run", TINY, "-o", tmp_path / "r", "-q"], capsys)
+    assert_refused(code, out, err, "metrics.json", "--overwrite")
+
+
+def test_a_cube_with_another_suffix_is_named_as_hdf5(tiny_raw, tmp_path, capsys):
+    cube = tmp_path / "cube.dat"
+    shutil.copy(tiny_raw, cube)
+    code, out, err = run_cli(["process", cube, "-o", tmp_path / "r"], capsys)
+    assert_refused(code, out, err, str(cube), "an HDF5 file", ".h5")

@@ -184,6 +184,67 @@ def test_report_of_a_damaged_metrics_json_is_one_line(tiny_runs, tmp_path, capsy
     assert not (tmp_path / "rep").exists()
 
 
+def _metrics_a_folder(path):
+    path.unlink()
+    path.mkdir()
+
+
+@pytest.mark.parametrize("damage, named", [
+    (_metrics_a_folder, "cannot read it"),
+    (lambda p: p.write_bytes(bytes(range(256)) * 2), "not a UTF-8 text file"),
+    (lambda p: p.write_text("{bad"), "not valid JSON"),
+], ids=["folder", "binary", "json"])
+def test_report_of_an_unreadable_metrics_json_is_one_line(tiny_runs, tmp_path, capsys, damage, named):
+    """metrics.json replaced by a folder, binary bytes or broken JSON: one line naming the file (the
+    first two once ended in a traceback), nothing written."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_runs[0], run)
+    damage(run / "metrics.json")
+    code, out, err = run_cli(["report", tiny_runs[1], run, "-o", tmp_path / "rep"], capsys)
+    lines = err.splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert str(run / "metrics.json") in lines[0] and named in lines[0], lines[0]
+    assert not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("summary, named", [
+    ("{bad", "not valid JSON"),
+    ("[]", "expected a sweep summary"),
+    ('{"grid": {}, "rows": [7]}', "rows[0]"),
+    ('{"grid": {"processing.q": [8]}, "rows": [{"scenario": "tiny", "total_s": "slow"}]}', "rows[0].total_s"),
+    ('{"grid": {"processing.q": [8]}, "rows": [{"scenario": "tiny", "total_s": 1.0}]}', "processing.q"),
+], ids=["json", "list", "row", "time", "grid-key"])
+def test_report_of_a_damaged_sweep_summary_is_one_line_and_writes_nothing(tiny_runs, tmp_path, capsys, summary,
+                                                                          named):
+    """A sweep folder's summary.json is read and checked before any file of the report is written (a
+    damaged one ended in a traceback and left a report.md that looked complete)."""
+    sweep = tmp_path / "sw"
+    sweep.mkdir()
+    (sweep / "summary.json").write_text(summary)
+    code, out, err = run_cli(["report", tiny_runs[0], sweep, "-o", tmp_path / "rep"], capsys)
+    lines = err.splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert str(sweep / "summary.json") in lines[0] and named in lines[0], lines[0]
+    assert not (tmp_path / "rep").exists()
+
+
+def test_a_report_that_fails_while_writing_leaves_none_of_its_files(tiny_runs, tmp_path, capsys, monkeypatch):
+    """Every file is written aside and moved into place once all are: a failure while writing (here
+    index.html's, as on a full disk) leaves the report folder without any of them."""
+    from fwdlook_cli.errors import BadInput
+    from fwdlook_cli.report import htmlreport
+
+    def full_disk(*args, **kwargs):
+        raise BadInput("cannot write index.html: No space left on device")
+
+    monkeypatch.setattr(htmlreport, "render_html", full_disk)
+    code, out, err = run_cli(["report", tiny_runs[0], "-o", tmp_path / "rep"], capsys)
+    assert code == 2 and "No space left" in err
+    assert list((tmp_path / "rep").iterdir()) == []
+
+
 @pytest.mark.parametrize("name, change, named", [
     ("range_m", lambda a: a[::-1], "/range_m"),
     ("angle_deg", lambda a: a[:, None], "/angle_deg"),

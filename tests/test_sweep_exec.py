@@ -183,3 +183,49 @@ def test_a_corrupt_cube_fails_its_points_through_the_pool_and_spares_the_others(
     assert all(r["scenario"] == "tiny_seed2" and r["error"].startswith("BadInput: ") and str(raw) in r["error"]
                for r in rows[2:])
     assert all(r["detected"] == 3 for r in rows[:2])
+
+
+def test_pool_workers_die_with_a_killed_sweep_and_leave_its_folder_unlocked(tmp_path):
+    """SIGKILL (or the OOM killer) runs no handler in the sweep: its pool workers, idle between points,
+    lived on holding the folder's lock (an inherited descriptor of the same open file), and every rerun
+    was refused as "in use by another fwdlook command" until they were killed by hand."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import textwrap
+    import time
+
+    from fwdlook_cli.io.outputs import folder_lock
+
+    script = textwrap.dedent(f"""
+        import os, signal, time
+        from fwdlook_cli.io.outputs import folder_lock
+        from fwdlook_cli.report.sweep_exec import _Pool
+        with folder_lock({str(tmp_path)!r}, "sweep folder"):
+            pool = _Pool(2)
+            pool.pool.submit(time.sleep, 0.2).result()
+            print(*pool.pool._processes, flush=True)
+            os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    out = tmp_path / "pids.txt"            # (a pipe would be held open by workers that outlive it)
+    with open(out, "w") as fh:
+        res = subprocess.run([sys.executable, "-c", script], stdout=fh, stderr=subprocess.PIPE, text=True,
+                             timeout=120)
+    assert res.returncode == -signal.SIGKILL, res.stderr
+    pids = [int(p) for p in out.read_text().split()]
+    assert len(pids) == 2
+
+    def gone(pid):
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                return f.read().rsplit(")", 1)[1].split()[0] in ("Z", "X")
+        except FileNotFoundError:
+            return True
+
+    deadline = time.monotonic() + 10.0
+    while not all(gone(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert all(gone(p) for p in pids)
+    with folder_lock(tmp_path, "sweep folder"):          # free: no descriptor of it is left open
+        assert os.path.exists(tmp_path / ".fwdlook.lock")

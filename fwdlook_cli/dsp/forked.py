@@ -244,6 +244,7 @@ def _start_forked(fn, jobs, workers: int, limit):
             os.write(task_w, struct.pack(f"<{len(jobs)}i", *range(len(jobs))))
             os.close(task_w)
             task_w = None
+            me = spawner.forking_parent()
             for _ in range(workers):
                 out_r, out_w = os.pipe()
                 try:
@@ -254,7 +255,7 @@ def _start_forked(fn, jobs, workers: int, limit):
                     raise
                 if pid == 0:                                   # the child
                     os.close(out_r)
-                    spawner.run_worker(fn, jobs, task_r, out_w)
+                    spawner.run_worker(fn, jobs, task_r, out_w, parent_pid=me)
                 os.close(out_w)
                 children.append((pid, out_r))
         except OSError:                      # the system refused a process (memory, a process limit)

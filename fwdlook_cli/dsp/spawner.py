@@ -35,6 +35,8 @@ import struct
 import threading
 import time
 
+from .lifetime import die_with_parent, forking_parent
+
 _HEAD = struct.Struct("<iq")          # workers, payload bytes
 _SPAWNER = None                       # this process's spawner, if started
 _LOCK = threading.Lock()
@@ -92,13 +94,14 @@ class Spawner:
                 pass
 
 
-def run_worker(fn, jobs, task_fd: int, out_fd: int):
+def run_worker(fn, jobs, task_fd: int, out_fd: int, *, parent_pid: int | None = None):
     """A forked worker (the spawner's or ``dsp.forked``'s): the next job index from ``task_fd`` until none
     is left, then (True, [(index, result), ...]) or (False, (the failed job's index, the exception))
-    pickled to ``out_fd``; never returns."""
+    pickled to ``out_fd``; never returns. It dies with ``parent_pid`` (:func:`die_with_parent`)."""
     code = 0
     i = -1
     try:
+        die_with_parent(parent_pid)
         try:
             done = []
             while True:
@@ -161,10 +164,11 @@ def _close_pipes(keep: int):
             os.close(fd)
 
 
-def _serve(sock: socket.socket):
+def _serve(sock: socket.socket, parent_pid: int | None):
     """The spawner's loop (module docstring); never returns."""
     children = set()
     try:
+        die_with_parent(parent_pid)
         signal.signal(signal.SIGINT, signal.SIG_IGN)      # the caller ends the workers (it has their ids)
         _close_pipes(keep=sock.fileno())
         _trim_heap()
@@ -178,6 +182,7 @@ def _serve(sock: socket.socket):
             fn, jobs = pickle.loads(_recv_exact(sock, size))
             task_fd, outs = fds[0], fds[1:1 + workers]
             pids = []
+            me = os.getpid()
             for out_fd in outs:
                 try:
                     pid = os.fork()
@@ -188,7 +193,7 @@ def _serve(sock: socket.socket):
                     for fd in fds:
                         if fd not in (task_fd, out_fd):
                             os.close(fd)
-                    run_worker(fn, jobs, task_fd, out_fd)          # never returns
+                    run_worker(fn, jobs, task_fd, out_fd, parent_pid=me)   # never returns
                 pids.append(pid)
                 children.add(pid)
             for fd in fds:
@@ -249,6 +254,7 @@ def start() -> Spawner | None:
         if _SPAWNER is not None:
             return _SPAWNER
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        me = forking_parent()
         with FORK_LOCK:             # (no pipe end of a batch in flight is inherited)
             try:
                 pid = os.fork()
@@ -258,7 +264,7 @@ def start() -> Spawner | None:
                 return None
             if pid == 0:
                 ours.close()
-                _serve(theirs)
+                _serve(theirs, me)
         theirs.close()
         _SPAWNER = Spawner(pid, ours)
     return _SPAWNER

@@ -134,8 +134,9 @@ def start_fit_spawner(proc: dict) -> None:
 @on_one_blas_thread
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
                  png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False,
-                 stage_cpu: dict | None = None, file_cpu: dict | None = None) -> dict:
+                 stage_cpu: dict | None = None, file_cpu: dict | None = None, scenario_note: str = "") -> dict:
     """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics.
+    ``scenario_note``: comment lines that head scenario.yaml (what of it the chain did not use).
     ``stage_cpu``: as :func:`runner.run_stages` (each computed stage's user and system CPU time), and
     ``outputs`` (the metrics, image.h5 and metrics.json).  ``file_cpu``: as :func:`runner.run_stages`
     (the writer thread's CPU time for each stage file).
@@ -208,7 +209,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
             writes.pop()()
         while pending_png:               # begun and not finished: the outputs failed, no PNG left
             pending_png.pop().discard()
-    atomic_write_text(run_dir / "scenario.yaml", scenario_yaml)
+    atomic_write_text(run_dir / "scenario.yaml", scenario_note + scenario_yaml)
     return metrics
 
 

@@ -1,6 +1,8 @@
-"""A plain-text listing of any HDF5 file: groups, datasets with shape, dtype and units, attributes."""
+"""A plain-text listing of any HDF5 file: groups, datasets with shape, dtype and units, attributes; the
+checks that ``info`` and ``report`` make of what they read (axes, grids, JSON files)."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import h5py
@@ -58,3 +60,21 @@ def checked_grid(f, path, name: str, rows: str, cols: str) -> np.ndarray:
     if g.ndim != 2 or g.shape != (n_rows, n_cols):
         raise BadInput(f"{path}: /{name}: shape {list(g.shape)}, expected [{rows}, {cols}] = [{n_rows}, {n_cols}]")
     return g
+
+
+def read_json_text(path: Path):
+    """The JSON value of the text file ``path``; BadInput in one line naming the file when it cannot be
+    read (a folder, no permission, a dangling link), is not UTF-8 text or not JSON."""
+    try:
+        if not path.is_file() and path.exists():
+            raise IsADirectoryError(0, "not a regular file")     # (a FIFO would block the read)
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise BadInput(f"{path}: not a UTF-8 text file; expected JSON written by fwdlook") from None
+    except OSError as exc:
+        raise BadInput(f"{path}: cannot read it ({exc.strerror or exc}); expected JSON written by "
+                       f"fwdlook") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise BadInput(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None

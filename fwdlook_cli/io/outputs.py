@@ -30,6 +30,7 @@ from pathlib import Path
 
 from ..errors import BadInput
 from ..limits import shown
+from . import signals
 
 RAW_FORMAT = "fwdlook-raw"
 RUN_FILES = ("scenario.yaml", "metrics.json", "image.h5", "image.png")
@@ -71,14 +72,36 @@ def make_parent(path) -> None:
     _make_dir(Path(path).parent, Path(path))
 
 
+_MADE_DIRS: dict = {}      # output folder -> the folders this process made for it (deepest first)
+
+
 def _make_dir(folder: Path, target: Path) -> None:
+    missing = []
     for p in (folder, *folder.parents):
         if p.exists() or p.is_symlink():
             if not p.is_dir():
                 raise BadInput(f"cannot write {target}: {p} is not a directory")
             break
+        missing.append(p)
     with mapped_os_errors(target):
         folder.mkdir(parents=True, exist_ok=True)
+    if missing:
+        _MADE_DIRS[str(folder)] = missing
+
+
+def _unmake_dirs(folder) -> None:
+    """A command refused after it made ``folder`` (``run --raw`` of a missing cube, a sweep's bad point):
+    the folders it made go again where they hold nothing (the lock file and empty ``stages``/``raw``
+    aside), so that a refusal leaves nothing behind."""
+    made = _MADE_DIRS.pop(str(folder), None)
+    if not made:
+        return
+    for sub in ("stages", "raw"):
+        with contextlib.suppress(OSError):
+            (Path(folder) / sub).rmdir()
+    for p in made:
+        with contextlib.suppress(OSError):
+            p.rmdir()
 
 
 def probe_writable(folder: Path, target) -> None:
@@ -89,19 +112,27 @@ def probe_writable(folder: Path, target) -> None:
         os.unlink(name)
 
 
+def partial_path(path) -> Path:
+    """``NAME.partial.SUFFIX``: where :func:`atomic_path` has ``path`` written."""
+    path = Path(path)
+    return path.with_name(path.stem + ".partial" + path.suffix)
+
+
 @contextlib.contextmanager
-def atomic_path(path):
-    """Yield ``NAME.partial.SUFFIX`` for a writer that takes a path (matplotlib); rename on success.
+def atomic_path(path, *, rename: bool = True):
+    """Yield ``NAME.partial.SUFFIX`` for a writer that takes a path (matplotlib); rename on success
+    (``rename=False``: left for the caller to rename, as the painter's PNG is by its command).
 
     On failure the partial file is removed and an ``OSError`` becomes one BadInput line.
     """
     path = Path(path)
     make_parent(path)
-    tmp = path.with_name(path.stem + ".partial" + path.suffix)
+    tmp = partial_path(path)
     try:
         yield tmp
-        with mapped_os_errors(path):
-            os.replace(tmp, path)
+        if rename:
+            with mapped_os_errors(path):
+                os.replace(tmp, path)
     except OSError as exc:
         _unlink_quietly(tmp)
         raise write_error(path, exc) from None
@@ -188,12 +219,19 @@ class FailSafeSink(io.RawIOBase):
             super().close()
 
 
+# HDF5 calls the sink from C: a Ctrl-C or SIGTERM arriving meanwhile is raised after the call (io/signals.py)
+signals.protect(*(getattr(FailSafeSink, name) for name in
+                  ("readinto", "write", "seek", "tell", "truncate", "flush", "close")))
+
+
 # ----------------------------------------------------------------------------------------------
 # What counts as fwdlook's own product
 # ----------------------------------------------------------------------------------------------
 def h5_identity(path) -> tuple[str | None, str | None] | None:
     """(root attribute ``format``, root attribute ``software``) of an HDF5 file, either None where it is
     absent; None when the path is not a readable HDF5 file."""
+    if not Path(path).is_file():        # absent, a folder, or a FIFO or device (opening one may block)
+        return None
     try:
         import h5py
 
@@ -217,6 +255,8 @@ def h5_format(path) -> str | None:
 
 
 def is_fwdlook_metrics(path) -> bool:
+    if not Path(path).is_file():        # (a FIFO's open would block)
+        return False
     try:
         with open(path, "rb") as fh:
             data = json.loads(fh.read(64 * 2**20))
@@ -239,6 +279,8 @@ def is_fwdlook_run_dir(folder) -> bool:
 
 
 def is_fwdlook_report(folder) -> bool:
+    if not (Path(folder) / "report.md").is_file():
+        return False
     try:
         with open(Path(folder) / "report.md", "rb") as fh:
             head = fh.read(len(REPORT_TITLE) + 1).decode("utf-8", errors="replace")
@@ -316,7 +358,17 @@ def prepare_file(path, *, inputs=(), overwrite: bool = False, kind: str = "raw")
 
 def prepare_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: bool = False) -> Path:
     """A run directory: absent, empty, fwdlook's own run, one holding none of the files a run writes,
-    or ``overwrite``; an input inside it that the run would replace is refused always."""
+    or ``overwrite``; an input inside it that the run would replace is refused always. Made and probed."""
+    d = check_run_dir(path, inputs=inputs, overwrite=overwrite, writes_raw=writes_raw)
+    _make_dir(d, d)
+    if (d / "stages").exists() and not (d / "stages").is_dir():     # (made by the runner, under the lock:
+        raise BadInput(f"cannot write {d / 'stages'}: it is not a directory")   # a refused command makes none)
+    probe_writable(d, d)
+    return d
+
+
+def check_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: bool = False) -> Path:
+    """:func:`prepare_run_dir`'s checks alone (nothing made): where a run may write; raises BadInput."""
     d = output_path(path)
     if (d.exists() or d.is_symlink()) and not d.is_dir():
         raise BadInput(f"cannot write {d}: exists and is not a directory; expected a run directory")
@@ -349,10 +401,6 @@ def prepare_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: boo
                 mark = _RUN_FILE_MARK["stages/" if foreign[0].startswith("stages/") else foreign[0]]
                 raise BadInput(f"{d / foreign[0]}: a run would replace it, and fwdlook did not write it "
                                f"({mark}); refusing to overwrite it; {OVERWRITE_HINT}")
-    _make_dir(d, d)
-    if (d / "stages").exists() and not (d / "stages").is_dir():     # (made by the runner, under the lock:
-        raise BadInput(f"cannot write {d / 'stages'}: it is not a directory")   # a refused command makes none)
-    probe_writable(d, d)
     return d
 
 
@@ -413,6 +461,8 @@ def prepare_report_dir(path, *, inputs=(), overwrite: bool = False) -> Path:
 
 def is_fwdlook_sweep(folder) -> bool:
     """A folder ``fwdlook sweep`` wrote its summary into (summary.json with its sweep, grid and rows)."""
+    if not (Path(folder) / "summary.json").is_file():
+        return False
     try:
         with open(Path(folder) / "summary.json", "rb") as fh:
             data = json.loads(fh.read(64 * 2**20))
@@ -428,6 +478,22 @@ def prepare_sweep_dir(path, *, overwrite: bool = False) -> Path:
 
 
 LOCK_NAME = ".fwdlook.lock"
+_HELD_LOCK_FDS: set = set()        # this process's lock descriptors (closed in every child it forks)
+
+
+def _close_inherited_locks() -> None:
+    """In a forked child: close the lock descriptors it inherited. An ``flock`` belongs to the open file,
+    which the parent's descriptor keeps (the lock is the parent's still); a child that kept its copy
+    held the folder after the command died (a sweep's pool workers, left by a SIGKILL, refused every
+    rerun as "in use by another fwdlook command")."""
+    for fd in list(_HELD_LOCK_FDS):
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    _HELD_LOCK_FDS.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_close_inherited_locks)
 
 
 @contextlib.contextmanager
@@ -440,6 +506,7 @@ def folder_lock(folder, what: str = "run directory"):
     import fcntl
 
     path = Path(folder) / LOCK_NAME
+    created = not (path.exists() or path.is_symlink())
     try:
         if path.is_symlink():               # replaced, never written through (as every output)
             path.unlink()
@@ -455,6 +522,15 @@ def folder_lock(folder, what: str = "run directory"):
                            f"to finish, or choose another output") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        yield
+        _HELD_LOCK_FDS.add(fd)
+        try:
+            yield
+        except BaseException:               # refused or failed: no lock file or empty folder of its own left
+            if created:
+                _unlink_quietly(path)
+            _unmake_dirs(folder)
+            raise
+        _MADE_DIRS.pop(str(folder), None)
     finally:
+        _HELD_LOCK_FDS.discard(fd)
         os.close(fd)

@@ -13,8 +13,9 @@ command raises as its own (the same one-line errors).  The PNG is the same file,
 ``"module:function"``, a warm-up first (``io.quicklook.painting``).
 
 The child ignores SIGINT (the command handles Ctrl-C) and leaves by ``os._exit`` when its job pipe
-closes, as it does when the command dies however it dies; the command ends an idle child at once
-when it closes the painter.  A child that is gone or has not answered in :data:`RESULT_TIMEOUT_S`
+closes; it is killed with the command however the command dies (``dsp/lifetime.py``: SIGKILL of the
+command too, where the child used to finish its job and rename the PNG into a dead run); the command
+ends an idle child at once when it closes the painter.  A child that is gone or has not answered in :data:`RESULT_TIMEOUT_S`
 (then it is ended), or a platform without ``fork``, means the PNG is drawn in the command's process
 as before.
 """
@@ -30,6 +31,8 @@ import struct
 import sys
 import threading
 import time
+
+from ..dsp.lifetime import die_with_parent, forking_parent
 
 _HEADER = struct.Struct("<Q")
 RESULT_TIMEOUT_S = 120.0    # a job not answered by then: the child is ended and the PNG drawn in the command
@@ -111,6 +114,7 @@ class Painter:
         self._sender, self._send_error, self._busy = None, None, False
         job_r, self._job_w = os.pipe()
         self._reply_r, reply_w = os.pipe()
+        parent = forking_parent()
         try:
             pid = os.fork()
         except OSError:
@@ -120,6 +124,7 @@ class Painter:
         if pid == 0:                                                    # pragma: no cover (the child)
             code = 0
             try:
+                die_with_parent(parent)           # never a PNG renamed into a run whose command is dead
                 os.close(self._job_w)
                 os.close(self._reply_r)
                 _child_main(job_r, reply_w, warm_up)

@@ -3,10 +3,11 @@ from __future__ import annotations
 
 import contextlib
 import os
+from pathlib import Path
 
 import numpy as np
 
-from .outputs import atomic_path
+from .outputs import _unlink_quietly, atomic_path, mapped_os_errors, partial_path
 
 
 def _plt():
@@ -38,11 +39,18 @@ def start_image_png(path, power, x_axis, y_axis, **kwargs) -> "PendingPng":
     args = (path, power, x_axis, y_axis)
     child = painter.active()
     if child is not None:
-        try:       # by name: the child's own draw_image_png
-            child.submit("fwdlook_cli.io.quicklook:draw_image_png", *args, **kwargs)
+        try:       # by name: the child's own draw_image_png, left partial (renamed by finish)
+            child.submit("fwdlook_cli.io.quicklook:draw_image_png", *args, rename=False, **kwargs)
         except painter.PainterGone:
             child = None
     return PendingPng(child, args, kwargs)
+
+
+def staged_path(path) -> Path:
+    """Where the painter draws ``path`` (``NAME.partial.SUFFIX``): the command renames it into place
+    itself, after the run's metrics.json, so that no PNG appears in a run before its metrics (a PNG
+    without fwdlook's metrics beside it is not taken for fwdlook's: ``io.outputs``)."""
+    return partial_path(path)
 
 
 def painting():
@@ -78,10 +86,17 @@ class PendingPng:
 
         child, self.child = self.child, None
         if child is not None:
+            path = Path(self.args[0])
             try:
-                return child.result()
+                child.result()
+                with mapped_os_errors(path):
+                    os.replace(staged_path(path), path)
+                return None
             except painter.PainterGone:
-                pass                              # the child is gone: drawn here
+                _unlink_quietly(staged_path(path))   # the child is gone: drawn here
+            except BaseException:
+                _unlink_quietly(staged_path(path))
+                raise
         return draw_image_png(*self.args, **self.kwargs)
 
     def discard(self) -> None:
@@ -90,17 +105,18 @@ class PendingPng:
         if child is not None:
             with contextlib.suppress(Exception):
                 child.result()
-            with contextlib.suppress(OSError):
-                os.unlink(self.args[0])
+            for path in (staged_path(self.args[0]), self.args[0]):
+                _unlink_quietly(path)
 
 
 QUICKLOOK_MARGINS = dict(left=0.12, right=0.99, bottom=0.117, top=0.932)
 
 
 def draw_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynamic_range_db=40.0,
-                   markers=None, aspect="auto"):
+                   markers=None, aspect="auto", rename=True):
     """:func:`save_image_png` drawn in this process (a bare :class:`matplotlib.figure.Figure`: the same
-    PNG as pyplot's figure, without importing pyplot, 0.05 s of the painter's start)."""
+    PNG as pyplot's figure, without importing pyplot, 0.05 s of the painter's start). ``rename=False``:
+    left at :func:`staged_path` (the painter's drawing, which its command renames)."""
     from matplotlib.figure import Figure
 
     p = np.asarray(power, dtype=np.float32)         # a picture: float32 dB, computed in place
@@ -134,7 +150,7 @@ def draw_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
     if not isinstance(path, (str, os.PathLike)):     # a file object (the painter's warm-up)
         fig.savefig(path, format="png")
         return
-    with atomic_path(path) as tmp:          # partial removed and OSError one line on failure
+    with atomic_path(path, rename=rename) as tmp:          # partial removed and OSError one line on failure
         fig.savefig(tmp, format="png")
 
 

@@ -15,8 +15,9 @@ from .evaluate import isar_outputs
 # Run directory (called by ``fwdlook run`` / ``fwdlook process`` for kind: isar)
 # ----------------------------------------------------------------------------------------------
 def process_isar_cube(cube, scn: dict, run_dir, *, force=False, from_stage=None, quiet=False,
-                      png=True) -> dict:
-    """Run the ISAR chain with its stage files, write image.h5, image.png and metrics.json."""
+                      png=True, scenario_note: str = "") -> dict:
+    """Run the ISAR chain with its stage files, write image.h5, image.png and metrics.json
+    (``scenario_note``: comment lines that head scenario.yaml)."""
     from ..scenario.loader import dump_scenario, scenario_hash
     from ..io.h5 import atomic_h5, atomic_write_text, json_text, put, put_scale
     from ..runner import run_stages
@@ -46,15 +47,15 @@ def process_isar_cube(cube, scn: dict, run_dir, *, force=False, from_stage=None,
         d = put_scale(f, "doppler_hz", image["doppler_hz"], "Hz", image.vars["doppler_hz"].long_name)
         put(f, "cross_range_m", image["cross_range_m"], "m", image.vars["cross_range_m"].long_name, dims=(d,))
         put(f, "image", image["image"], "1", image.vars["image"].long_name, dims=(r, d))
-    if png:
-        _save_image_quicklook(run_dir / "image.png", image, title=f"{scn['name']}: ISAR {proc['correction']}")
     timings["outputs"] = time.perf_counter() - t_out
     timing = {k: float(v) for k, v in timings.items()}
     timing["total"] = time.perf_counter() - t_start
     metrics.update(scenario=scn["name"], scenario_sha256=scenario_hash(scn), stage_sha256=keys,
                    timing_s=timing)
     atomic_write_text(run_dir / "metrics.json", json_text(metrics))
-    atomic_write_text(run_dir / "scenario.yaml", dump_scenario(scn))   # last: the run is complete
+    if png:        # after metrics.json (a PNG with none beside it is not taken for fwdlook's), as the forward run's
+        _save_image_quicklook(run_dir / "image.png", image, title=f"{scn['name']}: ISAR {proc['correction']}")
+    atomic_write_text(run_dir / "scenario.yaml", scenario_note + dump_scenario(scn))   # last: the run is complete
     return metrics
 
 

@@ -474,9 +474,14 @@ def _plot_scaling(result: dict, path: Path) -> None:
             ax.set_title(f"{key.replace('_', ' ')}: {what.replace('_', ' ')}", fontsize=9)
             ax.legend(fontsize=6)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    from ..io.extra_outputs import BENCH_PNG_SOFTWARE
+    from ..io.outputs import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:    # (its folder checked by the command before the series: bench_png_path)
+            fig.savefig(tmp, dpi=80, metadata={"Software": BENCH_PNG_SOFTWARE})
+    finally:
+        plt.close(fig)
 
 
 def write_scaling_cube(path, n_pulses: int, n_range: int, paper: dict | None = None) -> dict:

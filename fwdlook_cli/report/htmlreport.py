@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import BadInput
+
 log = logging.getLogger(__name__)
 
 GROUND_MARGIN_M = 40.0
@@ -102,11 +104,44 @@ def isar_figures(run, out: Path) -> tuple[dict, list[str]]:
     return figs, notes
 
 
-def sweep_figures(sweep_dir: Path, out: Path) -> tuple[dict, list[dict], list[str]]:
-    """Redraw a sweep's stability map and speed-accuracy chart from its summary.json."""
+def read_sweep_summary(sweep_dir) -> dict:
+    """A sweep folder's summary.json, checked for what the report draws from it (an object with its
+    ``grid`` and ``rows``; each finished row with its scenario, grid values, time and worst range
+    error); BadInput in one line naming the file and the key otherwise."""
+    from ..limits import shown
+    from ..io.describe import read_json_text
+
+    path = Path(sweep_dir) / "summary.json"
+    summary = read_json_text(path)
+    if not isinstance(summary, dict) or not isinstance(summary.get("rows"), list) \
+            or not isinstance(summary.get("grid"), dict):
+        raise BadInput(f"{path}: expected a sweep summary written by fwdlook sweep (an object with grid and "
+                       f"rows)")
+    for i, row in enumerate(summary["rows"]):
+        if not isinstance(row, dict) or not isinstance(row.get("scenario"), str):
+            raise BadInput(f"{path}: rows[{i}]: expected an object with its scenario's name")
+        if row.get("status") == "failed":
+            continue
+        for key in ("total_s", "max_abs_range_error_m"):
+            value = row.get(key)
+            if (value is not None or key == "total_s") and not _is_real(value):
+                raise BadInput(f"{path}: rows[{i}].{key} = {shown(value)}: expected a number")
+        missing = [k for k in summary["grid"] if k not in row]
+        if missing:
+            raise BadInput(f"{path}: rows[{i}]: the grid key {missing[0]} is missing")
+    return summary
+
+
+def _is_real(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
+
+
+def sweep_figures(sweep_dir: Path, out: Path, summary: dict | None = None) -> tuple[dict, list[dict], list[str]]:
+    """Redraw a sweep's stability map and speed-accuracy chart from its summary.json (``summary``:
+    already read by :func:`read_sweep_summary`)."""
     from .plots import speed_accuracy_chart, stability_map
 
-    summary = json.loads((sweep_dir / "summary.json").read_text(encoding="utf-8"))
+    summary = read_sweep_summary(sweep_dir) if summary is None else summary
     rows = [r for r in summary.get("rows", []) if r.get("status") != "failed"]
     keys = [k for k in summary.get("grid", {}) if rows and k in rows[0]]
     slug = _slug(sweep_dir.name)
@@ -260,13 +295,14 @@ def render_html(runs, figures: dict, notes: list[str], out: Path, sweeps=()) -> 
     return "\n".join(parts)
 
 
-def write_html(path: Path, runs, figures: dict, notes: list[str], sweep_dirs=()) -> Path:
+def write_html(path: Path, runs, figures: dict, notes: list[str], sweep_dirs=(), summaries=None) -> Path:
+    """index.html; ``summaries``: {sweep folder: its summary.json, read by :func:`read_sweep_summary`}."""
     from ..io.h5 import atomic_write_text
 
     out = Path(path).parent
     sweeps = []
     for d in sweep_dirs:
-        figs, rows, keys = sweep_figures(Path(d), out)
+        figs, rows, keys = sweep_figures(Path(d), out, (summaries or {}).get(d))
         sweeps.append((d, figs, rows, keys))
     atomic_write_text(path, render_html(runs, figures, notes, out, sweeps))
     log.debug("wrote %s", path)

@@ -24,16 +24,19 @@ Plotting stays at this edge (``plots.py``); this module only reads files and arr
 """
 from __future__ import annotations
 
-import json
 import math
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import BadInput
-from ..io.describe import checked_axis, checked_grid
+from ..io.describe import checked_axis, checked_grid, read_json_text
 from ..io.h5 import atomic_write_text
+from ..io.outputs import mapped_os_errors
 from ..limits import shown
 from .tables import SIG_DIGITS, fmt_value, md_table, summary_rows
 
@@ -67,15 +70,10 @@ def read_metrics(run_dir: str | Path) -> dict:
         what = "a file, not a folder" if Path(run_dir).exists() else "no such directory"
         raise BadInput(f"{run_dir}: not a run directory ({what}); expected a folder written by "
                        f"fwdlook run or process")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
+    if not (path.exists() or path.is_symlink()):
         raise BadInput(f"{path}: metrics.json not found; expected a run directory written by "
-                       f"fwdlook run or fwdlook process") from None
-    try:
-        metrics = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise BadInput(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+                       f"fwdlook run or fwdlook process")
+    metrics = read_json_text(path)
     if not isinstance(metrics, dict):
         raise BadInput(f"{path}: top level: expected a JSON object")
     for key in ("method", "summary", "timing_s"):
@@ -410,23 +408,35 @@ def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M, overwr
     when ``out_dir`` holds report files fwdlook did not write (unless ``overwrite``)."""
     from ..io.outputs import prepare_report_dir
 
-    from .htmlreport import extra_figures, is_sweep_dir, write_html
+    from .htmlreport import extra_figures, is_sweep_dir, read_sweep_summary, write_html
 
     sweep_dirs = [d for d in run_dirs if is_sweep_dir(d)]          # sweeps: shown in index.html only
     plain = [d for d in run_dirs if d not in sweep_dirs]
     runs = load_runs(plain) if plain or not sweep_dirs else []
+    summaries = {d: read_sweep_summary(d) for d in sweep_dirs}     # every input read before anything is written
     out = Path(out_dir) if out_dir else default_report_dir(run_dirs)
     inputs = [Path(d) / n for d in plain for n in ("metrics.json", "image.h5")]
-    prepare_report_dir(out, inputs=inputs, overwrite=overwrite)
-    figures, notes = write_figures(runs, out, target_xy=target_xy) if runs else ({}, [])
-    more, more_notes = extra_figures(runs, out)                    # ground plane, ISAR echoes and image
-    figures.update(more)
-    notes += more_notes
-    path = out / "report.md"
-    text = report_markdown(runs, figures, notes) if runs else "# fwdlook report\n"
-    if sweep_dirs:
-        text += ("\nSweeps (their tables, stability maps and speed-accuracy charts are in `index.html`): "
-                 + ", ".join(f"`{d}`" for d in sweep_dirs) + ".\n")
-    atomic_write_text(path, text)
-    write_html(out / "index.html", runs, figures, notes, sweep_dirs)   # one self-contained file
-    return path
+    final = prepare_report_dir(out, inputs=inputs, overwrite=overwrite)
+    # every file is written into a folder of its own inside the report folder, and moved into place once
+    # all are written (index.html last): a report that fails (a full disk, SIGTERM) leaves none of its
+    # files, where it had left figures and a report.md that looked complete without their index.html
+    staging = Path(tempfile.mkdtemp(dir=final, prefix=".fwdlook-report-"))
+    try:
+        figures, notes = write_figures(runs, staging, target_xy=target_xy) if runs else ({}, [])
+        more, more_notes = extra_figures(runs, staging)            # ground plane, ISAR echoes and image
+        figures.update(more)
+        notes += more_notes
+        text = report_markdown(runs, figures, notes) if runs else "# fwdlook report\n"
+        if sweep_dirs:
+            text += ("\nSweeps (their tables, stability maps and speed-accuracy charts are in `index.html`): "
+                     + ", ".join(f"`{d}`" for d in sweep_dirs) + ".\n")
+        atomic_write_text(staging / "report.md", text)
+        write_html(staging / "index.html", runs, figures, notes, sweep_dirs, summaries)   # one self-contained file
+        with mapped_os_errors(final):
+            for q in sorted(staging.iterdir(), key=lambda q: q.name == "index.html"):
+                os.replace(q, final / q.name)
+    except BadInput as exc:          # (named where the file goes, not the folder it is written in first)
+        raise BadInput(str(exc).replace(str(staging), str(final))) from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return final / "report.md"

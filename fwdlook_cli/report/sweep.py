@@ -33,11 +33,14 @@ def run_sweep(path: str, out_dir: str | Path, *, workers: int = 1, quiet: bool =
     files that fwdlook did not write is refused unless ``overwrite``."""
     from ..io.outputs import folder_lock, prepare_sweep_dir
     from .sweep_exec import execute
+    from .sweep_plan import check_point_folders, plan_runs
 
     sweep = load_sweep(path)
+    # every point resolved and its folder checked before anything is made (a refusal changes nothing)
+    check_point_folders(plan_runs(sweep, Path(out_dir), source=sweep["source"]), overwrite=overwrite)
     out_dir = prepare_sweep_dir(out_dir, overwrite=overwrite)
     with folder_lock(out_dir, "sweep folder"):      # a second sweep into it is refused, not interleaved
-        rows = execute(sweep, Path(out_dir), workers=workers, quiet=quiet, scheduler=scheduler)
+        rows = execute(sweep, Path(out_dir), workers=workers, quiet=quiet, scheduler=scheduler, overwrite=overwrite)
         if sweep["combine"]:
             rows = combine_rows(rows, sweep)
         write_summary(Path(out_dir), sweep, rows)

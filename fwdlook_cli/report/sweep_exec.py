@@ -16,6 +16,7 @@
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -49,6 +50,15 @@ def limit_threads() -> None:
 
 
 _LIMITS = None
+
+
+def _pool_worker(parent_pid) -> None:
+    """A pool worker's start: it dies with the sweep (``dsp/lifetime.py``: a sweep killed by SIGKILL
+    left its idle workers alive for good), on one thread."""
+    from ..dsp.lifetime import die_with_parent
+
+    die_with_parent(parent_pid)
+    limit_threads()
 
 
 def thread_report() -> dict:
@@ -127,7 +137,7 @@ class _Serial:
         for i, item in enumerate(items):
             yield i, fn(item)
 
-    def close(self):
+    def close(self, abort: bool = False):
         pass
 
 
@@ -135,7 +145,9 @@ class _Pool:
     def __init__(self, workers: int):
         from concurrent.futures import ProcessPoolExecutor
 
-        self.pool = ProcessPoolExecutor(workers, initializer=limit_threads)
+        from ..dsp.lifetime import forking_parent
+
+        self.pool = ProcessPoolExecutor(workers, initializer=_pool_worker, initargs=(forking_parent(),))
 
     def map_unordered(self, fn, items):
         from concurrent.futures import as_completed
@@ -144,8 +156,14 @@ class _Pool:
         for fut in as_completed(futures):
             yield futures[fut], fut.result()
 
-    def close(self):
-        self.pool.shutdown()
+    def close(self, abort: bool = False):
+        """Wait for the workers; ``abort`` (Ctrl-C, SIGTERM): not for their points, which end with this
+        process (the workers die with it: ``dsp/lifetime.py``; a rerun resumes each point)."""
+        workers = list((getattr(self.pool, "_processes", None) or {}).values()) if abort else []
+        self.pool.shutdown(wait=not abort, cancel_futures=abort)
+        for worker in workers:                   # (the pool would wait for their points at exit)
+            with contextlib.suppress(Exception):
+                worker.kill()
 
 
 class _Dask:
@@ -176,7 +194,7 @@ class _Dask:
         for fut in as_completed(futures):
             yield index[fut.key], fut.result()
 
-    def close(self):
+    def close(self, abort: bool = False):
         self.client.close()
 
 
@@ -197,14 +215,17 @@ def _eta(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
 
 
-def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, scheduler: str = "local") -> list[dict]:
-    """Every point of ``sweep`` as a summary row, in plan order (see the module docstring)."""
-    from .sweep_plan import _fmt, _label, plan_runs, row_of
+def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, scheduler: str = "local",
+            overwrite: bool = False) -> list[dict]:
+    """Every point of ``sweep`` as a summary row, in plan order (see the module docstring). Each point's
+    folder is checked first (``sweep_plan.check_point_folders``; ``overwrite`` as on the command line)."""
+    from .sweep_plan import _fmt, _label, check_point_folders, plan_runs, row_of
 
     say = (lambda *a: None) if quiet else log.info
     remote = scheduler not in (None, "", "local")
     out = out.resolve() if remote else out            # Dask workers may have another working directory
     runs = plan_runs(sweep, out, source=sweep.get("source"))
+    check_point_folders(runs, overwrite=overwrite)
     raw_dir = out / "raw"
     raw_dir.mkdir(parents=True, exist_ok=True)
     rows: list[dict | None] = [None] * len(runs)
@@ -255,8 +276,10 @@ def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, sc
                 rows[i] = dict(row, status="ok")
                 say(f"[{done}/{len(ready)}] {run['scenario']} {_label(run['point'])}: max |range error| "
                     f"{_fmt(row.get('max_abs_range_error_m'))} m, {row['total_s']:.2f} s; ETA {eta}")
-    finally:
-        ex.close()
+    except BaseException:
+        ex.close(abort=True)
+        raise
+    ex.close()
     n_failed = sum(1 for r in rows if r.get("status") == "failed")
     say(f"sweep: {len(todo) - n_failed} point(s) computed, {len(runs) - len(todo)} reused, {n_failed} failed, "
         f"{time.perf_counter() - t0:.1f} s")

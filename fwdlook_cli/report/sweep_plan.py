@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import copy
+import hashlib
 import itertools
 import json
 from pathlib import Path
@@ -58,9 +59,22 @@ def load_sweep(path: str) -> dict:
             "config": str((base / config).resolve()) if config else None}
 
 
+LABEL_MAX_CHARS = 120
+
+
 def _label(point: dict) -> str:
-    return ",".join(f"{k.split('.')[-1]}={json.dumps(v) if not isinstance(v, str) else v}"
+    """The point's folder name, ``key=value,...`` (last key component): one path component whatever the
+    values hold (a value ``../../x`` had put the point's run outside the sweep's folder): '/', '\\',
+    control characters and a leading '.' become '_', and a name over :data:`LABEL_MAX_CHARS` is cut and
+    ends in a hash of the whole (a file name has at most 255 bytes)."""
+    text = ",".join(f"{k.split('.')[-1]}={json.dumps(v) if not isinstance(v, str) else v}"
                     for k, v in point.items()) or "base"
+    safe = "".join("_" if c in "/\\" or ord(c) < 32 or ord(c) == 127 else c for c in text)
+    if safe.startswith("."):
+        safe = "_" + safe[1:]
+    if len(safe) > LABEL_MAX_CHARS:
+        safe = safe[:LABEL_MAX_CHARS - 13] + "~" + hashlib.sha256(text.encode()).hexdigest()[:12]
+    return safe
 
 
 def plan_runs(sweep: dict, out_dir: Path, *, source: str | None = None) -> list[dict]:
@@ -85,7 +99,40 @@ def plan_runs(sweep: dict, out_dir: Path, *, source: str | None = None) -> list[
             runs.append({"scenario": scn["name"], "scenario_path": scen_path, "point": point, "sets": sets,
                          "sim_key": sim_key, "run_dir": str(out_dir / scn["name"] / _label(point)),
                          "resolved": scn})
+    _refuse_shared_folders(runs, source or sweep.get("source") or "sweep")
     return runs
+
+
+def _refuse_shared_folders(runs: list[dict], source: str) -> None:
+    """Two points whose runs would share one folder (two scenarios of one name, grid values with one
+    label such as 8 and "8"): the second overwrote the first, and its summary row showed the other's
+    results."""
+    seen: dict[str, dict] = {}
+    for run in runs:
+        first = seen.setdefault(run["run_dir"], run)
+        if first is run:
+            continue
+        if first["scenario_path"] != run["scenario_path"]:
+            why = (f"the scenarios {first['scenario_path']} and {run['scenario_path']} are both named "
+                   f"{shown(run['scenario'])}")
+        else:
+            why = f"the points {_label_text(first['point'])} and {_label_text(run['point'])} of {run['scenario_path']}"
+        raise BadInput(f"{source}: {why}: their runs would share the folder {run['run_dir']}; allowed: "
+                       f"scenarios with distinct names and grid values with distinct labels")
+
+
+def _label_text(point: dict) -> str:
+    return ",".join(f"{k}={json.dumps(v)}" for k, v in point.items()) or "(no grid)"
+
+
+def check_point_folders(runs: list[dict], *, overwrite: bool = False) -> None:
+    """Each point's run folder checked as ``fwdlook run -o`` checks its folder (``io.outputs``), before
+    anything runs: a folder holding files a run would replace that fwdlook did not write is refused
+    unless ``overwrite`` (a sweep had overwritten a user's metrics.json and removed their stages/)."""
+    from ..io.outputs import check_run_dir
+
+    for run in runs:
+        check_run_dir(run["run_dir"], overwrite=overwrite)
 
 
 def _simulate(args):
@@ -102,8 +149,7 @@ def _simulate(args):
 
 
 def _process(run):
-    import shutil
-
+    from ..io.extra_outputs import remove_stage_files
     from ..io.raw import read_raw
 
     cube = read_raw(run["raw"])
@@ -115,7 +161,7 @@ def _process(run):
     if not run["keep_stages"]:
         # a sweep keeps each run's metrics.json, image.h5 and scenario.yaml; its stage files (about
         # 60 MB per paper-size run) would fill a disk over hundreds of runs
-        shutil.rmtree(Path(run["run_dir"]) / "stages", ignore_errors=True)
+        remove_stage_files(run["run_dir"])
     return row_of(run, metrics)
 
 

@@ -37,6 +37,9 @@ def read_yaml_file(path: str | Path, what: str = "scenario") -> Any:
     if len(data) > MAX_YAML_BYTES:
         raise BadInput(f"{source}: {what} file larger than {MAX_YAML_BYTES // 2**20} MiB; a {what} is a "
                        f"small YAML text")
+    if data.startswith(b"\x89HDF\r\n\x1a\n"):      # HDF5's signature (at offset 0, where h5py writes it)
+        raise BadInput(f"{source}: an HDF5 file, not a {what} YAML text; a raw cube is read by its name's "
+                       f"suffix: name it .h5, .hdf5 or .hdf, or give it with --raw")
     if data.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in data:
         raise BadInput(f"{source}: not a UTF-8 text file (UTF-16 or binary content); save the {what} "
                        f"as UTF-8")
