@@ -99,6 +99,8 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
         if cube.diff is None or cube.attrs.get("scenario_kind") == "isar":
             raw_scn = {"kind": "isar"}
     else:
+        if raw:
+            _refuse_unused_sets(raw, overrides, RAW_SETTABLE)
         raw_scn, name = read_scenario_raw(source), None   # the one scenario reader (readers.py)
     if raw_scn is not None and not isinstance(raw_scn, dict):
         raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
@@ -128,26 +130,35 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
 
 
 CUBE_SETTABLE = ("processing", "name")     # what a --set can change where the source is a cube
+RAW_SETTABLE = ("processing", "name", "kind", "scene")   # with --raw: the scene map of an image scene's metrics
 
 
-def _refuse_unused_sets(source, overrides) -> None:
-    """A cube given as the source is processed with its own radar, antenna, motion and truth (CONTRACT.md
-    section 3): a --set of any other section would be recorded in scenario.yaml and used nowhere (it
-    was, silently)."""
+def _refuse_unused_sets(cube, overrides, settable=CUBE_SETTABLE) -> None:
+    """A cube is processed with its own radar, antenna, motion and truth (CONTRACT.md section 3): a --set
+    of another section would be recorded in scenario.yaml and used nowhere (it was, silently)."""
     for item in overrides or ():
         key = str(item).split("=", 1)[0].strip()
-        if "=" in str(item) and key.split(".", 1)[0] not in CUBE_SETTABLE:
-            raise BadInput(f"--set {shown(str(item))}: {source} is processed with its own radar, antenna, "
+        if "=" in str(item) and key.split(".", 1)[0] not in settable:
+            raise BadInput(f"--set {shown(str(item))}: {cube} is processed with its own radar, antenna, "
                            f"platform motion and truth (CONTRACT.md section 3), so {key} would change nothing; "
-                           f"allowed with a cube as the source: processing.* and name")
+                           f"allowed with a cube: {', '.join(k + '.*' if k in ('processing', 'scene') else k for k in settable)}")
 
 
-def cube_scenario_note(source) -> str:
-    """The comment that heads scenario.yaml when a cube was the source: which of its sections the chain
-    used (the schema fills every section; a reader must not take the others for the cube's)."""
-    return (f"# processed from the cube {source}: the chain took the radar, antenna, platform motion and truth\n"
-            f"# from the cube itself (CONTRACT.md section 3); only name and processing below are this run's\n"
-            f"# settings, the other sections are the schema's defaults and were not used.\n")
+def cube_scenario_note(cube, *, raw_option: bool = False) -> str:
+    """The comment that heads scenario.yaml where the chain read a cube: which sections it used (a reader
+    must not take the others for the cube's)."""
+    unused = ("radar, antenna, platform, noise and simulation sections below are the scenario's" if raw_option
+              else "other sections below are the schema's defaults")
+    used = "name, kind, scene and processing" if raw_option else "name and processing"
+    return (f"# processed from the cube {cube}: the chain took the radar, antenna, platform motion and truth\n"
+            f"# from the cube itself (CONTRACT.md section 3); {used} are this run's settings, the\n"
+            f"# {unused} and were not used.\n")
+
+
+def _note(source, raw) -> str:
+    if _is_cube_path(source):
+        return cube_scenario_note(source)
+    return cube_scenario_note(raw, raw_option=True) if raw else ""
 
 
 def _reads_cube(source, raw) -> bool:
@@ -284,8 +295,7 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
         scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
         run_dir = _default_run_dir(scn, output)
         metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages, out_of_core,
-                           from_file=_reads_cube(source, raw),
-                           note=cube_scenario_note(source) if _is_cube_path(source) else "")
+                           from_file=_reads_cube(source, raw), note=_note(source, raw))
     _print_summary(metrics, run_dir, quiet)
 
 
@@ -323,8 +333,7 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
         if writes_raw:
             write_raw(run_dir / "raw.h5", cube)
         metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages, out_of_core,
-                           from_file=not writes_raw,
-                           note=cube_scenario_note(scenario) if _is_cube_path(scenario) else "")
+                           from_file=not writes_raw, note=_note(scenario, raw))
     _print_summary(metrics, run_dir, quiet)
     click.echo(str(run_dir / "metrics.json"))
 

@@ -97,9 +97,10 @@ def test_a_painter_that_drew_leaves_by_its_closed_pipe_after_the_job(tmp_path):
     with painting_checked() as child:
         pending = start_image_png(tmp_path / "image.png", power, x, y, **kw)
         child.close()                                      # with the job in hand: finished, then gone
+        # the child's drawing stays partial: only its command renames it (after the run's metrics.json)
+        assert not (tmp_path / "image.png").exists() and (tmp_path / "image.partial.png").exists()
     assert os.WIFEXITED(child.exit_status)
-    # the child's drawing stays partial: only its command renames it (after the run's metrics.json)
-    assert not (tmp_path / "image.png").exists() and (tmp_path / "image.partial.png").exists()
+    assert list(tmp_path.iterdir()) == []                 # never claimed: removed as the painting ended
     pending.finish()                                       # the child is gone: drawn here instead
     assert [q.name for q in tmp_path.iterdir()] == ["image.png"]
 
@@ -115,6 +116,18 @@ def test_the_painters_png_appears_only_when_its_command_renames_it(tmp_path):
         assert not (tmp_path / "image.png").exists()
         pending.finish()
     assert [q.name for q in tmp_path.iterdir()] == ["image.png"]
+
+
+def test_a_drawing_its_command_never_claimed_is_removed_with_the_painter(tmp_path):
+    """Stopped between metrics.json and the rename (SIGTERM, Ctrl-C): the child finishes its job as the
+    painter closes, and its staged drawing is removed then (it had stayed as image.partial.png)."""
+    power, x, y, kw = _picture()
+    with pytest.raises(KeyboardInterrupt):
+        with quicklook.painting() as child:
+            assert child is not None
+            start_image_png(tmp_path / "image.png", power, x, y, **kw)
+            raise KeyboardInterrupt                   # before finish()
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_painter_with_a_job_in_hand_dies_with_its_killed_command(tmp_path):

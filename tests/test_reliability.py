@@ -1082,8 +1082,21 @@ def test_a_set_that_a_cube_source_would_ignore_is_refused(tiny_raw, tmp_path, ca
     section 3): a --set of another section changed nothing and was recorded in scenario.yaml as if it
     had (radar.prf_hz=5 beside the cube's 2000 Hz)."""
     code, out, err = run_cli(["process", tiny_raw, "-o", tmp_path / "r", "--set", setting], capsys)
-    assert_refused(code, out, err, setting, str(tiny_raw), "processing.* and name")
+    assert_refused(code, out, err, setting, str(tiny_raw), "allowed with a cube: processing.*, name")
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("command", ["run", "process"])
+def test_a_set_that_the_raw_option_would_ignore_is_refused(tiny_raw, tmp_path, capsys, command):
+    """With --raw the scenario's radar, antenna, platform, noise and simulation are not used either."""
+    code, out, err = run_cli([command, TINY, "--raw", tiny_raw, "-o", tmp_path / "r", "--set",
+                              "radar.prf_hz=5"], capsys)
+    assert_refused(code, out, err, "radar.prf_hz", str(tiny_raw), "scene.*")
+    code, out, err = run_cli([command, TINY, "--raw", tiny_raw, "-o", tmp_path / "r", "--set",
+                              "processing.q=8", "-q"], capsys)
+    assert code == 0, err
+    head = (tmp_path / "r" / "scenario.yaml").read_text().splitlines()[:3]
+    assert head[0].startswith(f"# processed from the cube {tiny_raw}:") and "the scenario's" in head[2]
 
 
 def test_a_cube_sources_scenario_yaml_says_what_the_chain_used(tiny_raw, tmp_path, capsys):

@@ -7,6 +7,7 @@ The reproduction's section (a) is checked against the closed forms of paper eq. 
 from __future__ import annotations
 
 import json
+import os
 import math
 import struct
 from pathlib import Path
@@ -242,7 +243,28 @@ def test_a_report_that_fails_while_writing_leaves_none_of_its_files(tiny_runs, t
     monkeypatch.setattr(htmlreport, "render_html", full_disk)
     code, out, err = run_cli(["report", tiny_runs[0], "-o", tmp_path / "rep"], capsys)
     assert code == 2 and "No space left" in err
-    assert list((tmp_path / "rep").iterdir()) == []
+    assert not (tmp_path / "rep").exists()               # the folder it made, left empty: removed too
+    (tmp_path / "mine").mkdir()
+    code, out, err = run_cli(["report", tiny_runs[0], "-o", tmp_path / "mine"], capsys)
+    assert code == 2 and list((tmp_path / "mine").iterdir()) == []   # a folder it found: kept
+
+
+def test_a_killed_reports_staging_folder_is_removed_by_the_next_report(tiny_runs, tmp_path, capsys):
+    """SIGKILL runs no cleanup: the staging folder of a report whose process is gone is removed by the
+    next report into that folder; one of a live process (this one) is not."""
+    import subprocess
+    import sys
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    rep = tmp_path / "rep"
+    (rep / f".fwdlook-report-{dead}-abc").mkdir(parents=True)
+    (rep / f".fwdlook-report-{dead}-abc" / "images.png").write_bytes(b"half")
+    (rep / f".fwdlook-report-{os.getpid()}-xyz").mkdir()
+    code, out, err = run_cli(["report", tiny_runs[0], "-o", rep], capsys)
+    assert code == 0, err
+    assert sorted(q.name for q in rep.glob(".fwdlook-report-*")) == [f".fwdlook-report-{os.getpid()}-xyz"]
+    assert (rep / "index.html").exists()
 
 
 @pytest.mark.parametrize("name, change, named", [

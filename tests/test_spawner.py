@@ -132,6 +132,23 @@ def test_a_spawner_gone_leaves_the_jobs_to_direct_forks():
     assert spawner.current() is None
 
 
+def test_a_spawner_that_does_not_answer_is_killed_and_the_jobs_run_here(monkeypatch):
+    """A spawner stuck in a fork (a library's fork handler that loses a wake-up: scipy's pocketfft pool,
+    once in the test suite) had hung its caller for good: after ANSWER_TIMEOUT_S the caller kills it,
+    computes the jobs itself (same results) and forks the next batch directly."""
+    monkeypatch.setattr(spawner, "ANSWER_TIMEOUT_S", 0.5)
+    sp = spawner.start()
+    os.kill(sp.pid, signal.SIGSTOP)                      # as stuck: it reads nothing and answers nothing
+    jobs = _jobs()
+    t0 = time.monotonic()
+    out = map_jobs(_svd_job, jobs, 2, processes=True)
+    assert time.monotonic() - t0 < 10.0
+    assert [k for k, _, _ in out] == list(range(5)) and all(ppid == os.getppid() for _, _, ppid in out)  # here
+    assert spawner.current() is None and _state(sp.pid) in ("", "Z")
+    serial = [_svd_job(j) for j in jobs]
+    assert all(np.array_equal(a[1], b[1]) for a, b in zip(serial, out))
+
+
 def test_cancel_ends_the_spawned_workers():
     """cancel() (the caller failed meanwhile) kills the spawner's workers at once: no job runs on."""
     spawner.start()

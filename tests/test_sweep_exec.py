@@ -229,3 +229,33 @@ def test_pool_workers_die_with_a_killed_sweep_and_leave_its_folder_unlocked(tmp_
     assert all(gone(p) for p in pids)
     with folder_lock(tmp_path, "sweep folder"):          # free: no descriptor of it is left open
         assert os.path.exists(tmp_path / ".fwdlook.lock")
+
+
+def test_a_sweep_stopped_by_sigterm_ends_its_workers_points_cleanly(tmp_path):
+    """SIGTERM to a two-worker sweep mid-point: each worker ends its point as a command does (its partial
+    stage file removed; it had been killed mid-write, leaving `NN_stage.h5.partial`), the sweep exits 143
+    in one line, and no worker is left."""
+    import glob
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "sw"
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, "-c", "from fwdlook_cli.cli import main; main()", "sweep",
+                             str(root / "configs" / "sweeps" / "tour.yaml"), "--workers", "2", "-o", str(out), "-q"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120.0
+    while not glob.glob(str(out / "*" / "*" / "stages" / "*")) and proc.poll() is None \
+            and time.monotonic() < deadline:
+        time.sleep(0.002)
+    assert proc.poll() is None, "finished before a point had begun"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert err.strip().splitlines() == ["fwdlook: terminated (SIGTERM)"]
+    assert not list(out.rglob("*.partial")), list(out.rglob("*.partial"))
+    time.sleep(0.5)
+    left = subprocess.run(["pgrep", "-s", str(proc.pid)], capture_output=True, text=True).stdout.split()
+    assert left == [], left                               # nothing of its session still running

@@ -97,3 +97,13 @@ def test_removing_a_runs_stage_files_removes_fwdlooks_only(tmp_path, capsys):
     (stages / "notes.txt").unlink()
     remove_stage_files(tmp_path / "r")
     assert not stages.exists()                                   # empty: removed
+
+
+def test_a_users_file_on_a_points_path_is_refused_in_one_line(tmp_path, capsys):
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "tiny").write_text("mine")           # where the scenario's folder would go
+    code, err = _run(capsys, _sweep(tmp_path, {"processing.q": [8]}), "-o", tmp_path / "out")
+    assert code == 2 and len(err) == 1, err
+    assert "is not a directory" in err[0] and str(tmp_path / "out" / "tiny") in err[0]
+    assert sorted(q.name for q in (tmp_path / "out").iterdir()) == ["tiny"]
+    assert (tmp_path / "out" / "tiny").read_text() == "mine"

@@ -172,7 +172,8 @@ class SpawnedPending(ForkedPending):
         if self.children is None:
             try:
                 pids = self.pids()
-            except OSError:                    # the spawner is gone: its workers cannot be named
+            except OSError:                    # the spawner is gone (or stuck, and killed): its workers
+                spawner.stop()                 # cannot be named; the jobs run here, the next batch forks
                 pids = []
             self.children = list(zip(pids, self.pipes))
             for fd in self.pipes[len(pids):]:

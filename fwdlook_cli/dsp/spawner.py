@@ -24,6 +24,7 @@ batch that does not, a spawner gone, or a platform without ``fork`` falls back t
 from __future__ import annotations
 
 import atexit
+import contextlib
 import ctypes
 import multiprocessing
 import os
@@ -38,6 +39,7 @@ import time
 from .lifetime import die_with_parent, forking_parent
 
 _HEAD = struct.Struct("<iq")          # workers, payload bytes
+ANSWER_TIMEOUT_S = 20.0               # a batch's forks take milliseconds; a spawner silent this long is stuck
 _SPAWNER = None                       # this process's spawner, if started
 _LOCK = threading.Lock()
 _WORKER_CPU = [0.0, 0.0]              # user, system seconds of the spawner's workers, as they reported them
@@ -67,13 +69,27 @@ class Spawner:
         return lambda: self._pids(ticket)
 
     def _pids(self, ticket: int) -> list:
-        """The process ids the spawner answered for batch ``ticket`` (its answers come in order)."""
+        """The process ids the spawner answered for batch ``ticket`` (its answers come in order). A
+        spawner that has not answered in :data:`ANSWER_TIMEOUT_S` is killed and OSError raised (the
+        caller then runs the jobs itself): a fork can hang for good where a library's ``pthread_atfork``
+        handler loses a wake-up (scipy's pocketfft pool: it notifies its threads without their lock, and
+        a thread it has just restarted after the previous fork may miss it; seen once in the test suite,
+        the spawner stuck at its third fork of a batch)."""
         with self.lock:
-            while self.answered <= ticket:
-                n = struct.unpack("<i", _recv_exact(self.sock, 4))[0]
-                self.answers[self.answered] = (list(struct.unpack(f"<{n}i", _recv_exact(self.sock, 4 * n)))
-                                               if n > 0 else [])
-                self.answered += 1
+            self.sock.settimeout(ANSWER_TIMEOUT_S)
+            try:
+                while self.answered <= ticket:
+                    n = struct.unpack("<i", _recv_exact(self.sock, 4))[0]
+                    self.answers[self.answered] = (list(struct.unpack(f"<{n}i", _recv_exact(self.sock, 4 * n)))
+                                                   if n > 0 else [])
+                    self.answered += 1
+            except TimeoutError:
+                with contextlib.suppress(OSError):
+                    os.kill(self.pid, signal.SIGKILL)
+                raise ConnectionError(f"the spawner did not answer in {ANSWER_TIMEOUT_S:.0f} s") from None
+            finally:
+                with contextlib.suppress(OSError):
+                    self.sock.settimeout(None)
             return self.answers.pop(ticket)
 
     def close(self, grace_s: float = 2.0):

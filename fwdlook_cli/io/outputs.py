@@ -89,6 +89,11 @@ def _make_dir(folder: Path, target: Path) -> None:
         _MADE_DIRS[str(folder)] = missing
 
 
+def unmake_dirs(folder) -> None:
+    """:func:`_unmake_dirs` for a command without a lock (``report``): the folders it made, if empty."""
+    _unmake_dirs(folder)
+
+
 def _unmake_dirs(folder) -> None:
     """A command refused after it made ``folder`` (``run --raw`` of a missing cube, a sweep's bad point):
     the folders it made go again where they hold nothing (the lock file and empty ``stages``/``raw``
@@ -370,6 +375,11 @@ def prepare_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: boo
 def check_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: bool = False) -> Path:
     """:func:`prepare_run_dir`'s checks alone (nothing made): where a run may write; raises BadInput."""
     d = output_path(path)
+    for p in d.parents:             # a file on its path (a sweep's point under a user's file had exit 1)
+        if p.exists() or p.is_symlink():
+            if not p.is_dir():
+                raise BadInput(f"cannot write {d}: {p} is not a directory")
+            break
     if (d.exists() or d.is_symlink()) and not d.is_dir():
         raise BadInput(f"cannot write {d}: exists and is not a directory; expected a run directory")
     names = RUN_FILES + (("raw.h5",) if writes_raw else ())

@@ -41,6 +41,7 @@ def start_image_png(path, power, x_axis, y_axis, **kwargs) -> "PendingPng":
     if child is not None:
         try:       # by name: the child's own draw_image_png, left partial (renamed by finish)
             child.submit("fwdlook_cli.io.quicklook:draw_image_png", *args, rename=False, **kwargs)
+            _UNCLAIMED.add(str(staged_path(path)))
         except painter.PainterGone:
             child = None
     return PendingPng(child, args, kwargs)
@@ -53,12 +54,23 @@ def staged_path(path) -> Path:
     return partial_path(path)
 
 
+_UNCLAIMED: set = set()     # staged drawings begun and not yet renamed or discarded by their command
+
+
+@contextlib.contextmanager
 def painting():
     """Within the block, quick looks are drawn by a forked child (``io/painter.py``) that has imported
-    matplotlib and drawn one small figure (:func:`warm_up`) meanwhile."""
+    matplotlib and drawn one small figure (:func:`warm_up`) meanwhile. At its end, once the child has
+    finished its job, a drawing its command never claimed (stopped between metrics.json and the
+    rename: SIGTERM, Ctrl-C) is removed: it had stayed as ``image.partial.png``."""
     from . import painter
 
-    return painter.painting(warm_up=WARM_UP)
+    try:
+        with painter.painting(warm_up=WARM_UP) as child:
+            yield child
+    finally:
+        while _UNCLAIMED:
+            _unlink_quietly(_UNCLAIMED.pop())
 
 
 WARM_UP = f"{__name__}:warm_up"       # the painter's warm-up, by name (cli.QUICKLOOK_WARM_UP forks with it)
@@ -91,6 +103,7 @@ class PendingPng:
                 child.result()
                 with mapped_os_errors(path):
                     os.replace(staged_path(path), path)
+                _UNCLAIMED.discard(str(staged_path(path)))
                 return None
             except painter.PainterGone:
                 _unlink_quietly(staged_path(path))   # the child is gone: drawn here

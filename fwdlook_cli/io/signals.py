@@ -16,6 +16,7 @@ atomic writers then remove their partial files as for any other error.
 """
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -67,16 +68,26 @@ def _unraisable(found_hook):
     return hook
 
 
-def install(terminated_type):
+def install(terminated_type, *, idle=None):
     """The command's handlers: Ctrl-C raises KeyboardInterrupt (as Python's own), SIGTERM
-    ``terminated_type``, each where it may be raised (module docstring). Returns a function that
-    restores the handlers found (main thread only; elsewhere nothing is installed)."""
+    ``terminated_type``, each where it may be raised (module docstring); where ``idle()`` says the
+    process has nothing to clean up (a sweep's pool worker between points), it leaves at once with exit
+    128 + the signal instead. Returns a function that restores the handlers found (main thread only;
+    elsewhere nothing is installed)."""
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
     found = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGALRM)}
     found_hook = sys.unraisablehook
-    signal.signal(signal.SIGINT, lambda s, f: _raise_or_keep(KeyboardInterrupt, f))
-    signal.signal(signal.SIGTERM, lambda s, f: _raise_or_keep(terminated_type, f))
+
+    def handler(exc_type):
+        def handle(signum, frame):
+            if idle is not None and idle():
+                os._exit(128 + signum)
+            _raise_or_keep(exc_type, frame)
+        return handle
+
+    signal.signal(signal.SIGINT, handler(KeyboardInterrupt))
+    signal.signal(signal.SIGTERM, handler(terminated_type))
     signal.signal(signal.SIGALRM, _retry)
     sys.unraisablehook = _unraisable(found_hook)
 

@@ -36,7 +36,7 @@ import numpy as np
 from ..errors import BadInput
 from ..io.describe import checked_axis, checked_grid, read_json_text
 from ..io.h5 import atomic_write_text
-from ..io.outputs import mapped_os_errors
+from ..io.outputs import mapped_os_errors, unmake_dirs
 from ..limits import shown
 from .tables import SIG_DIGITS, fmt_value, md_table, summary_rows
 
@@ -420,7 +420,11 @@ def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M, overwr
     # every file is written into a folder of its own inside the report folder, and moved into place once
     # all are written (index.html last): a report that fails (a full disk, SIGTERM) leaves none of its
     # files, where it had left figures and a report.md that looked complete without their index.html
-    staging = Path(tempfile.mkdtemp(dir=final, prefix=".fwdlook-report-"))
+    _remove_dead_stagings(final)
+    try:
+        staging = Path(tempfile.mkdtemp(dir=final, prefix=f"{STAGING_PREFIX}{os.getpid()}-"))
+    except OSError as exc:
+        raise BadInput(f"cannot write {final}: {exc.strerror or exc}") from None
     try:
         figures, notes = write_figures(runs, staging, target_xy=target_xy) if runs else ({}, [])
         more, more_notes = extra_figures(runs, staging)            # ground plane, ISAR echoes and image
@@ -436,7 +440,30 @@ def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M, overwr
             for q in sorted(staging.iterdir(), key=lambda q: q.name == "index.html"):
                 os.replace(q, final / q.name)
     except BadInput as exc:          # (named where the file goes, not the folder it is written in first)
-        raise BadInput(str(exc).replace(str(staging), str(final))) from None
-    finally:
         shutil.rmtree(staging, ignore_errors=True)
+        unmake_dirs(final)
+        raise BadInput(str(exc).replace(str(staging), str(final))) from None
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        unmake_dirs(final)           # a report folder this command made, left empty: removed
+        raise
+    shutil.rmtree(staging, ignore_errors=True)
     return final / "report.md"
+
+
+STAGING_PREFIX = ".fwdlook-report-"
+
+
+def _remove_dead_stagings(folder: Path) -> None:
+    """The staging folders of reports that were killed (SIGKILL runs no cleanup): those whose process,
+    named in the folder's name, is gone. A report running beside this one keeps its own."""
+    for q in folder.glob(f"{STAGING_PREFIX}*"):
+        pid = q.name[len(STAGING_PREFIX):].split("-", 1)[0]
+        if not pid.isdigit() or not q.is_dir() or q.is_symlink():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(q, ignore_errors=True)
+        except (PermissionError, OverflowError):
+            pass

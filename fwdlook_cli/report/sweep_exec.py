@@ -20,6 +20,7 @@ import contextlib
 import json
 import logging
 import os
+import signal
 import time
 import traceback
 from pathlib import Path
@@ -50,14 +51,29 @@ def limit_threads() -> None:
 
 
 _LIMITS = None
+_BUSY = False               # a pool worker is computing a point or a cube (its signals: _pool_worker)
+
+
+@contextlib.contextmanager
+def _busy():
+    global _BUSY
+    _BUSY = True
+    try:
+        yield
+    finally:
+        _BUSY = False
 
 
 def _pool_worker(parent_pid) -> None:
     """A pool worker's start: it dies with the sweep (``dsp/lifetime.py``: a sweep killed by SIGKILL
     left its idle workers alive for good), on one thread."""
     from ..dsp.lifetime import die_with_parent
+    from ..errors import Terminated
+    from ..io import signals
 
     die_with_parent(parent_pid)
+    signals.install(Terminated, idle=lambda: not _BUSY)   # SIGTERM, Ctrl-C: its point ended cleanly (no partial
+    #                                                       stage file); between points it leaves at once
     limit_threads()
 
 
@@ -107,7 +123,8 @@ def simulate_task(args):
     from .sweep_plan import _simulate
 
     try:
-        return _simulate(args), None
+        with _busy():
+            return _simulate(args), None
     except Exception as exc:  # noqa: BLE001 - recorded in the summary, the sweep goes on
         log.debug("simulation %s failed:\n%s", args[1], traceback.format_exc())
         return args[1], _error_text(exc)
@@ -118,7 +135,8 @@ def process_task(run):
     from .sweep_plan import _process
 
     try:
-        return _process(run), None
+        with _busy():
+            return _process(run), None
     except Exception as exc:  # noqa: BLE001 - recorded in the summary, the sweep goes on
         log.debug("point %s failed:\n%s", run["run_dir"], traceback.format_exc())
         return None, _error_text(exc)
@@ -141,6 +159,9 @@ class _Serial:
         pass
 
 
+ABORT_GRACE_S = 5.0
+
+
 class _Pool:
     def __init__(self, workers: int):
         from concurrent.futures import ProcessPoolExecutor
@@ -157,13 +178,21 @@ class _Pool:
             yield futures[fut], fut.result()
 
     def close(self, abort: bool = False):
-        """Wait for the workers; ``abort`` (Ctrl-C, SIGTERM): not for their points, which end with this
-        process (the workers die with it: ``dsp/lifetime.py``; a rerun resumes each point)."""
+        """Wait for the workers; ``abort`` (Ctrl-C, SIGTERM): not for their points: each worker is sent
+        SIGTERM, which ends its point as it ends a command (its partial files removed; a rerun resumes
+        the point), and killed if it has not left within :data:`ABORT_GRACE_S` (the pool would wait for
+        their points at exit)."""
         workers = list((getattr(self.pool, "_processes", None) or {}).values()) if abort else []
         self.pool.shutdown(wait=not abort, cancel_futures=abort)
-        for worker in workers:                   # (the pool would wait for their points at exit)
+        for worker in workers:
             with contextlib.suppress(Exception):
-                worker.kill()
+                os.kill(worker.pid, signal.SIGTERM)
+        deadline = time.monotonic() + ABORT_GRACE_S
+        for worker in workers:
+            with contextlib.suppress(Exception):
+                worker.join(max(0.0, deadline - time.monotonic()))
+                if worker.is_alive():
+                    worker.kill()
 
 
 class _Dask:
