@@ -79,7 +79,7 @@ def test_two_points_that_would_share_a_folder_are_refused(tmp_path, capsys):
                                     scenarios=[str(tmp_path / "a" / "tiny.yaml"), str(tmp_path / "b" / "tiny.yaml")]),
                      "-o", tmp_path / "o")
     assert code == 2 and len(err) == 1, err
-    assert "both named 'tiny'" in err[0] or 'both named "tiny"' in err[0] or "both named tiny" in err[0], err[0]
+    assert "are both named 'tiny'" in err[0], err[0]
     assert not (tmp_path / "o" / "raw").exists()
 
 

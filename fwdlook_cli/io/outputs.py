@@ -75,7 +75,9 @@ def make_parent(path) -> None:
 _MADE_DIRS: dict = {}      # output folder -> the folders this process made for it (deepest first)
 
 
-def _make_dir(folder: Path, target: Path) -> None:
+def _missing_folders(folder: Path, target: Path) -> list:
+    """The folders of ``folder``'s path that do not exist yet (deepest first); BadInput where the first
+    that exists is not a folder (a file on the path)."""
     missing = []
     for p in (folder, *folder.parents):
         if p.exists() or p.is_symlink():
@@ -83,6 +85,11 @@ def _make_dir(folder: Path, target: Path) -> None:
                 raise BadInput(f"cannot write {target}: {p} is not a directory")
             break
         missing.append(p)
+    return missing
+
+
+def _make_dir(folder: Path, target: Path) -> None:
+    missing = _missing_folders(folder, target)
     with mapped_os_errors(target):
         folder.mkdir(parents=True, exist_ok=True)
     if missing:
@@ -90,11 +97,6 @@ def _make_dir(folder: Path, target: Path) -> None:
 
 
 def unmake_dirs(folder) -> None:
-    """:func:`_unmake_dirs` for a command without a lock (``report``): the folders it made, if empty."""
-    _unmake_dirs(folder)
-
-
-def _unmake_dirs(folder) -> None:
     """A command refused after it made ``folder`` (``run --raw`` of a missing cube, a sweep's bad point):
     the folders it made go again where they hold nothing (the lock file and empty ``stages``/``raw``
     aside), so that a refusal leaves nothing behind."""
@@ -375,11 +377,7 @@ def prepare_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: boo
 def check_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: bool = False) -> Path:
     """:func:`prepare_run_dir`'s checks alone (nothing made): where a run may write; raises BadInput."""
     d = output_path(path)
-    for p in d.parents:             # a file on its path (a sweep's point under a user's file had exit 1)
-        if p.exists() or p.is_symlink():
-            if not p.is_dir():
-                raise BadInput(f"cannot write {d}: {p} is not a directory")
-            break
+    _missing_folders(d.parent, d)   # a file on its path (a sweep's point under a user's file had exit 1)
     if (d.exists() or d.is_symlink()) and not d.is_dir():
         raise BadInput(f"cannot write {d}: exists and is not a directory; expected a run directory")
     names = RUN_FILES + (("raw.h5",) if writes_raw else ())
@@ -538,7 +536,7 @@ def folder_lock(folder, what: str = "run directory"):
         except BaseException:               # refused or failed: no lock file or empty folder of its own left
             if created:
                 _unlink_quietly(path)
-            _unmake_dirs(folder)
+            unmake_dirs(folder)
             raise
         _MADE_DIRS.pop(str(folder), None)
     finally:

@@ -41,20 +41,13 @@ def start_image_png(path, power, x_axis, y_axis, **kwargs) -> "PendingPng":
     if child is not None:
         try:       # by name: the child's own draw_image_png, left partial (renamed by finish)
             child.submit("fwdlook_cli.io.quicklook:draw_image_png", *args, rename=False, **kwargs)
-            _UNCLAIMED.add(str(staged_path(path)))
+            _UNCLAIMED.add(str(partial_path(path)))
         except painter.PainterGone:
             child = None
     return PendingPng(child, args, kwargs)
 
 
-def staged_path(path) -> Path:
-    """Where the painter draws ``path`` (``NAME.partial.SUFFIX``): the command renames it into place
-    itself, after the run's metrics.json, so that no PNG appears in a run before its metrics (a PNG
-    without fwdlook's metrics beside it is not taken for fwdlook's: ``io.outputs``)."""
-    return partial_path(path)
-
-
-_UNCLAIMED: set = set()     # staged drawings begun and not yet renamed or discarded by their command
+_UNCLAIMED: set = set()     # the painter's drawings (partial_path) begun and not yet renamed or discarded by their command
 
 
 @contextlib.contextmanager
@@ -102,13 +95,13 @@ class PendingPng:
             try:
                 child.result()
                 with mapped_os_errors(path):
-                    os.replace(staged_path(path), path)
-                _UNCLAIMED.discard(str(staged_path(path)))
+                    os.replace(partial_path(path), path)
+                _UNCLAIMED.discard(str(partial_path(path)))
                 return None
             except painter.PainterGone:
-                _unlink_quietly(staged_path(path))   # the child is gone: drawn here
+                _unlink_quietly(partial_path(path))   # the child is gone: drawn here
             except BaseException:
-                _unlink_quietly(staged_path(path))
+                _unlink_quietly(partial_path(path))
                 raise
         return draw_image_png(*self.args, **self.kwargs)
 
@@ -118,7 +111,7 @@ class PendingPng:
         if child is not None:
             with contextlib.suppress(Exception):
                 child.result()
-            for path in (staged_path(self.args[0]), self.args[0]):
+            for path in (partial_path(self.args[0]), self.args[0]):
                 _unlink_quietly(path)
 
 
@@ -129,7 +122,8 @@ def draw_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
                    markers=None, aspect="auto", rename=True):
     """:func:`save_image_png` drawn in this process (a bare :class:`matplotlib.figure.Figure`: the same
     PNG as pyplot's figure, without importing pyplot, 0.05 s of the painter's start). ``rename=False``:
-    left at :func:`staged_path` (the painter's drawing, which its command renames)."""
+    left at ``NAME.partial.SUFFIX`` (the painter's drawing, which its command renames after the run's
+    metrics.json, so that no PNG appears in a run before its metrics)."""
     from matplotlib.figure import Figure
 
     p = np.asarray(power, dtype=np.float32)         # a picture: float32 dB, computed in place

@@ -14,6 +14,7 @@ import base64
 import html
 import json
 import logging
+import math
 import re
 from pathlib import Path
 
@@ -108,8 +109,9 @@ def read_sweep_summary(sweep_dir) -> dict:
     """A sweep folder's summary.json, checked for what the report draws from it (an object with its
     ``grid`` and ``rows``; each finished row with its scenario, grid values, time and worst range
     error); BadInput in one line naming the file and the key otherwise."""
-    from ..limits import shown
     from ..io.describe import read_json_text
+    from ..limits import shown
+    from .tables import is_number
 
     path = Path(sweep_dir) / "summary.json"
     summary = read_json_text(path)
@@ -124,16 +126,12 @@ def read_sweep_summary(sweep_dir) -> dict:
             continue
         for key in ("total_s", "max_abs_range_error_m"):
             value = row.get(key)
-            if (value is not None or key == "total_s") and not _is_real(value):
+            if (value is not None or key == "total_s") and not (is_number(value) and math.isfinite(value)):
                 raise BadInput(f"{path}: rows[{i}].{key} = {shown(value)}: expected a number")
         missing = [k for k in summary["grid"] if k not in row]
         if missing:
             raise BadInput(f"{path}: rows[{i}]: the grid key {missing[0]} is missing")
     return summary
-
-
-def _is_real(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
 
 
 def sweep_figures(sweep_dir: Path, out: Path, summary: dict | None = None) -> tuple[dict, list[dict], list[str]]:

@@ -38,7 +38,7 @@ from ..io.describe import checked_axis, checked_grid, read_json_text
 from ..io.h5 import atomic_write_text
 from ..io.outputs import mapped_os_errors, unmake_dirs
 from ..limits import shown
-from .tables import SIG_DIGITS, fmt_value, md_table, summary_rows
+from .tables import SIG_DIGITS, fmt_value, is_number, md_table, summary_rows
 
 MAX_TARGET_ROWS = 70
 DEFAULT_TARGET_XY_M = (-300.0, 1700.0)      # paper Fig. 7: azimuth distance -300 m, ground range 1700 m
@@ -88,17 +88,13 @@ TARGET_NUMBERS_OR_NULL = ("meas_range_m", "meas_azimuth_deg", "range_error_m", "
                           "islr_db", "pslr_db")                               # null (or absent) where undetected
 
 
-def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
 def _check_metrics_shape(metrics: dict, path: Path) -> None:
     """The parts of metrics.json the report reads, of the kind CONTRACT.md section 5 gives them: a file
     edited by hand or damaged is one line naming the key, not a traceback in a figure."""
     for key in ("summary", "timing_s", "params"):
         if key in metrics and not isinstance(metrics[key], dict):
             raise BadInput(f"{path}: {key} = {shown(metrics[key])}: expected a JSON object")
-    bad = [k for k, v in metrics["timing_s"].items() if v is not None and not _is_number(v)]
+    bad = [k for k, v in metrics["timing_s"].items() if v is not None and not is_number(v)]
     if bad:
         raise BadInput(f"{path}: timing_s.{bad[0]} = {shown(metrics['timing_s'][bad[0]])}: expected seconds")
     targets = metrics.get("targets", [])
@@ -108,11 +104,11 @@ def _check_metrics_shape(metrics: dict, path: Path) -> None:
         if not isinstance(target, dict):
             raise BadInput(f"{path}: targets[{i}] = {shown(target)}: expected a target object")
         for key in TARGET_NUMBERS:
-            if not _is_number(target.get(key)):
+            if not is_number(target.get(key)):
                 raise BadInput(f"{path}: targets[{i}].{key} = {shown(target.get(key))}: expected a number "
                                f"(CONTRACT.md 5)")
         for key in TARGET_NUMBERS_OR_NULL:
-            if target.get(key) is not None and not _is_number(target[key]):
+            if target.get(key) is not None and not is_number(target[key]):
                 raise BadInput(f"{path}: targets[{i}].{key} = {shown(target[key])}: expected a number or null")
 
 

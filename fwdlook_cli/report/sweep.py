@@ -40,7 +40,7 @@ def run_sweep(path: str, out_dir: str | Path, *, workers: int = 1, quiet: bool =
     check_point_folders(plan_runs(sweep, Path(out_dir), source=sweep["source"]), overwrite=overwrite)
     out_dir = prepare_sweep_dir(out_dir, overwrite=overwrite)
     with folder_lock(out_dir, "sweep folder"):      # a second sweep into it is refused, not interleaved
-        rows = execute(sweep, Path(out_dir), workers=workers, quiet=quiet, scheduler=scheduler, overwrite=overwrite)
+        rows = execute(sweep, Path(out_dir), workers=workers, quiet=quiet, scheduler=scheduler)
         if sweep["combine"]:
             rows = combine_rows(rows, sweep)
         write_summary(Path(out_dir), sweep, rows)

@@ -244,17 +244,15 @@ def _eta(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
 
 
-def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, scheduler: str = "local",
-            overwrite: bool = False) -> list[dict]:
-    """Every point of ``sweep`` as a summary row, in plan order (see the module docstring). Each point's
-    folder is checked first (``sweep_plan.check_point_folders``; ``overwrite`` as on the command line)."""
-    from .sweep_plan import _fmt, _label, check_point_folders, plan_runs, row_of
+def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, scheduler: str = "local") -> list[dict]:
+    """Every point of ``sweep`` as a summary row, in plan order (see the module docstring); the points'
+    folders were checked by the caller (``sweep.run_sweep``: ``sweep_plan.check_point_folders``)."""
+    from .sweep_plan import _fmt, _label, plan_runs, row_of
 
     say = (lambda *a: None) if quiet else log.info
     remote = scheduler not in (None, "", "local")
     out = out.resolve() if remote else out            # Dask workers may have another working directory
     runs = plan_runs(sweep, out, source=sweep.get("source"))
-    check_point_folders(runs, overwrite=overwrite)
     raw_dir = out / "raw"
     raw_dir.mkdir(parents=True, exist_ok=True)
     rows: list[dict | None] = [None] * len(runs)

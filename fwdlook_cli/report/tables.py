@@ -58,3 +58,8 @@ def summary_rows(metrics: dict) -> list[tuple[str, str]]:
     rows.append(("t_ref_s", fmt_value(metrics.get("t_ref_s"))))
     rows += [(f"summary.{k}", fmt_value(v)) for k, v in metrics["summary"].items()]
     return rows
+
+
+def is_number(value) -> bool:
+    """A JSON number (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
