@@ -281,3 +281,38 @@ def test_stop_does_not_wait_on_a_spawner_that_does_not_leave():
     assert time.perf_counter() - t0 < 10.0 and _state(sp.pid) in ("", "Z")
     with pytest.raises(ChildProcessError):
         os.waitpid(sp.pid, os.WNOHANG)                # reaped
+
+
+_BLAS_SCRIPT = r"""
+import os, sys
+import numpy  # noqa: F401 (its BLAS loaded, with the two threads of the environment)
+from threadpoolctl import threadpool_info
+from fwdlook_cli.dsp import forked, spawner
+
+
+def blas_threads(job):
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+assert spawner.start() is not None       # forked here, under no BLAS limit (the user's two threads)
+spawned = forked.map_jobs(blas_threads, [0, 1], 2, processes=True)
+spawner.stop()
+os.environ["FWDLOOK_SPAWNER"] = "0"      # and forked by this process itself
+direct = forked.map_jobs(blas_threads, [0, 1], 2, processes=True)
+print("caller", blas_threads(0), "spawned", spawned, "direct", direct)
+"""
+
+
+def test_the_workers_run_the_blas_on_one_thread_whatever_the_user_set():
+    """The fit's workers belong to the chain, which runs the BLAS on one thread (dsp/blas.py): with
+    ``OPENBLAS_NUM_THREADS=2`` a spawner forked before the chain's limit gave its workers two BLAS
+    threads each, and the paper cube's dwell image took 1.0-3.4 s instead of 0.25-0.37 s (three workers
+    on two cores, each idle BLAS thread spinning 0.1 s).  The caller keeps the user's setting."""
+    import subprocess
+    import sys
+
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="2")
+    env.pop("FWDLOOK_SPAWNER", None)
+    res = subprocess.run([sys.executable, "-c", _BLAS_SCRIPT], env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "caller [2] spawned [[1], [1]] direct [[1], [1]]", res.stdout

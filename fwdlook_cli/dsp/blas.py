@@ -79,6 +79,20 @@ def one_blas_thread():
     return _controller().limit(limits=1, user_api="blas")
 
 
+def one_blas_thread_for_good() -> None:
+    """The BLAS on one thread in this process from now on, whatever the environment says: for the
+    joint fit's workers (``dsp.spawner``), which belong to the chain.  The spawner is forked before the
+    chain's :func:`one_blas_thread` and its workers inherit its setting: with the user's
+    ``OPENBLAS_NUM_THREADS=2`` each of three workers on two cores ran two BLAS threads, each spinning
+    0.1 s after its work, and the paper cube's dwell image took 1.0-3.4 s instead of 0.25-0.37 s.
+    Called once in the spawner, not in each worker: after a fork OpenBLAS restarts its pool in the
+    call that sets its thread count, so a worker calling this would start a thread of the user's
+    count that spins 0.1 s (the workers' CPU 430-530 against 280-350 ms a dwell chain); a worker
+    forked from the spawner inherits the count and never starts one."""
+    if ThreadpoolController is not None:
+        _controller().limit(limits=1, user_api="blas")       # applied when made; never restored
+
+
 def on_one_blas_thread(fn):
     """``fn`` run inside :func:`one_blas_thread` (a whole chain: ``process_cube``, ``api.run_chain``)."""
     @functools.wraps(fn)

@@ -36,6 +36,7 @@ import struct
 import threading
 import time
 
+from .blas import one_blas_thread_for_good
 from .lifetime import die_with_parent, forking_parent
 
 _HEAD = struct.Struct("<iq")          # workers, payload bytes
@@ -186,6 +187,7 @@ def _serve(sock: socket.socket, parent_pid: int | None):
     try:
         die_with_parent(parent_pid)
         signal.signal(signal.SIGINT, signal.SIG_IGN)      # the caller ends the workers (it has their ids)
+        one_blas_thread_for_good()          # here once, so that every worker inherits it (dsp/blas.py)
         _close_pipes(keep=sock.fileno())
         _trim_heap()
         while True:
