@@ -10,8 +10,9 @@ the pool of whichever BLAS numpy loaded (OpenBLAS, MKL, BLIS).
 
 A command runs with the BLAS on one thread from its start (:func:`one_blas_thread_for_the_process`,
 before numpy is imported) and ``forward.process.process_cube`` holds it there for a chain run from
-Python.  An OpenBLAS thread that has worked, or has just been started, spins for about 2^28
-cycles (0.1 s here) before it sleeps, on a core the stages' own threads need: measured on this
+Python; the joint fit's spawner, forked before that, sets it for the workers it forks
+(:func:`one_blas_thread_for_good`).  An OpenBLAS thread that has worked, or has just been started,
+spins for about 2^28 cycles (0.1 s here) before it sleeps, on a core the stages' own threads need: measured on this
 machine, 52 ms of CPU in the 0.3 s after ``import numpy``, 105 ms after one multithreaded product,
 104 ms after a threadpoolctl limit that a fork came under is lifted (the fork shut the pool down,
 lifting the limit starts it again).  The chain's products are small and its stages make their own
