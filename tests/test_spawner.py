@@ -284,7 +284,7 @@ def test_stop_does_not_wait_on_a_spawner_that_does_not_leave():
 
 
 _BLAS_SCRIPT = r"""
-import os, sys
+import os
 import numpy  # noqa: F401 (its BLAS loaded, with the two threads of the environment)
 from threadpoolctl import threadpool_info
 from fwdlook_cli.dsp import forked, spawner

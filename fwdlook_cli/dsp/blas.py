@@ -10,8 +10,8 @@ the pool of whichever BLAS numpy loaded (OpenBLAS, MKL, BLIS).
 
 A command runs with the BLAS on one thread from its start (:func:`one_blas_thread_for_the_process`,
 before numpy is imported) and ``forward.process.process_cube`` holds it there for a chain run from
-Python; the joint fit's spawner, forked before that, sets it for the workers it forks
-(:func:`one_blas_thread_for_good`).  An OpenBLAS thread that has worked, or has just been started,
+Python; the joint fit's spawner, forked before that, enters :func:`one_blas_thread` for good, for
+the workers it forks (``dsp/spawner.py``).  An OpenBLAS thread that has worked, or has just been started,
 spins for about 2^28 cycles (0.1 s here) before it sleeps, on a core the stages' own threads need: measured on this
 machine, 52 ms of CPU in the 0.3 s after ``import numpy``, 105 ms after one multithreaded product,
 104 ms after a threadpoolctl limit that a fork came under is lifted (the fork shut the pool down,
@@ -78,20 +78,6 @@ def one_blas_thread():
     if ThreadpoolController is None:            # pragma: no cover
         return contextlib.nullcontext()
     return _controller().limit(limits=1, user_api="blas")
-
-
-def one_blas_thread_for_good() -> None:
-    """The BLAS on one thread in this process from now on, whatever the environment says: for the
-    joint fit's workers (``dsp.spawner``), which belong to the chain.  The spawner is forked before the
-    chain's :func:`one_blas_thread` and its workers inherit its setting: with the user's
-    ``OPENBLAS_NUM_THREADS=2`` each of three workers on two cores ran two BLAS threads, each spinning
-    0.1 s after its work, and the paper cube's dwell image took 1.0-3.4 s instead of 0.25-0.37 s.
-    Called once in the spawner, not in each worker: after a fork OpenBLAS restarts its pool in the
-    call that sets its thread count, so a worker calling this would start a thread of the user's
-    count that spins 0.1 s (the workers' CPU 430-530 against 280-350 ms a dwell chain); a worker
-    forked from the spawner inherits the count and never starts one."""
-    if ThreadpoolController is not None:
-        _controller().limit(limits=1, user_api="blas")       # applied when made; never restored
 
 
 def on_one_blas_thread(fn):

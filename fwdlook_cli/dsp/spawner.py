@@ -36,7 +36,7 @@ import struct
 import threading
 import time
 
-from .blas import one_blas_thread_for_good
+from .blas import one_blas_thread
 from .lifetime import die_with_parent, forking_parent
 
 _HEAD = struct.Struct("<iq")          # workers, payload bytes
@@ -187,7 +187,13 @@ def _serve(sock: socket.socket, parent_pid: int | None):
     try:
         die_with_parent(parent_pid)
         signal.signal(signal.SIGINT, signal.SIG_IGN)      # the caller ends the workers (it has their ids)
-        one_blas_thread_for_good()          # here once, so that every worker inherits it (dsp/blas.py)
+        # the BLAS on one thread for good (the limit applies when made; never left), once here so that every
+        # worker inherits it: the spawner is forked before the chain's limit, and with the user's
+        # OPENBLAS_NUM_THREADS=2 each of three workers ran two BLAS threads, each spinning 0.1 s after its
+        # work (the paper cube's dwell image 1.0-3.4 s instead of 0.25-0.37 s).  Not in each worker: after
+        # a fork OpenBLAS restarts its pool in the call that sets the count, so each worker would start a
+        # thread that spins (the workers' CPU 430-530 against 280-350 ms a dwell chain)
+        one_blas_thread()
         _close_pipes(keep=sock.fileno())
         _trim_heap()
         while True:
