@@ -498,14 +498,17 @@ def _command_of(args) -> str | None:
 
 def main(argv=None):
     """Console entry point: maps BadInput and click usage errors to one line and exit 2."""
-    from .dsp.blas import one_blas_thread_for_the_process
+    from .dsp.blas import fft_workers_on_usable_cores, one_blas_thread_for_the_process
     from .io import painter
 
     one_blas_thread_for_the_process()   # before numpy, here and in the painter: no idle BLAS thread spinning
 
     args = sys.argv[1:] if argv is None else list(argv)
-    if _command_of(args) in QUICKLOOK_COMMANDS and not {"-h", "--help"} & set(args):
+    runs = _command_of(args) if not {"-h", "--help"} & set(args) else None
+    if runs in QUICKLOOK_COMMANDS:
         painter.fork_early(QUICKLOOK_WARM_UP)    # before numpy is imported (io/painter.py)
+    if runs:
+        fft_workers_on_usable_cores()           # scipy.fft's workers=-1 on this process's cores (dsp/blas.py)
     try:
         _main(argv)
     finally:

@@ -708,6 +708,42 @@ def test_worker_threads_follow_the_environment(monkeypatch):
     assert worker_threads() == 1                   # falls through to OMP_NUM_THREADS
 
 
+_AFFINITY_SCRIPT = """
+import os, sys
+from scipy.fft._pocketfft import helper
+before = helper._workers(-1)
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})       # one core of the machine's
+from fwdlook_cli.cli import main
+try:
+    main(["validate", sys.argv[1]])                             # the command line's entry point
+except SystemExit as exc:
+    assert not exc.code, exc.code
+after_command = helper._workers(-1)
+helper._cpu_count = 1                                           # a sweep worker's setting ...
+os.sched_setaffinity(0, range(os.cpu_count()))
+from fwdlook_cli.dsp.blas import fft_workers_on_usable_cores
+print(before, after_command, fft_workers_on_usable_cores(), helper._workers(-1))   # ... is never raised
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs a CPU affinity of two cores or more to restrict")
+def test_the_command_lines_fft_workers_follow_the_cpu_affinity():
+    """scipy.fft's workers=-1 counts the machine's cores (os.cpu_count); a command started in a CPU set of
+    one core (taskset, Slurm) runs its transforms on one worker, and a smaller count set earlier stays."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tiny = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
+    res = subprocess.run([sys.executable, "-c", _AFFINITY_SCRIPT, str(tiny)], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0, res.stderr
+    before, after_command, returned, after_sweep = map(int, res.stdout.split()[-4:])
+    assert before == os.cpu_count() >= 2                        # scipy's own count, as it comes
+    assert (after_command, returned, after_sweep) == (1, 1, 1)
+
+
 def test_one_allocator_arena_on_glibc():
     """The command line shares glibc's main arena among the stages' threads (dsp.blas): mallopt accepts
     M_ARENA_MAX on glibc Linux; elsewhere the call reports that it did nothing."""
