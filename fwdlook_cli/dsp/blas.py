@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import os
 import sys
 
@@ -119,11 +120,17 @@ def batched_matmul_each(a, bs) -> list:
 
 
 def available_cores() -> int:
-    """The cores this process may run on (its CPU affinity; the machine's count where the OS has none)."""
+    """The cores this process may use: its CPU affinity (the machine's count where the OS has none),
+    and no more than its control group's CPU limit, rounded up (a container's ``--cpus``, a Kubernetes
+    limit: :mod:`dsp.cpu_limit`)."""
+    from .cpu_limit import cached_cpu_limit
+
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        n = max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):       # pragma: no cover (not Linux)
-        return os.cpu_count() or 1
+        n = os.cpu_count() or 1
+    limit = cached_cpu_limit()
+    return n if limit is None else max(1, min(n, math.ceil(limit)))
 
 
 def worker_threads() -> int:
@@ -140,16 +147,17 @@ def worker_threads() -> int:
 
 
 def fft_workers_on_usable_cores() -> int:
-    """``scipy.fft``'s ``workers=-1`` on the cores this process may use (:func:`available_cores`), never
-    more than it had; returns that count.  scipy counts ``os.cpu_count()`` once, at import (scipy issue
-    17098), and pocketfft's pool has a thread per online core, so in a CPU set smaller than the machine
-    (Slurm, ``taskset``, a container's ``--cpuset-cpus``) each such transform was split into a task per
-    core of the machine, all on the few cores allowed.  With the machine's count faked to 64 (16) on this
-    2-core VM, one fft2 of the paper cube took 4.9 against 4.3 ms (4.6 against 3.8), with 28 % (33 %)
-    more CPU, slower in 28 (30) of 30 alternated batches (README, Speed).
-    The same numbers (each 1-D transform is computed whole by one thread).  A scipy private, as
-    the sweep workers' setting (:mod:`report.sweep_exec`); called by the command line, never on import
-    (a host program's threads are its own)."""
+    """``scipy.fft``'s ``workers=-1`` on the cores this process may use (:func:`available_cores`: its CPU
+    affinity, within its control group's CPU limit), never more than it had; returns that count.  scipy
+    counts ``os.cpu_count()`` once, at import (scipy issue 17098), and pocketfft's pool has a thread per
+    online core, so where the process may use fewer cores than the machine has (Slurm, ``taskset``, a
+    container's ``--cpuset-cpus`` or ``--cpus``) each such transform was split into a task per core of
+    the machine, all on the few allowed.  With the machine's count faked to 64 (16) on this 2-core VM,
+    one fft2 of the paper cube took 4.9 against 4.3 ms (4.6 against 3.8), with 28 % (33 %) more CPU,
+    slower in 28 (30) of 30 alternated batches (README, Speed).  The same numbers (each 1-D transform
+    is computed whole by one thread).  A scipy private, as the sweep workers' setting
+    (:mod:`report.sweep_exec`); called by the command line, never on import (a host program's threads
+    are its own)."""
     from scipy.fft._pocketfft import helper
 
     if not hasattr(helper, "_cpu_count"):      # pragma: no cover (a scipy that renamed it: as it comes)
