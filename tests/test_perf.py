@@ -711,8 +711,8 @@ def test_worker_threads_follow_the_environment(monkeypatch):
 _AFFINITY_SCRIPT = """
 import os, sys
 from scipy.fft._pocketfft import helper
-before = helper._workers(-1)
-os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})       # one core of the machine's
+before, allowed = helper._workers(-1), os.sched_getaffinity(0)
+os.sched_setaffinity(0, {min(allowed)})                         # one core of the machine's
 from fwdlook_cli.cli import main
 try:
     main(["validate", sys.argv[1]])                             # the command line's entry point
@@ -720,7 +720,7 @@ except SystemExit as exc:
     assert not exc.code, exc.code
 after_command = helper._workers(-1)
 helper._cpu_count = 1                                           # a sweep worker's setting ...
-os.sched_setaffinity(0, range(os.cpu_count()))
+os.sched_setaffinity(0, allowed)
 from fwdlook_cli.dsp.blas import fft_workers_on_usable_cores
 print(before, after_command, fft_workers_on_usable_cores(), helper._workers(-1))   # ... is never raised
 """
@@ -953,6 +953,7 @@ def test_clean_process_reference_transforms_the_same_cube_without_fwdlook():
 def test_the_bench_records_what_its_figures_depend_on():
     """``environment()`` (in every bench's JSON): the computing libraries' versions as imported here,
     the cores this process may use and the processor; all strings."""
+    import math
     import os
 
     import ducc0
@@ -966,7 +967,9 @@ def test_the_bench_records_what_its_figures_depend_on():
     assert env["fwdlook"] == __version__ and env["numpy"] == np.__version__
     assert env["scipy"] == scipy.__version__ and env["ducc0"] == ducc0.__version__
     assert env["h5py"] == h5py.version.version
-    assert int(env["cores"]) == len(os.sched_getaffinity(0))
+    affinity, limit = len(os.sched_getaffinity(0)), env["cpu_limit"]       # the cgroup's limit: "none" or CPUs
+    assert int(env["cores"]) == (affinity if limit == "none" else max(1, min(affinity, math.ceil(float(limit)))))
+    assert int(env["fft_workers"]) >= 1
     assert {"python", "hdf5", "machine", "cpu", "blas", "blas_threads"} <= set(env)
 
 

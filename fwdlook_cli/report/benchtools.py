@@ -19,7 +19,8 @@ import numpy as np
 def environment() -> dict:
     """What a bench's figures depend on besides the code: the versions of the libraries that compute
     (pocketfft is scipy's, the fused oversampling ducc0's, the Doppler zoom's products the BLAS), the
-    processor and the cores this process may use.  Strings, for the JSON."""
+    processor, the cores this process may use, its cgroup's CPU limit and ``scipy.fft``'s count for
+    ``workers=-1``.  Strings, for the JSON."""
     import platform
 
     import h5py
@@ -38,6 +39,13 @@ def environment() -> dict:
     except ImportError:                     # pragma: no cover (a core dependency)
         env["ducc0"] = "missing"
     env["cores"] = str(available_cores())
+    from scipy.fft._pocketfft import helper
+
+    from ..dsp.cpu_limit import cached_cpu_limit
+
+    limit = cached_cpu_limit()           # the cgroup's CPU limit, in CPUs (dsp/cpu_limit.py)
+    env["cpu_limit"] = "none" if limit is None else f"{limit:g}"
+    env["fft_workers"] = str(helper._workers(-1)) if hasattr(helper, "_workers") else "unknown"
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
             models = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
