@@ -18,6 +18,7 @@ from fwdlook_cli.forward.process import process_cube
 from fwdlook_cli.io import backing
 from fwdlook_cli.io.raw import read_raw, write_raw
 from fwdlook_cli.testing import tiny_scenario
+from cgroup_files import cgroup_files, fake_proc
 
 
 def test_file_backed_arrays_are_unnamed_maps_and_only_inside_the_context(tmp_path):
@@ -305,37 +306,21 @@ def test_a_scene_too_big_to_simulate_in_memory_is_told_about_out_of_core(tmp_pat
 GIB = 1 << 30
 
 
-def _fake_proc(tmp_path, cgroup_lines, mount_lines, meminfo_kib=None):
-    proc = tmp_path / "proc"
-    (proc / "self").mkdir(parents=True)
-    (proc / "self" / "cgroup").write_text("".join(line + "\n" for line in cgroup_lines))
-    (proc / "self" / "mountinfo").write_text("".join(line + "\n" for line in mount_lines))
-    if meminfo_kib is not None:
-        (proc / "meminfo").write_text(f"MemTotal: {4 * meminfo_kib} kB\nMemAvailable: {meminfo_kib} kB\n")
-    return str(proc)
-
-
-def _cgroup_dir(path, **files):
-    path.mkdir(parents=True, exist_ok=True)
-    for name, text in files.items():
-        (path / name.replace("_", ".", 1)).write_text(str(text) + "\n")
-
-
 def test_cgroup_v2_room_is_the_smallest_over_the_own_cgroup_and_its_ancestors(tmp_path):
     """limit - (usage - inactive file pages), the smallest over the job's cgroup and its parents; a parent
     without a limit ("max") does not count."""
     mnt = tmp_path / "cg"
-    _cgroup_dir(mnt / "user.slice" / "job_42", memory_max=8 * GIB, memory_current=3 * GIB,
+    cgroup_files(mnt / "user.slice" / "job_42", memory_max=8 * GIB, memory_current=3 * GIB,
                 memory_stat=f"anon {2 * GIB}\ninactive_file {GIB}")
-    _cgroup_dir(mnt / "user.slice", memory_max="max", memory_current=5 * GIB)
-    proc = _fake_proc(tmp_path, ["0::/user.slice/job_42"],
+    cgroup_files(mnt / "user.slice", memory_max="max", memory_current=5 * GIB)
+    proc = fake_proc(tmp_path, ["0::/user.slice/job_42"],
                       [f"30 23 0:27 / {mnt} rw,nosuid - cgroup2 cgroup2 rw,nsdelegate"])
     assert backing.cgroup_room_bytes(proc) == 8 * GIB - (3 * GIB - GIB)
-    _cgroup_dir(mnt / "user.slice", memory_max=5 * GIB, memory_current=4 * GIB + GIB // 2,
+    cgroup_files(mnt / "user.slice", memory_max=5 * GIB, memory_current=4 * GIB + GIB // 2,
                 memory_stat="inactive_file 0")
     assert backing.cgroup_room_bytes(proc) == GIB // 2
-    _cgroup_dir(mnt / "user.slice", memory_max="max")
-    _cgroup_dir(mnt / "user.slice" / "job_42", memory_max="max")
+    cgroup_files(mnt / "user.slice", memory_max="max")
+    cgroup_files(mnt / "user.slice" / "job_42", memory_max="max")
     assert backing.cgroup_room_bytes(proc) is None
 
 
@@ -344,17 +329,17 @@ def test_cgroup_v1_in_a_container_reads_its_own_limit(tmp_path):
     mount point itself holds the limit; v1's "unlimited" (about 2^63) is no limit; another v1
     controller's mount is not read."""
     mem, cpu = tmp_path / "memory", tmp_path / "cpu"
-    _cgroup_dir(mem, memory_limit_in_bytes=2 * GIB, memory_usage_in_bytes=GIB + GIB // 2,
+    cgroup_files(mem, memory_limit_in_bytes=2 * GIB, memory_usage_in_bytes=GIB + GIB // 2,
                 memory_stat=f"cache {GIB}\ntotal_inactive_file {GIB // 4}")
-    _cgroup_dir(cpu, memory_limit_in_bytes=GIB // 8, memory_usage_in_bytes=0)
-    proc = _fake_proc(tmp_path, ["5:cpu,cpuacct:/docker/abc", "4:memory:/docker/abc", "0::/"],
+    cgroup_files(cpu, memory_limit_in_bytes=GIB // 8, memory_usage_in_bytes=0)
+    proc = fake_proc(tmp_path, ["5:cpu,cpuacct:/docker/abc", "4:memory:/docker/abc", "0::/"],
                       [f"40 31 0:30 /docker/abc {cpu} rw - cgroup cgroup rw,cpu,cpuacct",
                        f"41 31 0:31 /docker/abc {mem} rw - cgroup cgroup rw,memory"],
                       meminfo_kib=100 * GIB // 1024)
     assert backing.cgroup_room_bytes(proc) == 2 * GIB - (GIB + GIB // 2 - GIB // 4)
     # the available memory is the smaller of MemAvailable and the room under the limit
     assert backing.memory_available_bytes(proc) == 3 * GIB // 4
-    _cgroup_dir(mem, memory_limit_in_bytes=9223372036854771712)
+    cgroup_files(mem, memory_limit_in_bytes=9223372036854771712)
     assert backing.cgroup_room_bytes(proc) is None
     assert backing.memory_available_bytes(proc) == 100 * GIB
 

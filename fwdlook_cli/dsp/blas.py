@@ -122,8 +122,8 @@ def batched_matmul_each(a, bs) -> list:
 def available_cores() -> int:
     """The cores this process may use: its CPU affinity (the machine's count where the OS has none),
     and no more than its control group's CPU limit, rounded up (a container's ``--cpus``, a Kubernetes
-    limit: :mod:`dsp.cpu_limit`)."""
-    from .cpu_limit import cached_cpu_limit
+    limit: :mod:`dsp.cgroups`)."""
+    from .cgroups import cached_cpu_limit
 
     try:
         n = max(1, len(os.sched_getaffinity(0)))

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dsp.cgroups import own_cgroup_folders
 from ..errors import BadInput
 from ..limits import gib
 
@@ -228,42 +229,18 @@ def cgroup_room_bytes(proc: str = "/proc") -> int | None:
     in a cgroup mount: the smallest of limit - (usage - inactive page cache), the kernel's reclaimable
     file pages counted as free as ``MemAvailable`` counts them.  cgroup v2 (``memory.max``,
     ``memory.current``, ``inactive_file``) and v1 (``memory.limit_in_bytes``, ``memory.usage_in_bytes``,
-    ``total_inactive_file``); the mounts from ``/proc/self/mountinfo``, so a container whose mount root
-    is its own cgroup reads its own limit.  None where no limit is set or nothing can be read."""
-    try:
-        cgroups = Path(proc, "self", "cgroup").read_text(encoding="ascii").splitlines()
-        mounts = Path(proc, "self", "mountinfo").read_text(encoding="ascii").splitlines()
-    except OSError:
-        return None
-    own = {}
-    for line in cgroups:
-        hierarchy, controllers, path = (line.split(":", 2) + ["", ""])[:3]
-        if hierarchy == "0" and not controllers:
-            own["cgroup2"] = path
-        elif "memory" in controllers.split(","):
-            own["cgroup"] = path
+    ``total_inactive_file``); the folders from :func:`dsp.cgroups.own_cgroup_folders`, so a container
+    whose mount root is its own cgroup reads its own limit.  None where no limit is set or nothing can
+    be read."""
     rooms = []
-    for line in mounts:
-        left, _, right = line.partition(" - ")
-        fields, kind = left.split(), right.split()
-        if len(fields) < 5 or len(kind) < 3 or kind[0] not in own:
+    for d, v2 in own_cgroup_folders("memory", proc):   # the own cgroup, then each ancestor
+        limit = _read_number(d / ("memory.max" if v2 else "memory.limit_in_bytes"))
+        usage = _read_number(d / ("memory.current" if v2 else "memory.usage_in_bytes"))
+        if limit is None or usage is None or limit >= _NO_LIMIT:
             continue
-        if kind[0] == "cgroup" and "memory" not in kind[2].split(","):
-            continue
-        v2 = kind[0] == "cgroup2"
-        root, mount, path = fields[3], fields[4], own[kind[0]]
-        inside = root == "/" or path == root or path.startswith(root.rstrip("/") + "/")
-        rel = path[len(root):] if inside else ""           # the own cgroup below the mount's root
-        parts = [p for p in rel.split("/") if p]
-        for k in range(len(parts), -1, -1):               # the own cgroup, then each ancestor
-            d = Path(mount, *parts[:k])
-            limit = _read_number(d / ("memory.max" if v2 else "memory.limit_in_bytes"))
-            usage = _read_number(d / ("memory.current" if v2 else "memory.usage_in_bytes"))
-            if limit is None or usage is None or limit >= _NO_LIMIT:
-                continue
-            reclaimable = _stat_field(d / "memory.stat", ("inactive_file",) if v2 else
-                                      ("total_inactive_file", "inactive_file"))
-            rooms.append(max(0, limit - max(0, usage - reclaimable)))
+        reclaimable = _stat_field(d / "memory.stat", ("inactive_file",) if v2 else
+                                  ("total_inactive_file", "inactive_file"))
+        rooms.append(max(0, limit - max(0, usage - reclaimable)))
     return min(rooms) if rooms else None
 
 

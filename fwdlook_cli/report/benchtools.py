@@ -41,9 +41,9 @@ def environment() -> dict:
     env["cores"] = str(available_cores())
     from scipy.fft._pocketfft import helper
 
-    from ..dsp.cpu_limit import cached_cpu_limit
+    from ..dsp.cgroups import cached_cpu_limit
 
-    limit = cached_cpu_limit()           # the cgroup's CPU limit, in CPUs (dsp/cpu_limit.py)
+    limit = cached_cpu_limit()           # the cgroup's CPU limit, in CPUs (dsp/cgroups.py)
     env["cpu_limit"] = "none" if limit is None else f"{limit:g}"
     env["fft_workers"] = str(helper._workers(-1)) if hasattr(helper, "_workers") else "unknown"
     try:
