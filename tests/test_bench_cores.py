@@ -92,3 +92,15 @@ def test_one_core_timings_say_none_where_there_is_no_second_core(monkeypatch):
     calls = []
     assert one_core_timings(np.ones((4, 4), np.complex64), {"chain": None}, calls.append) is None
     assert calls == []
+
+
+def test_one_core_timings_say_none_under_a_cpu_limit_of_one(monkeypatch):
+    """Two cores in the affinity but a cgroup limit of one CPU (a container's --cpus 1): no second core."""
+    from fwdlook_cli.dsp import cgroups
+
+    if not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2:
+        pytest.skip("needs an affinity of two cores")
+    monkeypatch.setattr(cgroups, "cached_cpu_limit", lambda: 1.0)
+    calls = []
+    assert one_core_timings(np.ones((4, 4), np.complex64), {"chain": None}, calls.append) is None
+    assert calls == []

@@ -11,8 +11,10 @@ same process and the same interleaved way, separates the chain's work from how i
 ``second_core_gain`` (one-core time over all-core time, :func:`second_core_gains`).
 
 On one core ``worker_threads()`` is 1 (it reads the process's affinity), so the stages run their blocks
-one after the other; ``scipy.fft``'s ``workers=-1`` still starts ``os.cpu_count()`` threads, which then
-share the one core, in the reference and in the chain alike.
+one after the other; ``scipy.fft``'s ``workers=-1`` still starts the threads the command line counted
+at its start (the usable cores, ``dsp.blas.fft_workers_on_usable_cores``), which then share the one
+core, in the reference and in the chain alike.  A process held to under two CPUs by its cgroup's limit
+(``dsp.cgroups``) has no second core to compare either.
 """
 from __future__ import annotations
 
@@ -36,8 +38,10 @@ def pinned_to_one_core():
     if not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task"):
         yield None                                       # pragma: no cover (not Linux)
         return
+    from ..dsp.blas import available_cores
+
     allowed = os.sched_getaffinity(0)
-    if len(allowed) < 2:
+    if len(allowed) < 2 or available_cores() < 2:      # one core, or a CPU limit under two
         yield None
         return
     before = {}
