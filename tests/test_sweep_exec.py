@@ -120,6 +120,24 @@ def test_pool_workers_run_one_fft_and_blas_thread():
     assert thread_report()["pid"] == os.getpid()             # this process is left alone
 
 
+def test_more_workers_than_usable_cores_are_told(monkeypatch, caplog):
+    """A sweep asked for more worker processes than the cores it may use (a CPU limit, a CPU set) says
+    so once; as many as the cores, nothing."""
+    import logging
+
+    from fwdlook_cli.dsp import blas
+    from fwdlook_cli.report import sweep_exec
+
+    monkeypatch.setattr(blas, "available_cores", lambda: 2)
+    with caplog.at_level(logging.WARNING, logger=sweep_exec.log.name):
+        sweep_exec.executor(2, "local").close()
+        assert not [r for r in caplog.records if "--workers" in r.getMessage()]
+        sweep_exec.executor(3, "local").close()
+    told = [r.getMessage() for r in caplog.records if "--workers" in r.getMessage()]
+    assert told == ["--workers 3: this process may use 2 core(s) (its CPU affinity within its cgroup's CPU limit); "
+                    "the workers share them"]
+
+
 def thread_report_after(_):
     from fwdlook_cli.report.sweep_exec import thread_report
 

@@ -229,6 +229,12 @@ class _Dask:
 
 def executor(workers: int, scheduler: str):
     if scheduler in (None, "", "local"):
+        from ..dsp.blas import available_cores
+
+        cores = available_cores()
+        if workers > cores:           # each worker runs one thread: more than the cores only share them
+            log.warning("--workers %d: this process may use %d core(s) (its CPU affinity within its cgroup's "
+                        "CPU limit); the workers share them", workers, cores)
         return _Pool(workers) if workers > 1 else _Serial()
     if "://" not in scheduler and ":" not in scheduler:
         raise BadInput(f"--scheduler {scheduler}: not an address; allowed: local or tcp://HOST:PORT "
