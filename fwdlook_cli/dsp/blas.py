@@ -30,6 +30,8 @@ import math
 import os
 import sys
 
+from . import cgroups
+
 try:                                            # a dependency (pyproject.toml); tolerated if absent
     from threadpoolctl import ThreadpoolController
 except ImportError:                             # pragma: no cover
@@ -123,13 +125,11 @@ def available_cores() -> int:
     """The cores this process may use: its CPU affinity (the machine's count where the OS has none),
     and no more than its control group's CPU limit, rounded up (a container's ``--cpus``, a Kubernetes
     limit: :mod:`dsp.cgroups`)."""
-    from .cgroups import cached_cpu_limit
-
     try:
         n = max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):       # pragma: no cover (not Linux)
         n = os.cpu_count() or 1
-    limit = cached_cpu_limit()
+    limit = cgroups.cached_cpu_limit()
     return n if limit is None else max(1, min(n, math.ceil(limit)))
 
 
@@ -155,14 +155,20 @@ def fft_workers_on_usable_cores() -> int:
     the machine, all on the few allowed.  With the machine's count faked to 64 (16) on this 2-core VM,
     one fft2 of the paper cube took 4.9 against 4.3 ms (4.6 against 3.8), with 28 % (33 %) more CPU,
     slower in 28 (30) of 30 alternated batches (README, Speed).  The same numbers (each 1-D transform
-    is computed whole by one thread).  A scipy private, as the sweep workers' setting
-    (:mod:`report.sweep_exec`); called by the command line, never on import (a host program's threads
-    are its own)."""
+    is computed whole by one thread).  Called by the command line, never on import (a host program's
+    threads are its own)."""
+    return fft_workers_at_most(available_cores())
+
+
+def fft_workers_at_most(n: int) -> int:
+    """At most ``n`` for ``scipy.fft``'s ``workers=-1`` from now on (never raised); returns the count.
+    It sets pocketfft's CPU count, a scipy private (``tests/test_sweep_exec.py`` checks it in sweep
+    workers, so a scipy that renames it fails loudly there; here it is then left as it comes)."""
     from scipy.fft._pocketfft import helper
 
-    if not hasattr(helper, "_cpu_count"):      # pragma: no cover (a scipy that renamed it: as it comes)
+    if not hasattr(helper, "_cpu_count"):      # pragma: no cover
         return os.cpu_count() or 1
-    helper._cpu_count = max(1, min(int(helper._cpu_count or 1), available_cores()))
+    helper._cpu_count = max(1, min(int(helper._cpu_count or 1), int(n)))
     return helper._cpu_count
 
 

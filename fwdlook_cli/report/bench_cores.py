@@ -41,7 +41,7 @@ def pinned_to_one_core():
     from ..dsp.blas import available_cores
 
     allowed = os.sched_getaffinity(0)
-    if len(allowed) < 2 or available_cores() < 2:      # one core, or a CPU limit under two
+    if available_cores() < 2:            # one core in the affinity, or a CPU limit under two
         yield None
         return
     before = {}

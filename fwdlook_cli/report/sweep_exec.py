@@ -38,15 +38,12 @@ def limit_threads() -> None:
     import scipy.fft
     from threadpoolctl import threadpool_limits
 
+    from ..dsp.blas import fft_workers_at_most
+
     global _LIMITS
     _LIMITS = threadpool_limits(limits=1)          # applied on creation, kept for the process's life
     scipy.fft.set_workers(1).__enter__()          # the default for calls without workers=
-    # calls with workers=-1 count from the CPU count pocketfft took at import: make it 1 here.  Private
-    # to scipy (checked by tests/test_sweep_exec.py, so a scipy that renames it fails loudly there).
-    from scipy.fft._pocketfft import helper
-
-    if hasattr(helper, "_cpu_count"):
-        helper._cpu_count = 1
+    fft_workers_at_most(1)                        # and workers=-1 (dsp/blas.py)
     os.environ.update({k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")})
 
 
