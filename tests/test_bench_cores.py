@@ -16,6 +16,13 @@ needs_two_cores = pytest.mark.skipif(
     or len(os.sched_getaffinity(0)) < 2, reason="per-thread affinity and two usable cores needed")
 
 
+def _fft_workers() -> int:
+    """What scipy.fft's workers=-1 means now (pocketfft's private count, as dsp.blas sets it)."""
+    from scipy.fft._pocketfft import helper
+
+    return helper._cpu_count
+
+
 def _masks() -> dict:
     out = {}
     for tid in os.listdir("/proc/self/task"):
@@ -33,7 +40,7 @@ def test_every_thread_is_on_one_core_inside_and_gets_its_mask_back_after():
     older = threading.Thread(target=release.wait)           # a thread that exists before the pinning
     older.start()
     try:
-        before, workers = _masks(), worker_threads()
+        before, workers, fft_workers = _masks(), worker_threads(), _fft_workers()
         seen = {}
 
         def report():
@@ -47,11 +54,13 @@ def test_every_thread_is_on_one_core_inside_and_gets_its_mask_back_after():
             started.join()
             assert seen["new"] == {core}
             assert worker_threads() == 1                             # the stages' pools shrink to one
+            assert _fft_workers() == 1                               # and scipy.fft's workers=-1
         after = _masks()
         for tid, mask in before.items():
             if tid in after:
                 assert after[tid] == mask
         assert worker_threads() == workers
+        assert _fft_workers() == fft_workers                         # its count given back
     finally:
         release.set()
         older.join()
@@ -65,13 +74,13 @@ def test_one_core_timings_take_medians_after_the_untimed_runs_and_the_gains_are_
     masks = []
 
     def run_chain(name):
-        masks.append(os.sched_getaffinity(0))
+        masks.append((os.sched_getaffinity(0), _fft_workers()))
         return next(returned[name])
 
     x = np.ones((64, 32), np.complex64)
     out = one_core_timings(x, {"chain": "a", "chain_tracking": "b"}, run_chain, fft2_repeats=5, fft2_between=2,
                            rounds=3)
-    assert masks == [{core}] * 8                                   # every run on the one core
+    assert masks == [({core}, 1)] * 8                 # every run on the one core, its FFTs on one worker
     assert out["core"] == core
     assert out["chain_s"] == 0.2 and out["chain_tracking_s"] == 0.5
     assert out["fft2_repeats"] == 2 * 5 + 3 * 2 * 2

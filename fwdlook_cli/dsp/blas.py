@@ -172,6 +172,20 @@ def fft_workers_at_most(n: int) -> int:
     return helper._cpu_count
 
 
+@contextlib.contextmanager
+def fft_workers_held_at_most(n: int):
+    """:func:`fft_workers_at_most` ``n`` inside the block, the count before it given back after (the
+    bench's one-core timings: as a command started on one core runs its transforms); yields the count."""
+    from scipy.fft._pocketfft import helper
+
+    before = getattr(helper, "_cpu_count", None)
+    try:
+        yield fft_workers_at_most(n)
+    finally:
+        if before is not None:
+            helper._cpu_count = before
+
+
 M_ARENA_MAX = -8            # glibc mallopt parameter
 
 
