@@ -17,10 +17,10 @@ needs_two_cores = pytest.mark.skipif(
 
 
 def _fft_workers() -> int:
-    """What scipy.fft's workers=-1 means now (pocketfft's private count, as dsp.blas sets it)."""
-    from scipy.fft._pocketfft import helper
+    """What scipy.fft's workers=-1 means now (scipy's private count, as dsp.blas sets it)."""
+    from fwdlook_cli.dsp.blas import fft_workers
 
-    return helper._cpu_count
+    return fft_workers()
 
 
 def _masks() -> dict:

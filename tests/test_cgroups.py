@@ -82,14 +82,13 @@ def test_the_cores_used_are_the_affinitys_within_the_limit_rounded_up(monkeypatc
 
 _IN_CGROUP = """
 import sys
-from scipy.fft._pocketfft import helper
 from fwdlook_cli.cli import main
-from fwdlook_cli.dsp.blas import available_cores, worker_threads
+from fwdlook_cli.dsp.blas import available_cores, fft_workers, worker_threads
 try:
     main(["validate", sys.argv[1]])
 except SystemExit as exc:
     assert not exc.code, exc.code
-print(available_cores(), worker_threads(), helper._workers(-1))
+print(available_cores(), worker_threads(), fft_workers())
 """
 
 

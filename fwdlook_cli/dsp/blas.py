@@ -146,28 +146,57 @@ def worker_threads() -> int:
     return max(1, min(4, n))
 
 
-def fft_workers_on_usable_cores() -> int:
+def fft_workers_on_usable_cores() -> int | None:
     """``scipy.fft``'s ``workers=-1`` on the cores this process may use (:func:`available_cores`: its CPU
     affinity, within its control group's CPU limit), never more than it had; returns that count.  scipy
-    counts ``os.cpu_count()`` once, at import (scipy issue 17098), and pocketfft's pool has a thread per
-    online core, so where the process may use fewer cores than the machine has (Slurm, ``taskset``, a
+    counts ``os.cpu_count()`` once, at import (scipy issue 17098), and pocketfft's pool (scipy up to
+    1.17) has a thread per online core, so where the process may use fewer cores than the machine has (Slurm, ``taskset``, a
     container's ``--cpuset-cpus`` or ``--cpus``) each such transform was split into a task per core of
     the machine, all on the few allowed.  With the machine's count faked to 64 (16) on this 2-core VM,
     one fft2 of the paper cube took 4.9 against 4.3 ms (4.6 against 3.8), with 28 % (33 %) more CPU,
-    slower in 28 (30) of 30 alternated batches (README, Speed).  The same numbers (each 1-D transform
-    is computed whole by one thread).  Called by the command line, never on import (a host program's
-    threads are its own)."""
+    slower in 28 (30) of 30 alternated batches (README, Speed).  The same numbers with pocketfft (each
+    1-D transform is computed whole by one thread); scipy 1.18's ducc rounds a transform by its place in
+    the batch, so there the count moves the numbers at float32 rounding (README, "Python and library
+    versions").  Called by the command line, never on import (a host program's
+    threads are its own).  None where this scipy's count is out of reach (:func:`fft_workers_at_most`)."""
     return fft_workers_at_most(available_cores())
 
 
-def fft_workers_at_most(n: int) -> int:
-    """At most ``n`` for ``scipy.fft``'s ``workers=-1`` from now on (never raised); returns the count.
-    It sets pocketfft's CPU count, a scipy private (``tests/test_sweep_exec.py`` checks it in sweep
-    workers, so a scipy that renames it fails loudly there; here it is then left as it comes)."""
-    from scipy.fft._pocketfft import helper
+# scipy.fft's backend module that holds the CPU count ``workers=-1`` counts from (``_cpu_count``, read once
+# at import) and the function that resolves a worker count (``_workers``): pocketfft's up to scipy 1.17,
+# ducc's from scipy 1.18 on (which has no ``scipy.fft._pocketfft``).  Both are scipy privates, looked up
+# here alone; a scipy with neither leaves the count as it comes.
+_SCIPY_FFT_HELPERS = ("scipy.fft._duccfft.helper", "scipy.fft._pocketfft.helper")
 
-    if not hasattr(helper, "_cpu_count"):      # pragma: no cover
-        return os.cpu_count() or 1
+
+def scipy_fft_helper():
+    """The module of ``scipy.fft``'s backend holding ``_cpu_count`` and ``_workers``, or None where this
+    scipy has neither known one."""
+    import importlib
+
+    for name in _SCIPY_FFT_HELPERS:
+        try:
+            helper = importlib.import_module(name)
+        except ImportError:
+            continue
+        if hasattr(helper, "_cpu_count") and callable(getattr(helper, "_workers", None)):
+            return helper
+    return None
+
+
+def fft_workers() -> int | None:
+    """How many workers ``scipy.fft``'s ``workers=-1`` means now; None where this scipy's is unknown."""
+    helper = scipy_fft_helper()
+    return None if helper is None else int(helper._workers(-1))
+
+
+def fft_workers_at_most(n: int) -> int | None:
+    """At most ``n`` for ``scipy.fft``'s ``workers=-1`` from now on (never raised); returns the count, or
+    None where this scipy keeps it where this function cannot reach (then it is left as it comes, and
+    nothing raises).  It sets scipy's private CPU count (:func:`scipy_fft_helper`)."""
+    helper = scipy_fft_helper()
+    if helper is None:
+        return None
     helper._cpu_count = max(1, min(int(helper._cpu_count or 1), int(n)))
     return helper._cpu_count
 
@@ -176,9 +205,8 @@ def fft_workers_at_most(n: int) -> int:
 def fft_workers_held_at_most(n: int):
     """:func:`fft_workers_at_most` ``n`` inside the block, the count before it given back after (the
     bench's one-core timings: as a command started on one core runs its transforms); yields the count."""
-    from scipy.fft._pocketfft import helper
-
-    before = getattr(helper, "_cpu_count", None)
+    helper = scipy_fft_helper()
+    before = None if helper is None else helper._cpu_count
     try:
         yield fft_workers_at_most(n)
     finally:

@@ -27,7 +27,7 @@ def environment() -> dict:
     import scipy
 
     from .. import __version__
-    from ..dsp.blas import available_cores
+    from ..dsp.blas import available_cores, fft_workers
 
     env = {"fwdlook": __version__, "python": platform.python_version(), "numpy": np.__version__,
            "scipy": scipy.__version__, "h5py": h5py.version.version, "hdf5": h5py.version.hdf5_version,
@@ -39,13 +39,12 @@ def environment() -> dict:
     except ImportError:                     # pragma: no cover (a core dependency)
         env["ducc0"] = "missing"
     env["cores"] = str(available_cores())
-    from scipy.fft._pocketfft import helper
-
     from ..dsp.cgroups import cached_cpu_limit
 
     limit = cached_cpu_limit()           # the cgroup's CPU limit, in CPUs (dsp/cgroups.py)
     env["cpu_limit"] = "none" if limit is None else f"{limit:g}"
-    env["fft_workers"] = str(helper._workers(-1)) if hasattr(helper, "_workers") else "unknown"
+    workers = fft_workers()
+    env["fft_workers"] = "unknown" if workers is None else str(workers)
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
             models = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]

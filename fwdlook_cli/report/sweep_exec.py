@@ -76,10 +76,11 @@ def _pool_worker(parent_pid) -> None:
 
 def thread_report() -> dict:
     """(for tests and logs) the FFT workers that workers=-1 gives here and the BLAS thread counts."""
-    from scipy.fft._pocketfft import helper
     from threadpoolctl import threadpool_info
 
-    return {"pid": os.getpid(), "fft_workers": helper._workers(-1),
+    from ..dsp.blas import fft_workers
+
+    return {"pid": os.getpid(), "fft_workers": fft_workers(),
             "blas_threads": [p["num_threads"] for p in threadpool_info() if p.get("user_api") == "blas"]}
 
 
