@@ -1,10 +1,15 @@
 """Exact percentiles of data seen block by block (``dsp/order_stats.py``) against numpy on the whole
 array: the same number bit for bit, whatever the blocks, the sample that places the bracket and the
-number of values one pass may keep (small caps force the bracket to be moved and narrowed)."""
+number of values one pass may keep (small caps force the bracket to be moved and narrowed).  numpy
+before 2.4 interpolated float32 percentiles with the fraction as a float64 array (``_lerp``), which can
+round differently: there the bar is those roundings, two float32 ulps of the data's largest magnitude (the
+order statistics stay exact)."""
 import numpy as np
 import pytest
 
 from fwdlook_cli.dsp import order_stats
+
+NUMPY_LERP_WEAK = tuple(int(v) for v in np.__version__.split(".")[:2]) >= (2, 4)
 
 
 def _blocks(x, rows):
@@ -41,7 +46,10 @@ def test_percentile_of_blocks_is_numpys(kind):
         got = order_stats.percentile_of_blocks(_blocks(x, rows), x.size, q, x[pick], np.float32, cap=cap)
         want = np.percentile(x, q)
         assert np.asarray(got).dtype == np.asarray(want).dtype == np.float32
-        assert got == want, (kind, shape, rows, q, cap, got, want)
+        if NUMPY_LERP_WEAK:
+            assert got == want, (kind, shape, rows, q, cap, got, want)
+        else:       # each of the two roundings of a + (b - a) t within half an ulp of the larger of |a|, |b - a|
+            assert abs(float(got) - float(want)) <= 2 * np.finfo(np.float32).eps * float(np.abs(x).max())
 
 
 def test_order_statistics_are_exact_when_the_sample_misses():
