@@ -754,11 +754,14 @@ def test_the_fft_worker_count_set_is_the_one_scipy_resolves_workers_from(monkeyp
     with it held at one, scipy's public set_workers(-1) resolves to one worker, and after, to the count as
     it was.  A scipy that moves it fails here; the command line then leaves the count as it comes and
     raises nothing (scipy 1.18 once broke every command, which imported pocketfft's module directly)."""
+    import scipy
     import scipy.fft
 
     from fwdlook_cli.dsp import blas
 
     assert blas.scipy_fft_helper() is not None
+    major_minor = tuple(int(v) for v in scipy.__version__.split(".")[:2])
+    assert blas.scipy_fft_backend() == ("ducc" if major_minor >= (1, 18) else "pocketfft")
     before = blas.fft_workers()
     with blas.fft_workers_held_at_most(1) as held:
         assert held == 1
@@ -768,7 +771,7 @@ def test_the_fft_worker_count_set_is_the_one_scipy_resolves_workers_from(monkeyp
     with scipy.fft.set_workers(-1):
         assert scipy.fft.get_workers() == before
     monkeypatch.setattr(blas, "_SCIPY_FFT_HELPERS", ("scipy.fft._no_such_backend.helper", "scipy.linalg"))
-    assert blas.scipy_fft_helper() is None
+    assert blas.scipy_fft_helper() is None and blas.scipy_fft_backend() == "unknown"
     assert blas.fft_workers() is None
     assert blas.fft_workers_at_most(1) is None and blas.fft_workers_on_usable_cores() is None
     with blas.fft_workers_held_at_most(1) as held:
@@ -1007,6 +1010,7 @@ def test_the_bench_records_what_its_figures_depend_on():
     affinity, limit = len(os.sched_getaffinity(0)), env["cpu_limit"]       # the cgroup's limit: "none" or CPUs
     assert int(env["cores"]) == (affinity if limit == "none" else max(1, min(affinity, math.ceil(float(limit)))))
     assert int(env["fft_workers"]) >= 1
+    assert env["fft_backend"] in ("pocketfft", "ducc")
     assert {"python", "hdf5", "machine", "cpu", "blas", "blas_threads"} <= set(env)
 
 

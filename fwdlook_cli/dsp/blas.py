@@ -184,6 +184,15 @@ def scipy_fft_helper():
     return None
 
 
+def scipy_fft_backend() -> str:
+    """Which FFT ``scipy.fft`` computes with: ``pocketfft`` (scipy up to 1.17), ``ducc`` (1.18 on), or
+    ``unknown``; they round differently (README, "Python and library versions")."""
+    helper = scipy_fft_helper()
+    if helper is None:
+        return "unknown"
+    return {"_duccfft": "ducc", "_pocketfft": "pocketfft"}.get(helper.__name__.split(".")[-2], "unknown")
+
+
 def fft_workers() -> int | None:
     """How many workers ``scipy.fft``'s ``workers=-1`` means now; None where this scipy's is unknown."""
     helper = scipy_fft_helper()

@@ -27,7 +27,7 @@ def environment() -> dict:
     import scipy
 
     from .. import __version__
-    from ..dsp.blas import available_cores, fft_workers
+    from ..dsp.blas import available_cores, fft_workers, scipy_fft_backend
 
     env = {"fwdlook": __version__, "python": platform.python_version(), "numpy": np.__version__,
            "scipy": scipy.__version__, "h5py": h5py.version.version, "hdf5": h5py.version.hdf5_version,
@@ -45,6 +45,7 @@ def environment() -> dict:
     env["cpu_limit"] = "none" if limit is None else f"{limit:g}"
     workers = fft_workers()
     env["fft_workers"] = "unknown" if workers is None else str(workers)
+    env["fft_backend"] = scipy_fft_backend()
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
             models = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
