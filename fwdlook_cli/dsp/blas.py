@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib
 import math
 import os
 import sys
@@ -148,17 +149,18 @@ def worker_threads() -> int:
 
 def fft_workers_on_usable_cores() -> int | None:
     """``scipy.fft``'s ``workers=-1`` on the cores this process may use (:func:`available_cores`: its CPU
-    affinity, within its control group's CPU limit), never more than it had; returns that count.  scipy
-    counts ``os.cpu_count()`` once, at import (scipy issue 17098), and pocketfft's pool (scipy up to
-    1.17) has a thread per online core, so where the process may use fewer cores than the machine has (Slurm, ``taskset``, a
-    container's ``--cpuset-cpus`` or ``--cpus``) each such transform was split into a task per core of
-    the machine, all on the few allowed.  With the machine's count faked to 64 (16) on this 2-core VM,
-    one fft2 of the paper cube took 4.9 against 4.3 ms (4.6 against 3.8), with 28 % (33 %) more CPU,
-    slower in 28 (30) of 30 alternated batches (README, Speed).  The same numbers with pocketfft (each
-    1-D transform is computed whole by one thread); scipy 1.18's ducc rounds a transform by its place in
-    the batch, so there the count moves the numbers at float32 rounding (README, "Python and library
-    versions").  Called by the command line, never on import (a host program's
-    threads are its own).  None where this scipy's count is out of reach (:func:`fft_workers_at_most`)."""
+    affinity, within its control group's CPU limit), never more than it had; returns that count, or None
+    where this scipy's count is out of reach (:func:`fft_workers_at_most`).  scipy counts
+    ``os.cpu_count()`` once, at import (scipy issue 17098), and pocketfft's pool (scipy up to 1.17) has a
+    thread per online core, so where the process may use fewer cores than the machine has (Slurm,
+    ``taskset``, a container's ``--cpuset-cpus`` or ``--cpus``) each such transform was split into a task
+    per core of the machine, all on the few allowed.  With the machine's count faked to 64 (16) on this
+    2-core VM, one fft2 of the paper cube took 4.9 against 4.3 ms (4.6 against 3.8), with 28 % (33 %) more
+    CPU, slower in 28 (30) of 30 alternated batches (README, Speed).  The same numbers with pocketfft
+    (each 1-D transform is computed whole by one thread); scipy 1.18's ducc rounds a transform by its
+    place in the batch, so there the count moves the numbers at float32 rounding (README, "Python and
+    library versions").  Called by the command line, never on import (a host program's threads are its
+    own)."""
     return fft_workers_at_most(available_cores())
 
 
@@ -172,8 +174,6 @@ _SCIPY_FFT_HELPERS = ("scipy.fft._duccfft.helper", "scipy.fft._pocketfft.helper"
 def scipy_fft_helper():
     """The module of ``scipy.fft``'s backend holding ``_cpu_count`` and ``_workers``, or None where this
     scipy has neither known one."""
-    import importlib
-
     for name in _SCIPY_FFT_HELPERS:
         try:
             helper = importlib.import_module(name)
