@@ -770,7 +770,7 @@ def test_the_fft_worker_count_set_is_the_one_scipy_resolves_workers_from(monkeyp
     assert blas.fft_workers() == before
     with scipy.fft.set_workers(-1):
         assert scipy.fft.get_workers() == before
-    monkeypatch.setattr(blas, "_SCIPY_FFT_HELPERS", ("scipy.fft._no_such_backend.helper", "scipy.linalg"))
+    monkeypatch.setattr(blas, "_SCIPY_FFT_HELPERS", {"scipy.fft._no_such_backend.helper": "x", "scipy.linalg": "y"})
     assert blas.scipy_fft_helper() is None and blas.scipy_fft_backend() == "unknown"
     assert blas.fft_workers() is None
     assert blas.fft_workers_at_most(1) is None and blas.fft_workers_on_usable_cores() is None

@@ -168,7 +168,7 @@ def fft_workers_on_usable_cores() -> int | None:
 # at import) and the function that resolves a worker count (``_workers``): pocketfft's up to scipy 1.17,
 # ducc's from scipy 1.18 on (which has no ``scipy.fft._pocketfft``).  Both are scipy privates, looked up
 # here alone; a scipy with neither leaves the count as it comes.
-_SCIPY_FFT_HELPERS = ("scipy.fft._duccfft.helper", "scipy.fft._pocketfft.helper")
+_SCIPY_FFT_HELPERS = {"scipy.fft._duccfft.helper": "ducc", "scipy.fft._pocketfft.helper": "pocketfft"}
 
 
 def scipy_fft_helper():
@@ -188,9 +188,7 @@ def scipy_fft_backend() -> str:
     """Which FFT ``scipy.fft`` computes with: ``pocketfft`` (scipy up to 1.17), ``ducc`` (1.18 on), or
     ``unknown``; they round differently (README, "Python and library versions")."""
     helper = scipy_fft_helper()
-    if helper is None:
-        return "unknown"
-    return {"_duccfft": "ducc", "_pocketfft": "pocketfft"}.get(helper.__name__.split(".")[-2], "unknown")
+    return "unknown" if helper is None else _SCIPY_FFT_HELPERS[helper.__name__]
 
 
 def fft_workers() -> int | None:

@@ -28,6 +28,7 @@ def environment() -> dict:
 
     from .. import __version__
     from ..dsp.blas import available_cores, fft_workers, scipy_fft_backend
+    from ..dsp.cgroups import cached_cpu_limit
 
     env = {"fwdlook": __version__, "python": platform.python_version(), "numpy": np.__version__,
            "scipy": scipy.__version__, "h5py": h5py.version.version, "hdf5": h5py.version.hdf5_version,
@@ -39,8 +40,6 @@ def environment() -> dict:
     except ImportError:                     # pragma: no cover (a core dependency)
         env["ducc0"] = "missing"
     env["cores"] = str(available_cores())
-    from ..dsp.cgroups import cached_cpu_limit
-
     limit = cached_cpu_limit()           # the cgroup's CPU limit, in CPUs (dsp/cgroups.py)
     env["cpu_limit"] = "none" if limit is None else f"{limit:g}"
     workers = fft_workers()
