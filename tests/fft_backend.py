@@ -73,7 +73,7 @@ def assert_targets_same_to_rounding(actual: list, desired: list, *, rel: float =
     for a, d in zip(actual, desired):
         assert a.keys() == d.keys()
         for key, value in d.items():
-            if isinstance(value, float) and not isinstance(value, bool):
+            if isinstance(value, float):
                 assert abs(a[key] - value) <= rel * max(1.0, abs(value)), (d.get("id"), key, a[key], value)
             else:
                 assert a[key] == value, (d.get("id"), key, a[key], value)
