@@ -523,14 +523,15 @@ def _main(argv):
 
     restore = signals.install(Terminated)  # SIGTERM cleanly, as Ctrl-C; neither inside HDF5's calls (io/signals.py)
     try:
-        rv = cli.main(args=argv, prog_name="fwdlook", standalone_mode=False)
+        # a signal's exception turned into a library's own, or kept past the end, is the signal's
+        rv = signals.as_signalled(cli.main, args=argv, prog_name="fwdlook", standalone_mode=False)
     except BadInput as exc:
         click.echo(f"fwdlook: error: {exc}", err=True)
         sys.exit(2)
     except Terminated:
         click.echo("fwdlook: terminated (SIGTERM)", err=True)
         sys.exit(128 + signal.SIGTERM)
-    except click.exceptions.Abort:
+    except (click.exceptions.Abort, KeyboardInterrupt):
         click.echo("fwdlook: aborted", err=True)
         sys.exit(130)
     except click.ClickException as exc:

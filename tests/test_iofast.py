@@ -257,6 +257,19 @@ def test_sink_finishes_short_writes_in_pieces(tmp_path, monkeypatch):
     assert max(calls) <= outputs.WRITE_PIECE_BYTES
 
 
+def test_a_closed_sink_drops_what_hdf5_still_sends(tmp_path):
+    """A file an interrupted command left open is closed by HDF5 at the interpreter's exit, through its
+    sink closed long before (its partial file removed): nothing is written, nothing is raised."""
+    from fwdlook_cli.io import outputs
+
+    sink = outputs.FailSafeSink(tmp_path / "a.partial")
+    sink.write(b"12345")
+    sink.close()
+    assert (sink.write(b"6789"), sink.seek(96), sink.tell(), sink.truncate(4096)) == (4, 96, 0, 4096)
+    assert sink.readinto(bytearray(8)) == 0 and sink.error is None
+    assert (tmp_path / "a.partial").read_bytes() == b"12345"
+
+
 def test_cube_hash_sees_every_element_of_the_antenna_table(tiny_raw):
     from fwdlook_cli.io.cube import cube_hash
     from fwdlook_cli.io.raw import read_raw

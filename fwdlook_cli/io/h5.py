@@ -16,7 +16,7 @@ import h5py
 import numpy as np
 
 from .. import __version__
-from . import h5native
+from . import h5native, signals
 
 _SCALAR = None
 _TYPES: dict = {}
@@ -80,16 +80,23 @@ def atomic_h5(path: str | Path):
     except OSError as exc:
         raise write_error(path, exc) from None
     done = False
+    f = None
     try:
         try:
-            with h5py.File(sink, "w") as f:
-                set_attrs(f, {"software": "fwdlook", "software_version": __version__,
-                              "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")})
-                yield f
-                if h5native.enabled():          # the metadata written out without the GIL; h5py's
-                    h5native.flush(f.id.id)     # close then finds nothing left to write
+            # opened and closed with Ctrl-C and SIGTERM held (io/signals.py): an exception inside h5py's
+            # open would leave HDF5 holding the file with nothing to close it before the sink
+            f = signals.call_held(h5py.File, sink, "w")
+            signals.raise_pending()
+            set_attrs(f, {"software": "fwdlook", "software_version": __version__,
+                          "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")})
+            yield f
+            if h5native.enabled():          # the metadata written out without the GIL; h5py's
+                h5native.flush(f.id.id)     # close then finds nothing left to write
         finally:
+            if f is not None:
+                signals.call_held(f.close)
             sink.close()
+            signals.raise_pending()         # a signal kept while closing: before the rename, not after
         if sink.error is not None:
             raise write_error(path, sink.error)
         try:

@@ -164,7 +164,9 @@ class FailSafeSink(io.RawIOBase):
 
     The first ``OSError`` of a write or truncate is kept in :attr:`error`; that write and every later
     one are dropped (reported as done).  The caller must check :attr:`error` after closing the HDF5
-    file, discard the partial file and report the error.
+    file, discard the partial file and report the error.  Once closed, the sink drops what HDF5 still
+    sends it: only a file that an interrupted command left open (its partial file already removed)
+    does, when the interpreter ends.
     """
 
     def __init__(self, path):
@@ -183,11 +185,11 @@ class FailSafeSink(io.RawIOBase):
         return True
 
     def readinto(self, buffer):
-        return self._f.readinto(buffer)
+        return 0 if self._f.closed else self._f.readinto(buffer)
 
     def write(self, buffer):
         n = memoryview(buffer).nbytes
-        if self.error is None:
+        if self.error is None and not self._f.closed:
             try:
                 view = memoryview(buffer).cast("B")
                 done = 0
@@ -201,13 +203,13 @@ class FailSafeSink(io.RawIOBase):
         return n
 
     def seek(self, offset, whence=os.SEEK_SET):
-        return self._f.seek(offset, whence)
+        return offset if self._f.closed else self._f.seek(offset, whence)
 
     def tell(self):
-        return self._f.tell()
+        return 0 if self._f.closed else self._f.tell()
 
     def truncate(self, size=None):
-        if self.error is None:
+        if self.error is None and not self._f.closed:
             try:
                 return self._f.truncate(size)
             except OSError as exc:

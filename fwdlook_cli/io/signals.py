@@ -7,11 +7,16 @@ which cannot recover from it (SIGTERM during a cube's write ended in "Exception 
 h5py._objects.ObjectID.__dealloc__" and a segmentation fault, or left the command running).
 
 The command's handlers (:func:`install`) therefore look at the Python frames the signal interrupted:
-where one of them is a protected function (:func:`protect`: the sink's methods), the signal is kept and
-a timer (``SIGALRM`` every :data:`RETRY_S`) raises it once the main thread runs other code.  An
+where one of them is a protected function (:func:`protect`: the sink's methods; :func:`call_held`: the
+opening and closing of an HDF5 file), the signal is kept and a timer (``SIGALRM`` every :data:`RETRY_S`)
+raises it once the main thread runs other code, or :func:`raise_pending` at once. Where h5py's Cython
+code calls back into Python outside the sink (its type conversions' logging), an exception raised there
+comes out as another (HDF5's "TypeError: Operation not defined for data type class") with the signal's
+as its context: :func:`signal_behind` finds it, and the command reports the signal. A signal kept past
+the command's end, or swallowed on the way, is still the command's end (:func:`as_signalled`). An
 exception raised where Python cannot propagate it (a weakref callback or a ``__del__``: "Exception
 ignored in ...", after which the command had gone on to exit 0 as if never stopped) is caught by
-``sys.unraisablehook`` and raised again the same way.  Nothing but the exception's moment changes: the
+``sys.unraisablehook`` and raised again the same way. Nothing but the exception's moment changes: the
 atomic writers then remove their partial files as for any other error.
 """
 from __future__ import annotations
@@ -25,11 +30,21 @@ RETRY_S = 0.002
 _PROTECTED: set = set()   # code objects in which no signal's exception is raised
 _PENDING = None           # the exception type a signal asked for, kept until it may be raised
 _RAISED = None            # the last exception raised for a signal (to tell it among unraisable ones)
+_SIGNALLED = None         # the exception type the first signal since install() asked for
 
 
 def protect(*functions) -> None:
     """No signal's exception is raised while any of ``functions`` runs (nor in what it calls)."""
     _PROTECTED.update(f.__code__ for f in functions)
+
+
+def call_held(function, *args, **kwargs):
+    """``function(*args, **kwargs)`` with no signal's exception raised inside it: one arriving meanwhile is
+    raised after it returns.  For calls that create or close what HDF5 holds (``h5py.File``): h5py
+    registers a new file's identifier from Python after HDF5 has opened it, so an exception raised there
+    left the file open, unreachable, until the interpreter's exit closed it through a sink already
+    closed ("Exception ignored in h5py._objects.ObjectID.__dealloc__" after SIGTERM)."""
+    return function(*args, **kwargs)
 
 
 def _inside_protected(frame) -> bool:
@@ -40,12 +55,59 @@ def _inside_protected(frame) -> bool:
     return False
 
 
+protect(call_held)
+
+
+def raise_pending() -> None:
+    """Raise now, in the main thread outside protected code, the signal kept while protected code ran
+    (instead of at the retry timer's next tick, when the command may have gone past its cleanup)."""
+    if _PENDING is not None and threading.current_thread() is threading.main_thread():
+        frame = sys._getframe(1)
+        if not _inside_protected(frame):
+            _raise_or_keep(_PENDING, frame)
+
+
+def as_signalled(function, *args, **kwargs):
+    """``function(*args, **kwargs)``, where a signal since :func:`install` ends it with the signal's own
+    exception: one a library turned into its own (:func:`signal_behind`), and one kept past the call's
+    end or swallowed on the way (the command was stopped all the same)."""
+    global _PENDING
+    try:
+        result = function(*args, **kwargs)
+        stopped = _SIGNALLED
+    except Exception as exc:
+        stopped = signal_behind(exc)
+        if stopped is None:
+            raise
+        raise stopped() from exc
+    if stopped is not None:
+        if _PENDING is not None:            # delivered here: the retry timer has nothing left to raise
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            _PENDING = None
+        raise stopped()
+    return result
+
+
+def signal_behind(exc: BaseException):
+    """The signal's exception type where ``exc`` was raised while handling it (a library turned the
+    signal's exception into its own), else None."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if _RAISED is not None and exc is _RAISED:
+            return type(exc)
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 def _raise_or_keep(exc_type, frame) -> None:
     global _PENDING, _RAISED
     if _inside_protected(frame):
         _PENDING = _PENDING or exc_type               # the first kept wins
         signal.setitimer(signal.ITIMER_REAL, RETRY_S)
         return
+    if _PENDING is not None:                          # delivered: the retry timer is not needed
+        signal.setitimer(signal.ITIMER_REAL, 0)       # (nor left to go off as the interpreter ends)
     _PENDING = None
     _RAISED = exc_type()
     raise _RAISED
@@ -81,8 +143,10 @@ def install(terminated_type, *, idle=None):
 
     def handler(exc_type):
         def handle(signum, frame):
+            global _SIGNALLED
             if idle is not None and idle():
                 os._exit(128 + signum)
+            _SIGNALLED = _SIGNALLED or exc_type
             _raise_or_keep(exc_type, frame)
         return handle
 
@@ -92,11 +156,11 @@ def install(terminated_type, *, idle=None):
     sys.unraisablehook = _unraisable(found_hook)
 
     def restore():
-        global _PENDING, _RAISED
+        global _PENDING, _RAISED, _SIGNALLED
         signal.setitimer(signal.ITIMER_REAL, 0)
         for sig, handler in found.items():
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
         sys.unraisablehook = found_hook
-        _PENDING = _RAISED = None
+        _PENDING = _RAISED = _SIGNALLED = None
 
     return restore
