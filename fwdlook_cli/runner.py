@@ -24,6 +24,7 @@ from typing import Callable
 
 
 from .errors import BadInput
+from .io import signals
 from .io.integrity import STAGE_FORMAT_VERSION
 from .io.stagefile import StageData, _canon, declared_digests, load_verified, read_stage, write_stage
 from .io.stageview import read_stage_mapped, reshaped_views, view_file_key, virtual_layout
@@ -135,7 +136,11 @@ def run_stages(stages: list[Stage], source: StageData, source_key: str, run_dir:
             pending_writes.append(writer.finish)
     finally:
         if pending_writes is None or writer.finish not in pending_writes:
-            writer.close()
+            # the write in flight ends (renamed, or its partial file removed) before an exception goes on,
+            # a second signal held meanwhile: Ctrl-C reaches a sweep's workers with their group, and the
+            # SIGTERM the sweep then passes on had cut this wait short, leaving the stage's .partial
+            signals.call_held(writer.close)
+            signals.raise_pending()
     for i, path in enumerate(paths):     # what this run's policy does not keep goes
         if i not in kept:
             path.unlink(missing_ok=True)

@@ -243,3 +243,46 @@ def test_the_writer_threads_cpu_is_counted_per_file_and_only_its_own(tiny_raw, t
     process_cube(cube, tiny_scenario(), tmp_path / "none", force=True, quiet=True, png=False,
                  keep_stages="none", file_cpu=empty)
     assert empty == {}
+
+
+def test_a_second_signal_does_not_cut_short_the_wait_for_the_write_in_flight(tmp_path, monkeypatch):
+    """Ctrl-C reaches a sweep's workers with their process group, and the sweep then passes SIGTERM on:
+    the second signal had cut short a worker's wait for its stage file in flight, whose process then
+    left, leaving ``NN_stage.h5.partial``.  The wait ends with the write (renamed or removed), and the
+    chain's exception comes after it."""
+    import os
+    import signal
+
+    from fwdlook_cli.errors import Terminated
+    from fwdlook_cli.io import signals
+    from fwdlook_cli.io.stagefile import StageData
+
+    real_write = runner.write_stage
+    written = []
+
+    def slow_write(path, *args, **kwargs):     # the write in flight when the signals arrive
+        time.sleep(0.5)
+        result = real_write(path, *args, **kwargs)
+        written.append(path.name)
+        return result
+
+    def stopped(data):                         # Ctrl-C in the next stage, SIGTERM during the wait after it
+        threading.Timer(0.15, os.kill, (os.getpid(), signal.SIGTERM)).start()
+        os.kill(os.getpid(), signal.SIGINT)
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end:
+            pass
+        return data
+
+    monkeypatch.setattr(runner, "write_stage", slow_write)
+    source = StageData()
+    source.add("n", np.arange(4.0), ("n",), "1", "sample").add("x", np.ones(4), ("n",), "1", "x")
+    restore = signals.install(Terminated)
+    try:
+        with pytest.raises((KeyboardInterrupt, Terminated)):
+            runner.run_stages([runner.Stage("first", lambda d: d, {}), runner.Stage("second", stopped, {})],
+                              source, "k" * 64, tmp_path, quiet=True)
+        assert written == ["01_first.h5"]      # finished before the exception left run_stages
+    finally:
+        restore()
+    assert sorted(p.name for p in (tmp_path / "stages").iterdir()) == ["01_first.h5"]

@@ -13,7 +13,7 @@ from ..dsp import spawner
 from ..dsp.blas import on_one_blas_thread, worker_threads
 from ..errors import BadInput
 from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, json_text, put_scale, put_sparse_gzip, set_attrs
-from ..io import backing
+from ..io import backing, signals
 from ..io.cube import cube_hash
 
 
@@ -205,8 +205,9 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
             cpu_end = cpu_split_s()
             stage_cpu["outputs"] = (cpu_end[0] - cpu_out[0], cpu_end[1] - cpu_out[1])
     finally:
-        while writes:                    # waited for even when the outputs failed (then re-raised)
-            writes.pop()()
+        while writes:                    # waited for even when the outputs failed (then re-raised), a second
+            signals.call_held(writes.pop())   # signal held meanwhile (runner.run_stages)
+        signals.raise_pending()
         while pending_png:               # begun and not finished: the outputs failed, no PNG left
             pending_png.pop().discard()
     atomic_write_text(run_dir / "scenario.yaml", scenario_note + scenario_yaml)

@@ -43,7 +43,9 @@ def call_held(function, *args, **kwargs):
     raised after it returns.  For calls that create or close what HDF5 holds (``h5py.File``): h5py
     registers a new file's identifier from Python after HDF5 has opened it, so an exception raised there
     left the file open, unreachable, until the interpreter's exit closed it through a sink already
-    closed ("Exception ignored in h5py._objects.ObjectID.__dealloc__" after SIGTERM)."""
+    closed ("Exception ignored in h5py._objects.ObjectID.__dealloc__" after SIGTERM).  And for the wait,
+    after a first signal, for a stage file in flight (``runner.run_stages``): a second one had cut it
+    short, and the process left with the file's ``.partial``."""
     return function(*args, **kwargs)
 
 
