@@ -73,7 +73,6 @@ def as_signalled(function, *args, **kwargs):
     """``function(*args, **kwargs)``, where a signal since :func:`install` ends it with the signal's own
     exception: one a library turned into its own (:func:`signal_behind`), and one kept past the call's
     end or swallowed on the way (the command was stopped all the same)."""
-    global _PENDING
     try:
         result = function(*args, **kwargs)
         stopped = _SIGNALLED
@@ -83,9 +82,7 @@ def as_signalled(function, *args, **kwargs):
             raise
         raise stopped() from exc
     if stopped is not None:
-        if _PENDING is not None:            # delivered here: the retry timer has nothing left to raise
-            signal.setitimer(signal.ITIMER_REAL, 0)
-            _PENDING = None
+        _forget_pending()                   # delivered here
         raise stopped()
     return result
 
@@ -102,15 +99,22 @@ def signal_behind(exc: BaseException):
     return None
 
 
+def _forget_pending() -> None:
+    """A kept signal is being delivered: its retry timer is not needed (nor left to go off as the
+    interpreter ends, whose default action for SIGALRM kills it)."""
+    global _PENDING
+    if _PENDING is not None:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        _PENDING = None
+
+
 def _raise_or_keep(exc_type, frame) -> None:
     global _PENDING, _RAISED
     if _inside_protected(frame):
         _PENDING = _PENDING or exc_type               # the first kept wins
         signal.setitimer(signal.ITIMER_REAL, RETRY_S)
         return
-    if _PENDING is not None:                          # delivered: the retry timer is not needed
-        signal.setitimer(signal.ITIMER_REAL, 0)       # (nor left to go off as the interpreter ends)
-    _PENDING = None
+    _forget_pending()
     _RAISED = exc_type()
     raise _RAISED
 
