@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
 
-from fwdlook_cli.scene_image import ROADS, make_road_scene  # noqa: E402
+from fwdlook_cli.scenario.scene_image import ROADS, make_road_scene  # noqa: E402
 
 
 def main(argv=None) -> Path:

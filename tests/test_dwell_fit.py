@@ -376,23 +376,27 @@ def test_the_fit_on_forked_workers_is_the_fit_in_one_process(monkeypatch):
 def test_the_clusters_are_prepared_on_the_workers(monkeypatch, tmp_path):
     """With forked workers the clusters' data and coarse dictionaries are made on the workers, beside
     one another, not in the calling process before they start (issue 11: the fit starts sooner): the
-    caller builds no atom, the workers build them, and the fit is the one-process fit."""
+    caller builds no dictionary and no cluster's atoms (only the grid step's probe, four atoms:
+    ``fit_angle_step``, 0.3 ms), the workers build them, and the fit is the one-process fit."""
     s, d, _, kw = _two_clusters()
     monkeypatch.setattr(F, "worker_threads", lambda: 1)
     one = F.fit_region(s, d, **kw)                                  # in this process
     log, real = tmp_path / "atoms_pids", F.FitModel.atoms
 
-    def atoms(self, *args, **kwargs):
+    def atoms(self, theta_deg, *args, **kwargs):
         with open(log, "a") as f:
-            f.write(f"{os.getpid()}\n")
-        return real(self, *args, **kwargs)
+            f.write(f"{os.getpid()} {np.size(theta_deg)}\n")
+        return real(self, theta_deg, *args, **kwargs)
 
     monkeypatch.setattr(F.FitModel, "atoms", atoms)
     monkeypatch.setattr(F, "worker_threads", lambda: 2)
     forked = F.fit_region(s, d, **kw)
-    pids = set(map(int, log.read_text().split()))
-    assert pids and os.getpid() not in pids          # on the workers (one may take both jobs: a free worker
-    assert len(pids) <= 2                            # takes the next one), none in the caller
+    calls = [tuple(map(int, line.split())) for line in log.read_text().splitlines()]
+    assert [n for pid, n in calls if pid == os.getpid()] == [4]        # the grid probe only
+    pids = {pid for pid, _ in calls if pid != os.getpid()}
+    assert pids and len(pids) <= 2                   # on the workers (one may take both jobs: a free worker
+    # takes the next one), every dictionary among them
+    assert max(n for pid, n in calls if pid != os.getpid()) > 100
     assert all(np.array_equal(a, b) for a, b in zip(one, forked))
 
 
@@ -418,3 +422,25 @@ def test_cancelled_jobs_release_their_workers():
         if processes:                                       # the forked children killed and reaped
             with pytest.raises(ChildProcessError):
                 os.waitpid(-1, os.WNOHANG)
+
+
+def test_the_fit_grid_samples_the_statistics_lobe_at_any_carrier():
+    """``fit_angle_step``: the paper's radar (18 GHz, a = 50, the region +-4.78 deg) keeps the image's
+    0.05 deg; at 94 GHz the atoms' angle lobe is five times narrower (Doppler 2 v sin(theta) / lambda)
+    and the step is halved until an atom half a step from an edge atom keeps half its power, and not
+    halved further (the atoms correlated with numpy's vdot, not the module's sums)."""
+    pos, beam, p_ref = _flight(accel_mps2=50.0, scan_deg=(-8.0, 8.0))
+    r_m = 1600.0
+
+    def corr2(model, theta, h):
+        a = model.atoms([theta, theta + h], [r_m])[0]
+        return abs(np.vdot(a[:, 0], a[:, 1])) ** 2 / (np.vdot(a[:, 0], a[:, 0]).real * np.vdot(a[:, 1], a[:, 1]).real)
+
+    paper = _model(pos, beam, p_ref)
+    assert FP.fit_angle_step(paper, 0.0, 4.78, r_m, 0.05) == 0.05
+    w_band = F.FitModel(position_m=pos, scan_angle_deg=beam, fc_hz=94e9, slope_per_deg=SLOPE, beta_per_deg2=BETA,
+                        position_ref_m=p_ref)
+    step = FP.fit_angle_step(w_band, 0.0, 4.78, r_m, 0.05)
+    assert step < 0.05
+    assert min(corr2(w_band, e, 0.5 * step) for e in (-4.78, 4.78)) >= 0.5
+    assert min(corr2(w_band, e, step) for e in (-4.78, 4.78)) < 0.5

@@ -18,6 +18,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+import yaml
 
 import fwdlook_cli
 import fwdlook_cli.forward.chain as chain
@@ -278,7 +279,12 @@ def test_crash_in_stage_5_then_resume(tiny_raw, tmp_path, capsys, monkeypatch):
     assert (run_dir / "metrics.json").is_file() and (run_dir / "image.h5").is_file()
 
 
-def test_crashed_rerun_leaves_no_outputs_of_other_settings(tiny_raw, done_run, monkeypatch):
+def test_crashed_rerun_keeps_the_earlier_runs_outputs_whole(tiny_raw, done_run, monkeypatch):
+    """A rerun with other settings that fails in the chain leaves the earlier run's outputs as they were,
+    byte for byte, one finished run with its own scenario.yaml (an independent review found them
+    removed before the new chain had run: a failed or refused rerun lost them)."""
+    outputs = ("metrics.json", "image.h5", "image.png", "scenario.yaml")
+    before = {name: (done_run / name).read_bytes() for name in outputs}
     cpi = run_params(done_run)["cpi"] // 2
 
     def crash(*args, **kwargs):
@@ -287,9 +293,10 @@ def test_crashed_rerun_leaves_no_outputs_of_other_settings(tiny_raw, done_run, m
     monkeypatch.setattr(chain, "doppler_spectra", crash)
     with pytest.raises(Crash):
         main(["process", str(tiny_raw), "-o", str(done_run), "-q", "--set", f"processing.cpi={cpi}"])
-    # either no metrics.json at all, or one that matches the settings the directory now claims
-    metrics = done_run / "metrics.json"
-    assert not metrics.exists() or json.loads(metrics.read_text())["params"]["cpi"] == cpi
+    assert {name: (done_run / name).read_bytes() for name in outputs} == before
+    # the folder says what it holds: the metrics' settings are its scenario.yaml's
+    held = yaml.safe_load((done_run / "scenario.yaml").read_text())["processing"]["cpi"]
+    assert json.loads((done_run / "metrics.json").read_text())["params"]["cpi"] == held != cpi
 
 
 def test_crash_while_writing_a_stage_leaves_no_partial(tiny_raw, tmp_path, capsys, monkeypatch):

@@ -395,10 +395,11 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     level = max(floor * 10 ** (threshold_db / 10), float(power32.max()) * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
     finish_fit = None
-    if fit_half_width_deg > 0:       # the joint fit owns the directions near the flight axis (dwell_fit.py):
+    in_fit = (np.abs(angle_deg[looked] - twin_axis) <= fit_half_width_deg) & (fit_half_width_deg > 0)
+    if in_fit.any():                 # the joint fit owns the directions near the flight axis (dwell_fit.py):
         # started as soon as its inputs (the region's profile, the level) are known, it runs on other
-        # processes while this one selects and projects the dwell image's cells
-        in_fit = np.abs(angle_deg[looked] - twin_axis) <= fit_half_width_deg
+        # processes while this one selects and projects the dwell image's cells (a scan that never comes
+        # within fit_half_width_deg of the axis has no such direction, and no fit)
         p_nat = s_rot[looked][in_fit][:, ::focus_os]       # the native range samples (the fit's grid)
         finish_fit = start_fit_region(
             data["sum"], diff_native, scan_angle_deg=beam, position_m=data["position_m"], range_m=range_m,

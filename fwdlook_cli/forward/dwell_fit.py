@@ -58,7 +58,7 @@ from ..dsp.fir import filter_same
 from ..dsp.forked import start_jobs
 from ..dsp.geometry import C_MPS
 from ..dsp.keystone_common import _cis as _cis_cycles
-from .dwell_fit_plan import decimation_plan, noise_sigma, range_clusters
+from .dwell_fit_plan import decimation_plan, fit_angle_step, noise_sigma, range_clusters
 
 log = logging.getLogger(__name__)
 
@@ -339,15 +339,19 @@ def _relax_until_settled(act, model, thetas, idx, range_m, step, axis_deg, min_s
 
 
 def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DYNAMIC_DB, max_atoms=MAX_ATOMS,
-                relax_sweeps=1, coarse=None, axis_deg=0.0):
+                relax_sweeps=1, coarse=None, axis_deg=0.0, separation_deg=None):
     """Group OMP with continuous angles over one cluster of range cells.
 
     ``y`` [B, 2N] whitened data (sum then difference over the window's pulses), ``range_m`` [B] the
-    cells' slant ranges, ``theta_grid_deg`` the coarse dictionary's angles.  Returns (theta [K],
+    cells' slant ranges, ``theta_grid_deg`` the coarse dictionary's angles.  A new atom is picked at
+    least ``separation_deg`` (default half a grid step) from the atoms held: half the image's angle
+    step where the grid is finer (``fit_angle_step``), since the image cannot show two points closer
+    and the model's residue beside a strong atom would otherwise be picked there.  Returns (theta [K],
     c [B, K], stats [K]).
     """
     n_b = len(range_m)
     step = float(theta_grid_deg[1] - theta_grid_deg[0])
+    separation_deg = 0.5 * step if separation_deg is None else float(separation_deg)
     if coarse is None:                                                       # [2N, M], centre cell
         coarse = model.atoms(theta_grid_deg, [range_m[n_b // 2]])[0]
     coarse_norm = np.sum(coarse.real**2 + coarse.imag**2, axis=0)
@@ -362,7 +366,7 @@ def fit_cluster(model, y, range_m, theta_grid_deg, *, pfa=PFA, dynamic_db=FIT_DY
     while len(thetas) < max_atoms:
         corr = resid @ coarse_conj                                           # [B, M]
         stat = np.sum(corr.real**2 + corr.imag**2, axis=0) / coarse_norm
-        stat[np.abs(grid[:, None] - np.asarray(thetas)[None, :]).min(axis=1) < 0.5 * step if thetas else
+        stat[np.abs(grid[:, None] - np.asarray(thetas)[None, :]).min(axis=1) < separation_deg if thetas else
              np.zeros(len(grid), bool)] = 0.0
         m = int(np.argmax(stat))
         if stat[m] < noise_stop or (stats and stat[m] < stats[0] * 10 ** (-dynamic_db / 10)):
@@ -392,8 +396,9 @@ class ClusterFit:
     that it pickles (``dsp.spawner``); each worker keeps its own coarse dictionaries."""
 
     def __init__(self, *, model, range_m, grid, axis_deg, half_width_deg, pfa, dynamic_db, sig, q, lam, taps=None,
-                 shift_hz=0.0, gain=1.0, ext=None, kept=None, ext_model=None, prf_hz=None):
+                 shift_hz=0.0, gain=1.0, ext=None, kept=None, ext_model=None, prf_hz=None, separation_deg=None):
         self.model, self.range_m, self.grid, self.axis_deg = model, range_m, grid, axis_deg
+        self.separation_deg = separation_deg
         self.half_width_deg, self.pfa, self.dynamic_db, self.sig, self.q, self.lam = (
             half_width_deg, pfa, dynamic_db, sig, q, lam)
         self.taps, self.shift_hz, self.gain, self.ext, self.kept, self.ext_model, self.prf_hz = (
@@ -430,7 +435,7 @@ class ClusterFit:
         range_m, n_r = self.range_m, len(self.range_m)
         y, coarse = self.cluster_data(cells, x_sum, x_diff)
         theta, c, _ = fit_cluster(self.model, y, range_m[cells], self.grid, pfa=self.pfa, dynamic_db=self.dynamic_db,
-                                  coarse=coarse, axis_deg=self.axis_deg)
+                                  coarse=coarse, axis_deg=self.axis_deg, separation_deg=self.separation_deg)
         if len(theta) >= MAX_ATOMS:              # not sparse: the dwell image keeps these cells
             log.info(f"dwell_fit: the cluster at {range_m[cells[0]]:.0f} m needs over {MAX_ATOMS} points: left "
                      "to the dwell image")
@@ -473,11 +478,12 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
     kw = dict(fc_hz=fc_hz, slope_per_deg=slope_per_deg, beta_per_deg2=beta_per_deg2, position_ref_m=position_ref_m,
               boresight_offset_deg=boresight_offset_deg)
     span = half_width_deg + 2.0 * dwell_half_width_deg
-    grid = axis_deg + angle_step_deg * np.arange(-np.ceil(span / angle_step_deg), np.ceil(span / angle_step_deg) + 1)
     full = FitModel(position_m=pos[win], scan_angle_deg=beam[win], sigma=sig, **kw)
+    r_mid = float(np.median(range_m))
+    step = fit_angle_step(full, axis_deg, half_width_deg, r_mid, angle_step_deg)     # the statistic's lobe sampled
+    grid = axis_deg + step * np.arange(-np.ceil(span / step), np.ceil(span / step) + 1)
     q, shift_hz, taps = 1, 0.0, None
     if decimate and len(win) > 1 and np.all(np.diff(win) == 1):
-        r_mid = float(np.median(range_m))
         band_grid = grid[np.abs(grid - axis_deg) <= half_width_deg + BAND_GUARD_DEG]
         q, shift_hz, taps = decimation_plan(full, band_grid, r_mid, axis_deg, prf_hz)
         if q > 1:     # the dictionary: every direction the filter lets through (offsets inside its stop edge)
@@ -508,6 +514,7 @@ def start_fit_region(sum_rt, diff_rt, *, scan_angle_deg, position_m, range_m, pr
             for cells in clusters if len(cells) <= MAX_CLUSTER_CELLS]
     fit_one = ClusterFit(model=model, range_m=range_m, grid=grid, axis_deg=axis_deg, half_width_deg=half_width_deg,
                          pfa=pfa, dynamic_db=dynamic_db, sig=sig, q=q, lam=full.lam,
+                         separation_deg=0.5 * angle_step_deg,
                          **(dict(taps=taps, shift_hz=shift_hz, gain=gain, ext=ext, kept=kept, ext_model=ext_model,
                                  prf_hz=prf_hz) if q > 1 else {}))
 

@@ -141,9 +141,10 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     ``outputs`` (the metrics, image.h5 and metrics.json).  ``file_cpu``: as :func:`runner.run_stages`
     (the writer thread's CPU time for each stage file).
 
-    The run directory's outputs of an earlier run are removed first and ``scenario.yaml`` is written
-    last, so a failed or interrupted run never leaves outputs that look complete for other settings
-    (the stage files stay: they carry their own hashes and are reused only where they match).
+    The run directory's outputs of an earlier run stay until this chain has finished (a rerun that fails
+    or is refused on the way leaves them whole: they and their scenario.yaml are one finished run), are
+    removed then, and ``scenario.yaml`` is written last, so the folder never holds outputs that look
+    complete for other settings (the stage files carry their own hashes, reused only where they match).
 
     The BLAS runs on one thread throughout (``dsp/blas.py``: its idle threads spin on the cores the
     stages' own threads need; the command line has it so from its start).
@@ -182,8 +183,6 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         start_fit_spawner(proc)
     if from_stage is not None and from_stage not in names:
         raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
-    for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):
-        (run_dir / name).unlink(missing_ok=True)
     captured = {"doppler_spectra": None} if "doppler_spectra" in names else {}  # the dwell metrics read them
     src_key, holder = cube_hash(cube), [src]
     del src
@@ -197,6 +196,8 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                                       stage_cpu=stage_cpu, file_cpu=file_cpu)
     t_out = time.perf_counter()
     cpu_out = cpu_split_s() if stage_cpu is not None else None
+    for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):   # the chain done: the earlier
+        (run_dir / name).unlink(missing_ok=True)                             # run's outputs go now
     pending_png = []
     try:
         metrics, scenario_yaml = _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured,

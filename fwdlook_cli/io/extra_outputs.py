@@ -60,7 +60,7 @@ def remove_stage_files(run_dir) -> None:
     stages = Path(run_dir) / "stages"
     for q in _iter_quiet(stages) if stages.is_dir() else []:
         if q.is_file() and not q.is_symlink() and (
-                h5_format(q) == "fwdlook-stage" or re.fullmatch(r"\d\d_\w+\.h5\.partial", q.name)):
+                h5_format(q) == "fwdlook-stage" or re.fullmatch(r"\d\d_\w+\.h5\.partial(-[0-9a-f]{8})?", q.name)):
             _unlink_quietly(q)
     with contextlib.suppress(OSError):
         stages.rmdir()

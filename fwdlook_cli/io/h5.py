@@ -1,6 +1,7 @@
 """HDF5 and text writing at the edges: atomic writes, datasets with units and long names, dimension scales.
 
-Every file is written to ``NAME.partial`` and renamed into place with ``os.replace``, so a failed or
+Every file is written to ``NAME.partial`` (claimed by ``io.partial.claim_partial``: never through a link,
+never over a file fwdlook did not make) and renamed into place with ``os.replace``, so a failed or
 interrupted command never leaves a file that looks complete.
 """
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 
 from .. import __version__
 from . import h5native, signals
+from .partial import claim_partial
 
 _SCALAR = None
 _TYPES: dict = {}
@@ -63,8 +65,10 @@ def set_attrs(obj, attrs: dict) -> None:
 
 
 @contextlib.contextmanager
-def atomic_h5(path: str | Path):
-    """Open ``path.partial`` for writing; rename to ``path`` only if the block succeeds.
+def atomic_h5(path: str | Path, *, own_partial: bool = False):
+    """Open ``path.partial`` for writing; rename to ``path`` only if the block succeeds.  The partial name
+    is claimed by ``io.partial.claim_partial`` (never through a link, never over a file fwdlook did not
+    make: ``own_partial``, a stage file's, replaces a regular file there, a killed write's leftover).
 
     HDF5 writes through :class:`outputs.FailSafeSink`, so a full disk or any refused write never
     reaches HDF5 (which cannot close a file whose flush failed); the partial file is removed and the
@@ -74,11 +78,12 @@ def atomic_h5(path: str | Path):
 
     path = Path(path)
     make_parent(path)
-    tmp = path.with_name(path.name + ".partial")
+    tmp = None
     try:
+        tmp = claim_partial(path.with_name(path.name + ".partial"), replace_regular=own_partial)
         sink = FailSafeSink(tmp)
-    except OSError as exc:
-        raise write_error(path, exc) from None
+    except BaseException as exc:       # (a signal included) the claimed name removed again
+        _discard(path, tmp, exc)
     done = False
     f = None
     try:
@@ -117,18 +122,30 @@ def atomic_h5(path: str | Path):
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
-    from .outputs import make_parent, write_error
+    from .outputs import make_parent
 
     path = Path(path)
     make_parent(path)
-    tmp = path.with_name(path.name + ".partial")
+    tmp = None
     try:
+        tmp = claim_partial(path.with_name(path.name + ".partial"))
         tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, path)
-    except OSError as exc:
+    except BaseException as exc:       # (a signal included) no partial file left
+        _discard(path, tmp, exc)
+
+
+def _discard(path, tmp, exc: BaseException):
+    """A failed write's partial file ``tmp`` (if claimed) removed; an OSError raised as one line naming
+    ``path``, anything else (a signal) as it is."""
+    from .outputs import write_error
+
+    if tmp is not None:
         with contextlib.suppress(OSError):
             tmp.unlink()
+    if isinstance(exc, OSError):
         raise write_error(path, exc) from None
+    raise exc
 
 
 def json_text(obj: dict, allow_nan: bool = False) -> str:

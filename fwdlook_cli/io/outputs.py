@@ -31,6 +31,7 @@ from pathlib import Path
 from ..errors import BadInput
 from ..limits import shown
 from . import signals
+from .partial import claim_partial
 
 RAW_FORMAT = "fwdlook-raw"
 RUN_FILES = ("scenario.yaml", "metrics.json", "image.h5", "image.png")
@@ -126,15 +127,17 @@ def partial_path(path) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_path(path, *, rename: bool = True):
-    """Yield ``NAME.partial.SUFFIX`` for a writer that takes a path (matplotlib); rename on success
-    (``rename=False``: left for the caller to rename, as the painter's PNG is by its command).
-
-    On failure the partial file is removed and an ``OSError`` becomes one BadInput line.
-    """
+def atomic_path(path, *, rename: bool = True, tmp=None):
+    """Yield ``NAME.partial.SUFFIX`` (claimed: ``io.partial``; ``tmp``, one claimed already) for a writer
+    that takes a path (matplotlib); rename on success (``rename=False``: left for the caller to rename,
+    as the painter's PNG is by its command).  On failure the partial file is removed and an
+    ``OSError`` becomes one BadInput line."""
     path = Path(path)
     make_parent(path)
-    tmp = partial_path(path)
+    if tmp is None:
+        with mapped_os_errors(path):
+            tmp = claim_partial(partial_path(path))
+    tmp = Path(tmp)
     try:
         yield tmp
         if rename:

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .outputs import _unlink_quietly, atomic_path, mapped_os_errors, partial_path
+from .outputs import _unlink_quietly, atomic_path, make_parent, mapped_os_errors, partial_path
+from .partial import claim_partial
 
 
 def _plt():
@@ -37,14 +38,17 @@ def start_image_png(path, power, x_axis, y_axis, **kwargs) -> "PendingPng":
     from . import painter
 
     args = (path, power, x_axis, y_axis)
-    child = painter.active()
+    child, tmp = painter.active(), None
     if child is not None:
+        make_parent(path)
+        with mapped_os_errors(path):           # the partial name claimed here, drawn there (io/partial.py)
+            tmp = claim_partial(partial_path(path))
+        _UNCLAIMED.add(str(tmp))
         try:       # by name: the child's own draw_image_png, left partial (renamed by finish)
-            child.submit("fwdlook_cli.io.quicklook:draw_image_png", *args, rename=False, **kwargs)
-            _UNCLAIMED.add(str(partial_path(path)))
+            child.submit("fwdlook_cli.io.quicklook:draw_image_png", *args, rename=False, partial=str(tmp), **kwargs)
         except painter.PainterGone:
             child = None
-    return PendingPng(child, args, kwargs)
+    return PendingPng(child, args, kwargs, tmp)
 
 
 _UNCLAIMED: set = set()     # the painter's drawings (partial_path) begun and not yet renamed or discarded by their command
@@ -82,27 +86,30 @@ def warm_up() -> None:
 class PendingPng:
     """A quick look begun by :func:`start_image_png`."""
 
-    def __init__(self, child, args, kwargs):
-        self.child, self.args, self.kwargs = child, args, kwargs
+    def __init__(self, child, args, kwargs, tmp=None):
+        self.child, self.args, self.kwargs, self.tmp = child, args, kwargs, tmp
 
     def finish(self) -> None:
         """Return once the PNG is written (raise what drawing it raised)."""
         from . import painter
 
         child, self.child = self.child, None
+        if self.tmp is not None:
+            _UNCLAIMED.discard(str(self.tmp))
         if child is not None:
             path = Path(self.args[0])
             try:
                 child.result()
                 with mapped_os_errors(path):
-                    os.replace(partial_path(path), path)
-                _UNCLAIMED.discard(str(partial_path(path)))
+                    os.replace(self.tmp, path)
                 return None
             except painter.PainterGone:
-                _unlink_quietly(partial_path(path))   # the child is gone: drawn here
+                _unlink_quietly(self.tmp)   # the child is gone: drawn here
             except BaseException:
-                _unlink_quietly(partial_path(path))
+                _unlink_quietly(self.tmp)
                 raise
+        elif self.tmp is not None:           # claimed, then the child was gone before the job
+            _unlink_quietly(self.tmp)
         return draw_image_png(*self.args, **self.kwargs)
 
     def discard(self) -> None:
@@ -111,19 +118,22 @@ class PendingPng:
         if child is not None:
             with contextlib.suppress(Exception):
                 child.result()
-            for path in (partial_path(self.args[0]), self.args[0]):
-                _unlink_quietly(path)
+            _unlink_quietly(self.args[0])
+        if self.tmp is not None:
+            _unlink_quietly(self.tmp)
+            _UNCLAIMED.discard(str(self.tmp))
 
 
 QUICKLOOK_MARGINS = dict(left=0.12, right=0.99, bottom=0.117, top=0.932)
 
 
 def draw_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynamic_range_db=40.0,
-                   markers=None, aspect="auto", rename=True):
+                   markers=None, aspect="auto", rename=True, partial=None):
     """:func:`save_image_png` drawn in this process (a bare :class:`matplotlib.figure.Figure`: the same
     PNG as pyplot's figure, without importing pyplot, 0.05 s of the painter's start). ``rename=False``:
     left at ``NAME.partial.SUFFIX`` (the painter's drawing, which its command renames after the run's
-    metrics.json, so that no PNG appears in a run before its metrics)."""
+    metrics.json, so that no PNG appears in a run before its metrics; ``partial``: the name its command
+    claimed for it)."""
     from matplotlib.figure import Figure
 
     p = np.asarray(power, dtype=np.float32)         # a picture: float32 dB, computed in place
@@ -157,7 +167,7 @@ def draw_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
     if not isinstance(path, (str, os.PathLike)):     # a file object (the painter's warm-up)
         fig.savefig(path, format="png")
         return
-    with atomic_path(path, rename=rename) as tmp:          # partial removed and OSError one line on failure
+    with atomic_path(path, rename=rename, tmp=partial) as tmp:    # partial removed, OSError one line on failure
         fig.savefig(tmp, format="png")
 
 

@@ -1,6 +1,7 @@
 """HDF5 at the edges: atomic writes, dimension scales, units, provenance; the raw-cube reader.
 
-Every file is written to ``NAME.partial`` and renamed into place with ``os.replace``, so a failed or
+Every file is written to ``NAME.partial`` (claimed by ``io.partial.claim_partial``: never through a link,
+never over a file fwdlook did not make) and renamed into place with ``os.replace``, so a failed or
 interrupted command never leaves a file that looks complete.  Every dataset carries ``units`` and
 ``long_name``; coordinates are HDF5 dimension scales so that netCDF-aware readers see named axes.
 The raw-cube reader accepts any file in the CONTRACT.md section 3 layout, whoever wrote it, and

@@ -94,7 +94,7 @@ def write_stage(path: Path, data: StageData, *, stage: str, key: str, input_key:
         prior = by_id.get(id(var.data))
         pending[name] = prior[1] if prior is not None and prior[0] is var.data else digest_async(var.data)
     del by_id
-    with atomic_h5(path) as f:
+    with atomic_h5(path, own_partial=True) as f:      # stages/ is fwdlook's: a leftover partial replaced
         carried = {}
         for k, v in {**data.attrs, **(extra_attrs or {})}.items():
             if k not in PROVENANCE_KEYS:

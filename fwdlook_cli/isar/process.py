@@ -33,10 +33,10 @@ def process_isar_cube(cube, scn: dict, run_dir, *, force=False, from_stage=None,
         from ..errors import BadInput
 
         raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
-    for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):   # no stale outputs
-        (run_dir / name).unlink(missing_ok=True)
     final, timings, keys = run_stages(stages, src, cube_hash(cube), run_dir, force=force,
                                       from_stage=from_stage, quiet=quiet)
+    for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):   # the earlier run's, kept until
+        (run_dir / name).unlink(missing_ok=True)                             # the chain has finished
     t_out = time.perf_counter()
     image, metrics = isar_outputs(final, cube, proc)
     with atomic_h5(run_dir / "image.h5") as f:

@@ -63,10 +63,13 @@ def _db(p, dyn):
 def _save(fig, path):
     import matplotlib.pyplot as plt
 
-    tmp = Path(path).with_name(Path(path).stem + ".partial.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    tmp.replace(path)
+    from ..io.outputs import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:       # the partial name claimed (io/partial.py), renamed on success
+            fig.savefig(tmp, format="png")
+    finally:
+        plt.close(fig)
 
 
 def plot_scene(path, scn):

@@ -72,7 +72,7 @@ def ground_figure(run, out: Path) -> tuple[str | None, str]:
 def isar_figures(run, out: Path) -> tuple[dict, list[str]]:
     """The raw echo before/after the correction and the ISAR image of an ISAR run, from its files."""
     from ..isar.process import _save_image_quicklook
-    from ..io.stagefile import read_stage
+    from ..io.stagefile import read_stage, stage_file_key
     from ..io.quicklook import save_image_png
 
     figs, notes = {}, []
@@ -80,6 +80,8 @@ def isar_figures(run, out: Path) -> tuple[dict, list[str]]:
     slug = _slug(run.label)
     corr = (run.metrics.get("params") or {}).get("correction", run.metrics.get("method"))
     stages = sorted((run_dir / "stages").glob("*_azimuth_compress.h5"))
+    if stages and stage_file_key(stages[-1]) != (run.metrics.get("stage_sha256") or {}).get("azimuth_compress"):
+        stages = []            # of a later run that failed after it: the outputs are the earlier run's
     final = read_stage(stages[-1]) if stages else None
     raw = run_dir / "raw.h5"
     max_columns = 1000
