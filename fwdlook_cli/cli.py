@@ -88,6 +88,7 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
     from .scenario.readers import read_scenario_raw
     from .io.raw import read_raw
     from .scenario.overlay import resolve_with_config
+    from .dsp.xp import require_backend
 
     src = Path(source)
     if _is_cube_path(src):
@@ -107,6 +108,7 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
     if name is not None:
         raw_scn = {**raw_scn, "name": name}
     scn = resolve_with_config(raw_scn, source, config, overrides, check_pulses=not (raw or name))
+    require_backend(scn, source)              # a GPU asked for and absent: refused before any work
     if before_cube is not None:
         before_cube(scn)
     if name is not None:
@@ -220,11 +222,9 @@ def _check_antenna_against_data(scn, cube, source):
 
 
 def _print_summary(metrics, run_dir, quiet):
-    if quiet:
-        return
-    from .console import summary_table
-
-    log.info(summary_table(metrics, run_dir))
+    if not quiet:
+        from .console import summary_table
+        log.info(summary_table(metrics, run_dir))
 
 
 config_option = click.option("-c", "--config", "config", default=None, metavar="CONFIG.yaml",
@@ -418,11 +418,14 @@ def validate(path, overrides):
     from .scenario.loader import load_scenario, scenario_hash
     from .io.backing import read_without_holding
     from .io.raw import read_raw
+    from .forward.process import check_cube_overrides
 
     p = Path(path)
     if _is_cube_path(p):
+        _refuse_unused_sets(path, overrides)
         with read_without_holding():             # any size of cube: checked block by block, not held
             cube = read_raw(p)
+        check_cube_overrides(path, cube, overrides)        # a --set checked as process checks it
         click.echo(f"{path}: valid raw cube, {cube.n_pulses} pulses x {cube.n_range} range samples")
     else:
         scn = load_scenario(p, overrides)
@@ -478,16 +481,14 @@ QUICKLOOK_WARM_UP = "fwdlook_cli.io.quicklook:warm_up"   # io.quicklook.WARM_UP 
 
 
 def _start_fit_spawner(scn):
-    """The joint fit's spawner forked before the cube is read, where the settings ask for the fit
-    (``forward.process.start_fit_spawner``; the ISAR chain has none)."""
+    """The joint fit's spawner (``forward.process.start_fit_spawner``) forked before the cube is read."""
     from .forward.process import start_fit_spawner
 
     start_fit_spawner(scn.get("processing") or {})
 
 
 def _command_of(args) -> str | None:
-    """The subcommand named by ``args`` (the first word after the group's options), None for help or
-    the version."""
+    """The subcommand named by ``args`` (the first word after the group's options); None: help, version."""
     for arg in args:
         if arg in ("-h", "--help", "--version"):
             return None

@@ -329,6 +329,29 @@ CUBE_CASES = [
      ["/radar", "pulse_width_s", "duty cycle", "1 / prf_hz"]),
     ("range-weighting-a-number", _h5_edit(_attr("radar", "range_weighting", 3.0)),
      ["/radar", "range_weighting", "3.0", "expected a name", "hamming"]),
+    # an independent review (forty-ninth round): each of these was a traceback, or processed with exit 0
+    ("non-utf8-format", _h5_edit(_attr("/", "format", np.bytes_(b"\xff"))), ["format", "'fwdlook-raw'"]),
+    ("null-dataspace-echo", _h5_edit(lambda f: (f.__delitem__("echo/sum"),
+                                                f.create_dataset("echo/sum", data=h5py.Empty("c8")))),
+     ["/echo/sum", "null"]),
+    ("complex-carrier", _h5_edit(_attr("radar", "fc_hz", np.complex128(1e10 + 5e9j))),
+     ["/radar", "fc_hz", "real number"]),
+    ("boolean-slope", _h5_edit(_attr("antenna", "monopulse_slope_per_deg", True)),
+     ["/antenna", "monopulse_slope_per_deg", "real number"]),
+    ("range-axis-in-km", _h5_edit(lambda f: f["axes/range_m"].attrs.__setitem__("units", "km")),
+     ["/axes/range_m", "units", "'km'", "allowed: m"]),
+    ("speed-1e12", _h5_edit(lambda f: f["platform/velocity_mps"].__setitem__(slice(None), 1e12)),
+     ["/platform/velocity_mps", "speed", "10000 m/s"]),
+    ("position-jump", _h5_edit(lambda f: f["platform/position_m"].__setitem__(
+        (slice(200, None), 0), f["platform/position_m"][200:, 0] + 500.0)),
+     ["/platform/position_m", "between pulses 199 and 200", "500"]),
+    ("echo-scaled-1e18", _h5_edit(lambda f: [f["echo/" + c].__setitem__(slice(None), f["echo/" + c][()] * 1e18)
+                                             for c in ("sum", "diff")]),
+     ["/echo/sum", "largest |sample|", "1e+18"]),
+    ("one-sample-3e38", _h5_edit(lambda f: f["echo/sum"].__setitem__((5, 5), np.complex64(3e38 + 3e38j))),
+     ["/echo/sum", "largest |sample|"]),
+    ("truth-1e300", _h5_edit(lambda f: f["truth/targets/x_m"].__setitem__(slice(None), 1e300)),
+     ["/truth/targets/x_m", "1e+300", "1e+07 m"]),
     ("truncated-file", _truncated, ["truncated"]),
     ("text-file-named-h5", _text_file, ["HDF5"]),
     ("missing-cube-file", _missing_cube, ["not found"]),
@@ -339,7 +362,7 @@ CUBE_CASES = [
 # error there (see test_info_lists_foreign_hdf5); every other broken cube fails both commands.
 CUBE_PARAMS = [pytest.param(command, *case, id=f"{case[0]}-{command}")
                for case in CUBE_CASES for command in ("validate", "info")
-               if not (command == "info" and case[0] in ("wrong-format-attr", "format-an-array"))]
+               if not (command == "info" and case[0] in ("wrong-format-attr", "format-an-array", "non-utf8-format"))]
 
 
 @pytest.mark.parametrize("command, case_id, build, fragments", CUBE_PARAMS)
@@ -539,3 +562,93 @@ def test_spectra_on_disk_are_not_held_to_the_memory_limit():
     check_processing_sizes(**sizes, spectra_in_memory=False)
     with pytest.raises(BadInput, match="processing.angle_step_deg"):
         check_processing_sizes(**dict(sizes, n_angle=10**6), spectra_in_memory=False)
+
+
+# ----------------------------------------------------------------------------------------------
+# what an independent review (forty-ninth round) found beyond the corpus above
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("group, key", [("radar", "range_weighting"), ("antenna", "pattern"),
+                                        ("echo", "noise_snr_db"), ("/", "software")])
+def test_attributes_that_are_not_utf8_never_end_in_a_traceback(good_cube, tmp_path, capsys, group, key):
+    """Bytes that are not UTF-8 are text with U+FFFD in it (io.describe._plain), then checked as any
+    value of that attribute: a name kept, a noise record said and left out.  They had been a
+    UnicodeDecodeError traceback (exit 1) in validate, info and process."""
+    path = _h5_edit(_attr(group, key, np.bytes_(b"\xff\xfe")))(good_cube, tmp_path)
+    for argv in (["validate", path], ["info", path], ["process", path, "-o", tmp_path / "run", "-q"]):
+        code, out, err = run_cli(argv, capsys)
+        assert code in (0, 2) and "Traceback" not in err, (argv[0], code, err)
+
+
+def test_a_cube_whose_antenna_does_not_give_its_slope_processes(good_cube, tmp_path, capsys):
+    """/antenna with its ratio table but no monopulse_slope_per_deg (a recorder's): processed, the
+    slope calibrated from the table or the data (a KeyError traceback before)."""
+    path = _h5_edit(lambda f: f["antenna"].attrs.__delitem__("monopulse_slope_per_deg"))(good_cube, tmp_path)
+    code, out, err = run_cli(["process", path, "-o", tmp_path / "run", "-q",
+                              "--set", "processing.imaging=cpi"], capsys)
+    assert code == 0, err
+    assert (tmp_path / "run" / "metrics.json").is_file()
+
+
+def test_validate_checks_a_cubes_settings_as_process_does(good_cube, capsys):
+    """``validate CUBE --set`` had ignored the --set (a malformed one, an unknown key, q = 7 against 400
+    pulses: exit 0, where process refused them)."""
+    for item, fragments in (("noequals", ["--set", "KEY.PATH=VALUE"]),
+                            ("bogus.key=1", ["bogus.key", "allowed with a cube"]),
+                            ("processing.q=7", ["processing.q = 7", "400"]),
+                            ("processing.cpi=100000", ["processing.cpi = 100000", "400 pulses"])):
+        code, out, err = run_cli(["validate", good_cube, "--set", item], capsys)
+        assert code == 2 and len(err.splitlines()) == 1 and all(f in err for f in fragments), (item, err)
+    code, out, err = run_cli(["validate", good_cube, "--set", "processing.q=8"], capsys)
+    assert code == 0, err
+
+
+def test_a_target_the_beam_never_reaches_is_said(tmp_path, capsys):
+    """A point behind the platform or outside the scanned sector leaves no echo: one warning names it
+    (it had run to "detected 0/1" with nothing said); the run still completes."""
+    scenario = _copy_tiny(tmp_path)
+    code, out, err = run_cli(["run", scenario, "-o", tmp_path / "r", "--set",
+                              "scene.points_m=[[0, -1000], [5000, 100], [0, 1000]]"], capsys)
+    assert code == 0, err
+    lines = [ln for ln in err.splitlines() if "never in the beam" in ln]
+    assert len(lines) == 1 and "2 of 3 targets" in lines[0] and "azimuth 180.0 deg" in lines[0], err
+    code, out, err = run_cli(["simulate", TINY, "-o", tmp_path / "tiny.h5"], capsys)
+    assert code == 0 and "never in the beam" not in err
+
+
+def test_integer_keys_take_yaml11_exponents_and_numbers_are_shown_as_numbers(tmp_path, capsys):
+    """YAML 1.1 reads 4e2 as text: an integer key takes it when it is whole (as 8.0 was taken), and a
+    refused number written so is echoed as a number, not a quoted string."""
+    code, out, err = run_cli(["validate", TINY, "--set", "noise.seed=1e3"], capsys)
+    assert code == 0, err
+    code, out, err = run_cli(["validate", TINY, "--set", "noise.seed=1.5e0"], capsys)
+    assert code == 2 and "expected an integer" in err
+    code, out, err = run_cli(["validate", TINY, "--set", "radar.fc_hz=-1e9"], capsys)
+    assert code == 2 and "radar.fc_hz = -1e9:" in err and "'-1e9'" not in err
+
+
+def test_a_folder_named_like_a_cube_is_said_to_be_a_folder(tmp_path, capsys):
+    (tmp_path / "x.h5").mkdir()
+    for command in ("validate", "info"):
+        code, out, err = run_cli([command, tmp_path / "x.h5"], capsys)
+        assert_bad_input(code, out, err, tmp_path / "x.h5", ["is a directory"])
+
+
+def test_a_gpu_that_is_not_there_is_refused_before_the_cube_is_simulated(tmp_path, capsys, monkeypatch):
+    """``run`` with processing.backend = gpu and no CuPy had simulated and written raw.h5, then refused."""
+    import importlib.util
+
+    monkeypatch.delenv("FWDLOOK_XP", raising=False)
+    if importlib.util.find_spec("cupy") is not None:
+        pytest.skip("CuPy is installed here")
+    code, out, err = run_cli(["run", TINY, "-o", tmp_path / "r", "--set", "processing.backend=gpu"], capsys)
+    assert_bad_input(code, out, err, TINY, ["processing.backend = gpu", "CuPy"])
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_sweep_grid_over_a_whole_section_is_refused(tmp_path, capsys):
+    """grid: {processing: [{q: 8}, {q: 4}]} had replaced the whole section, method, cpi and t_ref lost."""
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(f"name: s\nscenarios: [{TINY}]\ngrid:\n  processing: [{{q: 8}}, {{q: 4}}]\n", encoding="utf-8")
+    code, out, err = run_cli(["sweep", sweep, "-o", tmp_path / "out"], capsys)
+    assert_bad_input(code, out, err, sweep, ["grid key 'processing'", "processing.KEY"])
+    assert not (tmp_path / "out").exists()

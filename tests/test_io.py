@@ -397,3 +397,42 @@ def test_atomic_h5_success_renames_into_place(tmp_path):
     assert not path.with_name("out.h5.partial").exists()
     with h5py.File(path, "r") as f:
         np.testing.assert_array_equal(f["x"][()], np.arange(4))
+
+
+def test_an_error_while_reading_a_cube_leaves_hdf5_free_for_other_threads(tmp_path, monkeypatch):
+    """h5py's ``items()`` holds its global lock while a loop's body runs; an exception raised in the body
+    (here: in the comprehension over the /antenna attributes, whose iterator is a local of its own frame
+    before Python 3.12) with its traceback still held (pytest's report, a notebook's last error) kept the lock, and the next chain's stage writer thread waited on it for
+    ever (an independent review's run of the bad-input tests hung).  The reader reads every HDF5 object's
+    items into a list first: another thread opens a file at once."""
+    import threading
+
+    import h5py
+
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.io import raw as raw_mod
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    cube, _ = simulate_scenario(load_scenario(TINY))
+    path = tmp_path / "c.h5"
+    raw_mod.write_raw(path, cube)
+    calls = []
+
+    class Raised(Exception):
+        pass
+
+    def plain(value):                   # raised inside the comprehension over /antenna's attributes
+        calls.append(value)
+        if value in ("gaussian2", b"gaussian2"):
+            raise Raised("raised in the loop's body")
+        return value.decode() if isinstance(value, bytes) else value
+
+    monkeypatch.setattr(raw_mod, "_plain", plain)
+    with pytest.raises(Raised) as held:
+        raw_mod.read_raw(path)
+    assert held.value.__traceback__ is not None            # kept alive, as a caller may keep it
+    opened = []
+    worker = threading.Thread(target=lambda: opened.append(h5py.File(path, "r").close()), daemon=True)
+    worker.start()
+    worker.join(timeout=20)
+    assert not worker.is_alive() and opened, "HDF5's lock still held by the failed read"

@@ -55,6 +55,15 @@ def get_xp(backend: str = "cpu"):
     return cupy
 
 
+def require_backend(scn: dict, source: str) -> None:
+    """The scenario's ``processing.backend`` available here, or one BadInput line naming ``source`` (before
+    a command simulates: ``run`` had written raw.h5 and then refused the GPU)."""
+    try:
+        get_xp((scn.get("processing") or {}).get("backend", "cpu"))
+    except BadInput as exc:
+        raise BadInput(f"{source}: {exc}") from None
+
+
 def is_numpy(xp) -> bool:
     return xp is np
 

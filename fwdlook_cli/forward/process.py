@@ -131,6 +131,35 @@ def start_fit_spawner(proc: dict) -> None:
         spawner.start()
 
 
+def check_settings_for_cube(cube, proc: dict, source: str) -> None:
+    """The processing settings the cube itself bounds (``fwdlook validate CUBE --set`` checks them too)."""
+    if cube.diff is None:
+        raise BadInput(f"{source}: /echo/diff: the forward-looking chain needs both channels")
+    if cube.n_pulses % (proc["q"] if proc["method"] == "decimation" else 1):
+        raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the cube's pulse count {cube.n_pulses}")
+    if proc["cpi"] > cube.n_pulses:
+        raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the cube's {cube.n_pulses} pulses")
+
+
+def check_cube_overrides(source, cube, overrides) -> None:
+    """``fwdlook validate CUBE --set ...``: the settings ``process`` would take from the ``--set``s (the cube
+    decides the rest), resolved and checked against the cube as ``process`` checks them."""
+    if not overrides:
+        return
+    from ..scenario.overlay import resolve_with_config
+
+    isar = cube.diff is None or cube.attrs.get("scenario_kind") == "isar"
+    scn = resolve_with_config({"name": Path(source).stem, **({"kind": "isar"} if isar else {})}, str(source),
+                              None, overrides, check_pulses=False)
+    if not isar:
+        proc = scn["processing"]
+        if proc["method"] == "auto":
+            from .plan import plan_for_cube
+
+            proc = dict(proc, **plan_for_cube(cube, proc)["processing"])
+        check_settings_for_cube(cube, proc, str(source))
+
+
 @on_one_blas_thread
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
                  png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False,
@@ -159,12 +188,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         from .plan import plan_for_cube
 
         proc = dict(proc, **plan_for_cube(cube, proc)["processing"])
-    if cube.diff is None:
-        raise BadInput(f"{source}: /echo/diff: the forward-looking chain needs both channels")
-    if cube.n_pulses % (proc["q"] if proc["method"] == "decimation" else 1):
-        raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the cube's pulse count {cube.n_pulses}")
-    if proc["cpi"] > cube.n_pulses:
-        raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the cube's {cube.n_pulses} pulses")
+    check_settings_for_cube(cube, proc, source)
     if backing.active():     # --out-of-core: the stages that work in blocks only (io/backing.py)
         if proc.get("backend", "cpu") != "cpu":
             raise BadInput(f"{source}: processing.backend = {proc['backend']} with --out-of-core: the GPU stages "
@@ -278,6 +302,7 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
             row["resolved"] = bool(flag)
         beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
         if (np.isfinite(beta) and cube.antenna.get("pattern", "gaussian2") == "gaussian2"
+                and "monopulse_slope_per_deg" in cube.antenna     # (a recorded /antenna may not say it)
                 and "doppler_spectra" in names):                  # imaging: cpi (dwell has no CPI spectra)
             spectra, spectra_of = spectra_of(), None
             dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],

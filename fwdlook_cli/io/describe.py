@@ -13,8 +13,10 @@ from ..limits import shown
 
 
 def _plain(value):
+    """An attribute's value as Python: text decoded (bytes that are not UTF-8 shown with U+FFFD, never an
+    exception: a value the caller then checks), numpy scalars as Python numbers."""
     if isinstance(value, bytes):
-        return value.decode()
+        return value.decode(errors="replace")
     if isinstance(value, np.generic):
         return value.item()
     return value

@@ -92,7 +92,7 @@ def attrs_digest(attrs) -> str:
     """XXH3-128 of a stage file's root attributes (all but the writer's name, version and time, and
     the digest itself): the stage's scalar results (gains, ambiguity numbers, accelerations) and its
     settings are as much its output as its arrays, and an edited one must not be reused."""
-    canon = {str(k): _canon_attr(v) for k, v in attrs.items() if k not in UNCOVERED_ATTRS}
+    canon = {str(k): _canon_attr(v) for k, v in list(attrs.items()) if k not in UNCOVERED_ATTRS}
     return xxhash.xxh3_128_hexdigest(json.dumps(canon, sort_keys=True, default=str).encode())
 
 

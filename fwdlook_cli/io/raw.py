@@ -114,7 +114,38 @@ def _need(f: h5py.File, path: str, source: str) -> h5py.Dataset:
     obj = f.get(path)
     if not isinstance(obj, h5py.Dataset):
         raise BadInput(f"{source}: /{path}: dataset missing")
+    if obj.shape is None:                          # h5py.Empty: a null dataspace, no values at all
+        raise BadInput(f"{source}: /{path}: an empty (null) dataspace; expected an array of values")
     return obj
+
+
+UNIT_SPELLINGS = {"m": ("m", "meter", "metre", "meters", "metres"), "s": ("s", "sec", "second", "seconds"),
+                  "deg": ("deg", "degree", "degrees"), "m/s": ("m/s", "m s-1", "m s^-1", "m.s-1", "mps")}
+
+
+def _check_units(ds, path: str, source: str) -> None:
+    """A dataset whose name says its unit (``_m``, ``_s``, ``_deg``, ``_mps``) in that unit: another unit
+    (``km``) is refused, not read as metres; none at all is read as the name says (a plain writer's
+    cube, as the tests' own minimal one, need not repeat it)."""
+    want = _truth_units(path.rsplit("/", 1)[-1])
+    units = ds.attrs.get("units") if want != "1" else None
+    if units is None:
+        return
+    text = _plain(units)
+    if not isinstance(text, str) or text.strip().lower() not in UNIT_SPELLINGS[want]:
+        raise BadInput(f"{source}: /{path}: units = {shown(text)}; allowed: {want} (the unit its name says)")
+
+
+def _attr_number(value) -> float:
+    """A real number from an attribute: a Python or numpy integer or float (a one-element array too); a
+    boolean, a complex value or text raise TypeError (``float(True)`` is 1, and numpy's complex drops
+    its imaginary part with a warning)."""
+    value = _plain(value)
+    if isinstance(value, np.ndarray) and value.size == 1:
+        value = value.reshape(()).item()
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"not a real number: {type(value).__name__}")
+    return float(value)
 
 
 def _array(f, path, source, *, kind, shape, complex_ok=False):
@@ -130,6 +161,7 @@ def _array(f, path, source, *, kind, shape, complex_ok=False):
     if ds.shape != shape:
         want = "[" + ", ".join(str(s) for s in shape) + "]"
         raise BadInput(f"{source}: /{path}: shape {list(ds.shape)}, expected {want}")
+    _check_units(ds, path, source)
     check_declared_dataset(source, path, ds.shape, dt.itemsize)   # before the read allocates it
     data = backing.read_dataset(ds)      # file-backed, block by block, in an out-of-core run
     bad = backing.count_nonfinite(data)
@@ -151,6 +183,8 @@ def read_raw(path: str | Path) -> RawCube:
     except PermissionError:
         raise BadInput(f"{source}: permission denied; the file must be readable") from None
     except OSError:
+        if path.is_dir():
+            raise BadInput(f"{source}: is a directory, not an HDF5 file") from None
         if not os.access(path, os.R_OK):
             raise BadInput(f"{source}: permission denied; the file must be readable") from None
         raise BadInput(f"{source}: not a readable HDF5 file (truncated or not HDF5)") from None
@@ -165,7 +199,7 @@ def read_raw(path: str | Path) -> RawCube:
 def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     fmt = f.attrs.get("format")
     if isinstance(fmt, bytes):
-        fmt = fmt.decode()
+        fmt = fmt.decode(errors="replace")
     if not isinstance(fmt, str) or fmt != RAW_FORMAT:
         raise BadInput(f"{source}: / attribute format = {shown(fmt)}; allowed: {RAW_FORMAT!r}")
     try:
@@ -198,6 +232,8 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     dt = np.diff(slow_time_s)
     if np.any(dt <= 0):
         raise BadInput(f"{source}: /axes/slow_time_s: not strictly increasing")
+    _check_motion(position, velocity, dt, source)
+    _check_echo_scale((echo_sum, echo_diff), source)
     dr = np.diff(range_m)
     if np.any(dr <= 0) or np.ptp(dr) > 1e-6 * abs(dr[0]):
         raise BadInput(f"{source}: /axes/range_m: not uniformly increasing")
@@ -218,15 +254,20 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
             raise BadInput(f"{source}: /radar attribute {key}: missing; required: {', '.join(RADAR_KEYS)}")
         value = radar_grp.attrs[key]
         try:
-            value = float(value)
+            value = _attr_number(value)
         except (TypeError, ValueError):
-            raise BadInput(f"{source}: /radar attribute {key} = {shown(value)}: expected a number") from None
+            raise BadInput(f"{source}: /radar attribute {key} = {shown(value)}: expected a real number (not "
+                           f"text, a boolean or a complex value)") from None
         if not np.isfinite(value) or value <= 0:
             raise BadInput(f"{source}: /radar attribute {key} = {shown(value)}: must be a positive number")
         radar[key] = value
-    for key, value in radar_grp.attrs.items():
+    # (h5py's items() holds its global lock while the loop's body runs: an exception raised in a comprehension's
+    # body (its iterator a local of its own frame before Python 3.12), its traceback kept by the caller, left
+    # the lock held and a stage writer's thread waiting on it for ever; every loop over an HDF5 object's
+    # items here reads them into a list first)
+    for key, value in list(radar_grp.attrs.items()):
         if key not in radar:
-            radar[key] = value.decode() if isinstance(value, bytes) else _plain(value)
+            radar[key] = _plain(value)
     _check_optional_radar(radar, source)
     _check_pulse_timing(slow_time_s, radar["prf_hz"], source)
     _check_radar_values(radar, dr[0], n_r, source)
@@ -241,6 +282,9 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
             ds = _need(f, f"truth/targets/{key}", source)
             n_t = ds.shape[0] if n_t is None else n_t
             truth[key] = _array(f, f"truth/targets/{key}", source, kind=np.float64, shape=(n_t,))
+            if key != "amplitude" and n_t and float(np.max(np.abs(truth[key]))) > MAX_DISTANCE_M:
+                raise BadInput(f"{source}: /truth/targets/{key}: reaches {float(np.max(np.abs(truth[key]))):.3g} m; "
+                               f"allowed: within {MAX_DISTANCE_M:g} m of the origin")
         for key in sorted(set(tg) - set(TRUTH_KEYS)):  # extra per-target truth: 1-D, same length
             ds = tg[key]
             if isinstance(ds, h5py.Dataset) and ds.shape == (n_t,) and ds.dtype.kind == "f":
@@ -256,13 +300,16 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
             scenario = None
     if scenario is not None and not isinstance(scenario, str):
         scenario = None
-    attrs = {k: _plain(v) for k, v in f.attrs.items() if k not in ("scenario",)}
+    attrs = {k: _plain(v) for k, v in list(f.attrs.items()) if k not in ("scenario",)}
     return RawCube(sum=echo_sum, diff=echo_diff, slow_time_s=slow_time_s, range_m=range_m,
                    scan_angle_deg=scan, position_m=position, velocity_mps=velocity, radar=radar,
                    antenna=antenna, truth=truth, scenario_yaml=scenario, noise=noise, attrs=attrs)
 
 
 MAX_SCAN_DEG = 90.0           # a forward-looking scan points ahead of the platform
+MAX_SPEED_MPS = 1e4           # the scenario's own bound on platform.speed_mps (a satellite's 7.8 km/s under it)
+MAX_DISTANCE_M = 1e7          # positions and truth within 10 000 km of the origin
+MAX_FOCUSED_AMPLITUDE = 1e18  # largest |sample| x pulses: a focused peak's power (1e36) inside float32 (3.4e38)
 MAX_BEAMWIDTH_DEG = 90.0      # the scenario's own bound on antenna.beamwidth_3db_deg
 TIMING_JITTER_FRACTION = 0.01  # of a pulse interval: 2 pi fd dt <= 0.031 rad at the Doppler band's edge
 PRF_TOLERANCE = 1e-4          # relative: prf_hz against the slow-time axis' own mean rate
@@ -295,6 +342,44 @@ def _check_pulse_timing(slow_time_s: np.ndarray, prf_hz: float, source: str) -> 
 
 
 OPTIONAL_RADAR_NUMBERS = ("pulse_width_s",)   # positive numbers where a cube records them (the ISAR closed form)
+
+
+def _check_motion(position, velocity, dt, source: str) -> None:
+    """The INS track is a platform's: speeds (recorded, and implied by consecutive positions) within
+    ``MAX_SPEED_MPS`` and positions within ``MAX_DISTANCE_M`` (1e12 m/s, a platform 1e7 km away or a
+    500 m jump between pulses had been processed into an empty image with exit 0)."""
+    far = float(np.max(np.abs(position)))
+    if far > MAX_DISTANCE_M:
+        raise BadInput(f"{source}: /platform/position_m: reaches {far:.3g} m; allowed: within "
+                       f"{MAX_DISTANCE_M:g} m of the origin")
+    speed = float(np.max(np.linalg.norm(velocity, axis=1)))
+    if speed > MAX_SPEED_MPS:
+        raise BadInput(f"{source}: /platform/velocity_mps: speed {speed:.3g} m/s; allowed: up to {MAX_SPEED_MPS:g} m/s")
+    implied = np.linalg.norm(np.diff(position, axis=0), axis=1) / dt
+    if len(implied) and float(implied.max()) > MAX_SPEED_MPS:
+        i = int(np.argmax(implied))
+        raise BadInput(f"{source}: /platform/position_m: moves {float(implied[i] * dt[i]):.3g} m between pulses {i} "
+                       f"and {i + 1} ({float(implied[i]):.3g} m/s); allowed: a track within {MAX_SPEED_MPS:g} m/s")
+
+
+def _max_abs(a) -> float:
+    """max |a| block by block of rows (no array-sized temporary; file-backed arrays read once)."""
+    step = backing.rows_per_block(a[0].nbytes if a.shape[0] else 1)
+    return max((float(np.max(np.abs(a[i:i + step]), initial=0.0)) for i in range(0, a.shape[0], step)), default=0.0)
+
+
+def _check_echo_scale(channels, source: str) -> None:
+    """Finite samples whose focused peak would overflow the chain's float32 powers are refused: a focused
+    peak is at most |sample| x pulses, its power must stay under float32's 3.4e38 (a cube scaled by
+    1e18, or one sample of 3e38, came out as NaN images and a metrics.json that could not be written)."""
+    for name, x in zip(("sum", "diff"), channels):
+        if x is None:
+            continue
+        peak = _max_abs(x)
+        if peak * x.shape[0] > MAX_FOCUSED_AMPLITUDE:
+            raise BadInput(f"{source}: /echo/{name}: largest |sample| {peak:.3g} x {x.shape[0]} pulses = "
+                           f"{peak * x.shape[0]:.3g}; allowed: up to {MAX_FOCUSED_AMPLITUDE:g} (a focused peak's "
+                           f"power in float32; the chain is linear: scale the cube down)")
 
 
 def _check_optional_radar(radar: dict, source: str) -> None:
@@ -342,7 +427,7 @@ def _read_antenna(f: h5py.File, source: str) -> dict:
     grp = f.get("antenna")
     if not isinstance(grp, h5py.Group):
         return {}
-    antenna = {k: _plain(v) for k, v in grp.attrs.items()}
+    antenna = {k: _plain(v) for k, v in list(grp.attrs.items())}
     present = [k for k in ANTENNA_DATASETS if k in grp]
     if present and len(present) != len(ANTENNA_DATASETS):
         raise BadInput(f"{source}: /antenna: {present[0]} without "
@@ -363,10 +448,10 @@ def _read_antenna(f: h5py.File, source: str) -> dict:
     for key in ANTENNA_NUMBERS:
         if key in antenna:
             try:
-                value = float(antenna[key])
+                value = _attr_number(antenna[key])
             except (TypeError, ValueError):
                 raise BadInput(f"{source}: /antenna attribute {key} = {shown(antenna[key])}: "
-                               f"expected a number") from None
+                               f"expected a real number (not text, a boolean or a complex value)") from None
             if key in ANTENNA_POSITIVE and not (np.isfinite(value) and value > 0):
                 raise BadInput(f"{source}: /antenna attribute {key} = {value!r}: must be a positive number")
             if not np.isfinite(value) and not (np.isnan(value) and key in ANTENNA_MAY_BE_NAN):
@@ -387,7 +472,7 @@ def _read_noise(attrs, source: str) -> dict:
     the real scalars as they are (NaN or Inf included: a noiseless cube's SNR is Inf); anything else is
     said and left out."""
     noise = {}
-    for key, value in attrs.items():
+    for key, value in list(attrs.items()):
         if not key.startswith("noise_"):
             continue
         value = _plain(value)

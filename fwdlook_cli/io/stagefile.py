@@ -212,12 +212,12 @@ def dims_of(ds, name: str, declared: dict) -> tuple:
 def read_stage(path: Path) -> StageData:
     out = StageData()
     with h5py.File(path, "r") as f:
-        for k, v in f.attrs.items():
+        for k, v in list(f.attrs.items()):
             if k in PROVENANCE_KEYS:
                 continue
             out.attrs[k] = v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
         declared = declared_dims(f)
-        for name, ds in f.items():
+        for name, ds in list(f.items()):
             if not isinstance(ds, h5py.Dataset):
                 continue
             out.vars[name] = Var(backing.read_dataset(ds), dims_of(ds, name, declared),   # file-backed
@@ -299,7 +299,7 @@ def load_verified(path, key: str):
                     return None, f"/{name}: {len(dims)} dimension names for {np.ndim(data)} axes"
                 out.vars[str(name)] = Var(data, tuple(dims), str(_text(ds.attrs.get("units", ""))),
                                           str(_text(ds.attrs.get("long_name", ""))))
-            extra = [n for n, o in f.items() if isinstance(o, h5py.Dataset) and n not in declared]
+            extra = [n for n, o in list(f.items()) if isinstance(o, h5py.Dataset) and n not in declared]
             if extra:
                 return None, f"/{extra[0]}: dataset not declared"
             return out, None

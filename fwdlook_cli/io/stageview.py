@@ -79,7 +79,7 @@ def read_stage_mapped(path: Path, min_bytes: int = 1 << 20):
     with h5py.File(path, "r") as f:
         out = StageData(attrs=_carried_attrs(f))
         declared = declared_dims(f)
-        for name, ds in f.items():
+        for name, ds in list(f.items()):
             if not isinstance(ds, h5py.Dataset):
                 continue
             data = _mapped(ds, path) if ds.size * ds.dtype.itemsize >= min_bytes else None
@@ -94,4 +94,4 @@ def _carried_attrs(f) -> dict:
     from .stagefile import PROVENANCE_KEYS
 
     return {k: v.decode() if isinstance(v, bytes) else (v.item() if isinstance(v, np.generic) else v)
-            for k, v in f.attrs.items() if k not in PROVENANCE_KEYS}
+            for k, v in list(f.attrs.items()) if k not in PROVENANCE_KEYS}

@@ -1,6 +1,7 @@
 """``fwdlook info``: a plain description of a raw cube, a stage file or an image."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import h5py
@@ -17,6 +18,10 @@ def describe(path: str) -> str:
         with h5py.File(p, "r") as f:
             fmt = f.attrs.get("format")
     except OSError:
+        if Path(path).is_dir():
+            raise BadInput(f"{path}: is a directory, not an HDF5 file") from None
+        if not os.access(path, os.R_OK):
+            raise BadInput(f"{path}: permission denied; the file must be readable") from None
         raise BadInput(f"{path}: not a readable HDF5 file (truncated or not HDF5)") from None
     if isinstance(fmt, bytes):
         fmt = fmt.decode(errors="replace")

@@ -33,6 +33,10 @@ def load_sweep(path: str) -> dict:
     grid = raw.get("grid") or {}
     if not isinstance(grid, dict) or not all(isinstance(v, list) and v for v in grid.values()):
         raise BadInput(f"{path}: grid: expected a mapping of key.path to a non-empty list of values")
+    section = next((k for k in grid if "." not in str(k) and k != "name"), None)
+    if section is not None:       # a whole section as a value would replace it, every key it does not name lost
+        raise BadInput(f"{path}: grid key {shown(section)}: a whole section; allowed: key paths inside one "
+                       f"(e.g. {section}.KEY), or name")
     sets = raw.get("set") or []
     if not isinstance(sets, list) or not all(isinstance(s, str) and "=" in s for s in sets):
         raise BadInput(f"{path}: set = {shown(sets)}: expected a list of KEY.PATH=VALUE strings")

@@ -72,7 +72,13 @@ def integer(lo: int | None = None, hi: int | None = None) -> Callable[[Any], int
             try:
                 value = int(value.strip())
             except ValueError:
-                raise ValueError("expected an integer") from None
+                try:                           # YAML 1.1 reads '4e2' as text, as it does '18e9' (_as_float)
+                    whole = float(value.strip())
+                except ValueError:
+                    raise ValueError("expected an integer") from None
+                if not (math.isfinite(whole) and whole.is_integer()):
+                    raise ValueError("expected an integer") from None
+                value = int(whole)
         if not isinstance(value, int):
             raise ValueError("expected an integer")
         if lo is not None and value < lo:
@@ -180,11 +186,21 @@ def amplitude(value: Any):
     return num(0.0, MAX_AMPLITUDE, lo_open=True)(value)
 
 
+def _is_number_text(text: str) -> bool:
+    try:
+        float(text.strip())
+    except ValueError:
+        return False
+    return bool(text.strip())
+
+
 def _show(value: Any) -> str:
     from ..limits import shown as _bounded
 
     cut = _bounded(value, 200)        # bounded time: never serialises a huge or alias-expanded value
     if len(cut) > 60 or cut.endswith("..."):
         return _bounded(value, 60)
+    if isinstance(value, str) and _is_number_text(value):       # YAML 1.1's '-1e9': a number, shown as one
+        return value.strip()
     shown = json.dumps(value, default=str) if not isinstance(value, str) else repr(value)
     return shown if len(shown) <= 60 else shown[:57] + "..."
