@@ -3,16 +3,25 @@
 Each effect is computed from the motion (INS track), the scan and the radar, at the scene's
 reference range, and compared with what it must stay within (CONTRACT.md section 6):
 
-* range walk: v cos(theta) cos(phi) x (the longest time a target is seen from t_ref), against half
-  a range cell: above it, a range-walk correction is needed;
-* range curvature: a_y cos(phi) T^2 / 2 over the same time (eq. 10-12), against half a range cell;
+* range walk: the closing speed v . u x (the longest time a target is seen from t_ref), against half a
+  range cell: above it, a range-walk correction is needed; u = (sin theta cos phi, cos theta cos phi,
+  -sin phi) the line of sight to the ground point at depression phi, v the INS velocity with its
+  vertical part (eq. 16's v cos(theta) cos(phi) where the platform flies level along +y);
+* range curvature: |R''| T^2 / 2 over the same time, R'' = (|v|^2 - (v . u)^2) / R - a . u (the
+  geometry's own curvature and the acceleration along the line of sight; eq. 10-12's a_y cos(phi) for a
+  level flight on boresight), against half a range cell;
 * Doppler-ambiguity-number spread: F = <f_dc / PRF> (eq. 17) of every beam direction over the whole
   scan, with the speed at that time; a spread above 0 means one fixed F is wrong somewhere and the
   traditional keystone leaves a residual walk of (F error) c PRF / (2 f_c) (eq. 19);
 * decimation: the same spread at PRF/Q and the residual walk it leaves (eq. 20) for each Q that
   divides the pulse count; the smallest Q whose residual stays under half a range cell;
-* Doppler-centroid drift: 2 a cos(theta) cos(phi) / lambda across the scan (eq. 25), against one
-  Doppler cell of a CPI (PRF / CPI): above it the CPI band must follow v_c.
+* Doppler-centroid drift: 2 (v(t) - v(0)) . u / lambda across the scan (eq. 25's 2 a t cos(theta) cos(phi)
+  / lambda for a level flight), against one Doppler cell of a CPI (PRF / CPI): above it the CPI band must
+  follow v_c.
+
+An independent review (forty-ninth round) found the plan modelling the forward motion only: a climbing
+or descending platform (a_z = -80 m/s^2, 500 m up) was planned as `traditional` with no drift, and
+measured 5.1 m off (`tracking` 0.06 m); a +-45 deg scan's geometric curvature (14 m) was planned as 0.
 
 The recommendation (what ``processing.method: auto`` uses) is the cheapest method whose residual is
 under half a range cell: none, then traditional, then decimation with that Q, then tracking.
@@ -39,14 +48,17 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
     dwell_s = beamwidth_deg / max(abs(float(np.median(np.diff(scan_deg)))) * prf_hz, 1e-12)
     lever_s = np.abs(t - t_ref_s) + dwell_s / 2
     th = np.radians(scan_deg)
-    v_along = velocity_mps[:, 1]
-    radial_speed = v_along * np.cos(th) * np.cos(phi) + velocity_mps[:, 0] * np.sin(th) * np.cos(phi)
+    vel = np.asarray(velocity_mps, dtype=np.float64)
+    los = np.stack([np.sin(th) * np.cos(phi), np.cos(th) * np.cos(phi), np.full_like(th, -np.sin(phi))], axis=1)
+    radial_speed = np.sum(vel * los, axis=1)                               # v . u, the closing speed
     walk_m = float(np.max(np.abs(radial_speed) * lever_s))
-    accel = np.polyfit(t, velocity_mps[:, 1], 1)[0] if len(t) > 2 else 0.0
-    curvature_m = float(np.max(0.5 * abs(accel) * np.cos(phi) * lever_s**2))
+    accel = np.polyfit(t, vel, 1)[0] if len(t) > 2 else np.zeros(3)      # [3]: the INS track's mean acceleration
+    d2r = (np.sum(vel**2, axis=1) - radial_speed**2) / reference_range_m - los @ accel      # R'' (module doc)
+    curvature_m = float(np.max(0.5 * np.abs(d2r) * lever_s**2))
     f_dc = 2.0 * radial_speed * fc_hz / C_MPS                              # eq. (16), (25)
     m_ref = int(np.clip(np.rint((t_ref_s - t[0]) * prf_hz), 0, len(t) - 1))
-    f_dc0 = 2.0 * v_along[m_ref] * np.cos(phi) * fc_hz / C_MPS             # boresight at t_ref
+    boresight = np.array([0.0, np.cos(phi), -np.sin(phi)])
+    f_dc0 = 2.0 * float(vel[m_ref] @ boresight) * fc_hz / C_MPS            # boresight at t_ref
     n = len(t)
     q_candidates = q_candidates or [q for q in range(1, n + 1) if n % q == 0 and n // q >= 8][:40]
     rows = []
@@ -55,7 +67,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         err = np.abs(ambiguity_number(f_dc, prf_q) - ambiguity_number(f_dc0, prf_q))
         resid = float(np.max(err * C_MPS * prf_q / (2.0 * fc_hz) * lever_s))       # eq. (19)-(20)
         rows.append({"q": q, "ambiguity_spread": int(err.max()), "residual_walk_m": resid})
-    drift_hz = float(np.ptp(f_dc - 2.0 * v_along[0] * np.cos(th) * np.cos(phi) * fc_hz / C_MPS))
+    drift_hz = float(np.ptp(f_dc - 2.0 * (los @ vel[0]) * fc_hz / C_MPS))     # what the speed change adds
     doppler_cell_hz = prf_hz / cpi
     near, far = range_extent_m if range_extent_m is not None else (reference_range_m, reference_range_m)
     range_spread_hz = boresight_doppler_spread_hz(height, float(near), float(far), velocity_mps[m_ref], fc_hz)
@@ -82,7 +94,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         "depression_deg": float(np.degrees(phi)), "dwell_s": float(dwell_s), "t_ref_s": float(t_ref_s),
         "range_walk_m": walk_m, "needs_walk_correction": walk_m >= half_cell_m,
         "range_curvature_m": curvature_m, "needs_curvature": curvature_m >= half_cell_m,
-        "forward_accel_mps2": float(accel),
+        "forward_accel_mps2": float(accel[1]), "accel_mps2": [float(a) for a in accel],
         "ambiguity_number_boresight": int(ambiguity_number(f_dc0, prf_hz)),
         "ambiguity_number_range": [int(ambiguity_number(f_dc, prf_hz).min()),
                                    int(ambiguity_number(f_dc, prf_hz).max())],
@@ -146,7 +158,8 @@ def format_plan(plan: dict, name: str) -> str:
         f"  range walk           {plan['range_walk_m']:9.2f} m   vs half a range cell {h:.2f} m   "
         f"{verdict(plan['needs_walk_correction'])}",
         f"  range curvature      {plan['range_curvature_m']:9.2f} m   vs {h:.2f} m   "
-        f"{verdict(plan['needs_curvature'])}  (a_y = {plan['forward_accel_mps2']:.1f} m/s^2, eq. 12)",
+        f"{verdict(plan['needs_curvature'])}  (a = [{', '.join(f'{a:.1f}' for a in plan['accel_mps2'])}] m/s^2 "
+        f"and the scan's geometry, eq. 12 generalised)",
         f"  ambiguity number     F = {plan['ambiguity_number_boresight']} on boresight, "
         f"{plan['ambiguity_number_range'][0]}..{plan['ambiguity_number_range'][1]} across the scan: "
         f"traditional keystone residual walk {plan['traditional_residual_walk_m']:.2f} m (eq. 19)",

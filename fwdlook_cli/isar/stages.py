@@ -2,6 +2,8 @@
 azimuth compression.  Plain functions over :class:`StageData`."""
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import scipy.fft as sfft
 
@@ -125,6 +127,9 @@ def range_fft(data: StageData) -> StageData:
     return out
 
 
+EDGE_SAMPLES = 4          # the keystone centre's range this many range samples inside the window
+
+
 def rcmc(data: StageData, *, correction: str, keystone: str = "czt", ambiguity="auto", n0_pulses="auto",
          model=None) -> StageData:
     """Range-cell-migration correction of ``echo_f`` (module docstring, Corrections).
@@ -159,6 +164,18 @@ def rcmc(data: StageData, *, correction: str, keystone: str = "czt", ambiguity="
         rows = _ambiguity_rows(ambiguity, doppler, fr, fc, prf)
         corrected = _keystone(echo_f, fr, fc, order=1 if correction == "keystone1" else 2, t0_index=t0,
                               ambiguity_rows=rows, method=keystone)
+    if m is not None and correction in ("keystone2_n0", "keystone2_n0_est"):
+        # the envelope comes out at the range of the keystone centre, R(t_c) with the model's n0: outside the
+        # window it wraps round the range FFT (an independent review: a window the dwell fits, its target
+        # imaged 33 m off at the far edge, "not detected", -19 dB)
+        rng = np.asarray(data["range_m"], dtype=np.float64)
+        r_centre = float(m.range_m(float(data["slow_time_s"][0]) + t0 / prf))
+        margin = EDGE_SAMPLES * float(rng[1] - rng[0])
+        if not rng[0] + margin <= r_centre <= rng[-1] - margin:    # (a scenario's window is refused before)
+            logging.getLogger(__name__).warning(
+                f"processing.correction = {correction}: the keystone centre's range {r_centre:.1f} m lies outside "
+                f"the range window {rng[0]:.1f} to {rng[-1]:.1f} m: the focused target wraps round the range axis "
+                f"(a window reaching it, or keystone1 / keystone2, images it in place)")
     out.add("echo_f", corrected, ("slow_time_s", "range_freq_hz"), "1",
             f"range-frequency echo after correction {correction}")
     out.add("ambiguity_number", rows, ("range_freq_hz",), "1", "Doppler ambiguity number per row")

@@ -102,6 +102,12 @@ def isar_checks(scn: dict, source: str) -> None:
             raise BadInput(f"{source}: radar.range_window_m = [{near:g}, {far:g}]: the object spans slant "
                            f"ranges {r.min():.1f} to {r.max():.1f} m over the dwell; widen the window or "
                            f"use auto")
+        closest = auto_range_extent_m(pos0, vel, r)[0]       # the n0 shift images the object there
+        if scn["processing"]["correction"] in ("keystone2_n0", "keystone2_n0_est") and closest < near + reach:
+            raise BadInput(f"{source}: radar.range_window_m = [{near:g}, {far:g}]: processing.correction = "
+                           f"{scn['processing']['correction']} images the object at its closest-approach range, "
+                           f"{closest:.1f} m, outside the window (its focused echo would wrap round); allowed: a "
+                           f"window reaching {closest - reach:.1f} m (or auto), or keystone1 / keystone2")
     from ..limits import check_cube_bytes  # before the echo is allocated (issue 12)
 
     if radar["range_window_m"] != "auto":
