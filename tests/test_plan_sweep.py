@@ -118,6 +118,49 @@ def test_sweep_grid_combine_and_outputs(tmp_path, capsys):
     assert not list((tmp_path / "out").glob("*/*/stages"))        # stage files pruned
     for name in ("summary.md", "summary.csv", "speed_accuracy.png"):
         assert (tmp_path / "out" / name).stat().st_size > 100
+    # the table says how many of the targets each row found; and the report reads the combined summary
+    # (an independent review: "rows[0]: the grid key scene.points_m is missing", exit 2)
+    table = (tmp_path / "out" / "summary.md").read_text()
+    assert all(f"| {r['detected']}/{r['n_targets']} |" in table for r in rows)
+    with pytest.raises(SystemExit) as exc:
+        main(["report", str(tmp_path / "out"), "-o", str(tmp_path / "report"), "-q"])
+    assert exc.value.code == 0
+    assert (tmp_path / "report" / "index.html").stat().st_size > 1000
+
+
+def test_a_run_that_missed_targets_is_marked_on_the_sweeps_figures(tmp_path):
+    """The summary's errors are over the targets a run found: `none` at a = 50 finds 1 of 3 and reads
+    0.09 m against `tracking`'s 0.20 m over 3 of 3.  The figures say so (an independent review found
+    `none` drawn as the most accurate): the stability map writes "2 missed" in its cell, the chart
+    draws it hollow and labels it (missed_targets), and the table gives 1/3."""
+    from fwdlook_cli.report import plots
+
+    calls = []
+    real_error_map = plots.error_map
+
+    def spy_map(ax, grid, *args, missed=None, **kwargs):
+        calls.append(("map", grid.copy(), None if missed is None else missed.copy()))
+        return real_error_map(ax, grid, *args, missed=missed, **kwargs)
+
+    rows = [{"scenario": "tiny", "processing.method": "none", "processing.t_ref": "centre", "detected": 1,
+             "n_targets": 3, "max_abs_range_error_m": 0.089, "total_s": 0.04},
+            {"scenario": "tiny", "processing.method": "tracking", "processing.t_ref": "centre", "detected": 3,
+             "n_targets": 3, "max_abs_range_error_m": 0.205, "total_s": 0.03}]
+    assert [plots.missed_targets(r) for r in rows] == [2, 0]
+    import unittest.mock as mock
+
+    with mock.patch.object(plots, "error_map", spy_map):
+        plots.stability_map(tmp_path / "s.png", rows, ["processing.method", "processing.t_ref"])
+    (_, grid, missed), = calls
+    assert grid.tolist() == [[0.089, 0.205]] and missed.tolist() == [[2, 0]]
+    from matplotlib.axes import Axes
+
+    labels = []
+    real_annotate = Axes.annotate
+    with mock.patch.object(Axes, "annotate", lambda self, text, *a, **k: labels.append(text) or
+                           real_annotate(self, text, *a, **k)):
+        plots.speed_accuracy_chart(tmp_path / "c.png", rows, ["processing.method", "processing.t_ref"])
+    assert sorted(labels) == ["none,centre (2 missed)", "tracking,centre"]
 
 
 def test_sweep_rejects_unknown_keys_and_bad_grid(tmp_path, capsys):

@@ -130,7 +130,8 @@ def read_sweep_summary(sweep_dir) -> dict:
             value = row.get(key)
             if (value is not None or key == "total_s") and not (is_number(value) and math.isfinite(value)):
                 raise BadInput(f"{path}: rows[{i}].{key} = {shown(value)}: expected a number")
-        missing = [k for k in summary["grid"] if k not in row]
+        combined = summary.get("combine") if isinstance(summary.get("combine"), list) else []
+        missing = [k for k in summary["grid"] if k not in row and k not in combined]   # (combined: merged away)
         if missing:
             raise BadInput(f"{path}: rows[{i}]: the grid key {missing[0]} is missing")
     return summary

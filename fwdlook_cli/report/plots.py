@@ -11,7 +11,9 @@ def speed_accuracy_chart(path, rows, grid_keys, *, error_key=None):
     """Processing time against the worst range error, one marker per run, labelled by grid point.
 
     The error is over the resolved targets when the runs report it (the full-lattice figure is bounded
-    below by the image's neighbour mixing, the same for every method), else over all detected ones.
+    below by the image's neighbour mixing, the same for every method), else over all detected ones.  A
+    run that missed targets is drawn hollow and labelled with how many (its error is over fewer targets:
+    an independent review found a method that found 1 of 3 drawn as the most accurate).
     """
     plt = _plt()
     if error_key is None:
@@ -22,10 +24,16 @@ def speed_accuracy_chart(path, rows, grid_keys, *, error_key=None):
     markers = "osD^v<>"
     for si, scen in enumerate(scenarios):
         sel = [r for r in rows if r["scenario"] == scen and r.get(error_key) is not None]
-        ax.scatter([r["total_s"] for r in sel], [r[error_key] for r in sel], marker=markers[si % len(markers)],
-                   label=scen, alpha=0.8)
+        full = [r for r in sel if not missed_targets(r)]
+        part = [r for r in sel if missed_targets(r)]
+        dots = ax.scatter([r["total_s"] for r in full], [r[error_key] for r in full],
+                          marker=markers[si % len(markers)], label=scen, alpha=0.8)
+        ax.scatter([r["total_s"] for r in part], [r[error_key] for r in part], marker=markers[si % len(markers)],
+                   facecolors="none", edgecolors=dots.get_facecolor()[:1] if full else None, alpha=0.8,
+                   label=None if full else scen)
         for r in sel:
-            ax.annotate(",".join(str(r[k]) for k in grid_keys), (r["total_s"], r[error_key]), fontsize=6,
+            missed = f" ({missed_targets(r)} missed)" if missed_targets(r) else ""
+            ax.annotate(",".join(str(r[k]) for k in grid_keys) + missed, (r["total_s"], r[error_key]), fontsize=6,
                         xytext=(3, 2), textcoords="offset points")
     ax.set_xlabel("whole chain time (s), both channels, intermediates written")
     ax.set_ylabel(error_key.replace("max_abs_range_error", "max |range error|").replace("_resolved", ", resolved targets")
@@ -69,8 +77,15 @@ def value_label(value) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
-def error_map(ax, grid, x_labels, y_labels, *, xlabel, ylabel, title, threshold=None, fmt="{:.2f}"):
-    """One panel of errors (m) on a logarithmic colour norm with the fixed limits ERROR_NORM_M."""
+def missed_targets(row) -> int:
+    """Targets a run's summary row counts and did not detect (0 where it does not say)."""
+    n, d = row.get("n_targets"), row.get("detected")
+    return int(n) - int(d) if isinstance(n, (int, float)) and isinstance(d, (int, float)) else 0
+
+
+def error_map(ax, grid, x_labels, y_labels, *, xlabel, ylabel, title, threshold=None, fmt="{:.2f}", missed=None):
+    """One panel of errors (m) on a logarithmic colour norm with the fixed limits ERROR_NORM_M; ``missed``
+    (the same shape): targets a cell's run did not find, written under its error in a dashed frame."""
     from matplotlib.colors import LogNorm
 
     plt = _plt()
@@ -84,7 +99,12 @@ def error_map(ax, grid, x_labels, y_labels, *, xlabel, ylabel, title, threshold=
     for (i, j), val in np.ndenumerate(v):
         if np.isfinite(val):
             dark = norm(min(max(val, ERROR_NORM_M[0]), ERROR_NORM_M[1])) > 0.55
-            ax.text(j, i, fmt.format(val), ha="center", va="center", fontsize=7, color="w" if dark else "k")
+            lost = 0 if missed is None else int(missed[i][j])
+            ax.text(j, i, fmt.format(val) + (f"\n{lost} missed" if lost else ""), ha="center", va="center",
+                    fontsize=7, color="w" if dark else "k")
+            if lost:
+                ax.add_patch(plt.Rectangle((j - 0.45, i - 0.45), 0.9, 0.9, fill=False, ec="tab:blue", lw=1.2,
+                                           ls="--"))
             if threshold is not None and val > threshold:
                 ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="tab:red", lw=1.4))
     ax.set_xlabel(xlabel, fontsize=9)
@@ -105,7 +125,8 @@ def error_colorbar(fig, mesh, ax, label):
 
 def stability_map(path, rows, grid_keys, *, error_key="max_abs_range_error_m"):
     """Worst range error (m) over a two-key grid, one panel per scenario, on a logarithmic colour norm
-    with fixed limits (ERROR_NORM_M), so that colours mean the same metres on every map."""
+    with fixed limits (ERROR_NORM_M), so that colours mean the same metres on every map; a run that missed
+    targets says how many in its cell (its error is over the ones it found)."""
     plt = _plt()
     k1, k2 = grid_keys
     scenarios = sorted({r["scenario"] for r in rows})
@@ -116,11 +137,13 @@ def stability_map(path, rows, grid_keys, *, error_key="max_abs_range_error_m"):
         v1 = list(dict.fromkeys(key(r[k1]) for r in sel))
         v2 = list(dict.fromkeys(key(r[k2]) for r in sel))
         grid = np.full((len(v2), len(v1)), np.nan)
+        missed = np.zeros(grid.shape, dtype=np.int64)
         for r in sel:
             if r.get(error_key) is not None:
                 grid[v2.index(key(r[k2])), v1.index(key(r[k1]))] = r[error_key]
+                missed[v2.index(key(r[k2])), v1.index(key(r[k1]))] = missed_targets(r)
         mesh = error_map(ax, grid, [value_label(v) for v in v1], [value_label(v) for v in v2],
-                         xlabel=axis_label(k1), ylabel=axis_label(k2), title=scen)
+                         xlabel=axis_label(k1), ylabel=axis_label(k2), title=scen, missed=missed)
         error_colorbar(fig, mesh, ax, error_key.replace("max_abs_range_error", "max |range error|")
                        .replace("_resolved", ", resolved").replace("_m", " (m)").replace("_", " "))
     _save(fig, path)

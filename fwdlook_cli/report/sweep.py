@@ -80,7 +80,7 @@ def write_summary(out: Path, sweep: dict, rows: list[dict]) -> None:
     from ..io.h5 import atomic_write_text
 
     atomic_write_text(out / "summary.json", json.dumps({"sweep": sweep["name"], "grid": sweep["grid"],
-                                                        "rows": rows}, indent=1))
+                                                        "combine": sweep["combine"], "rows": rows}, indent=1))
     cols = list(dict.fromkeys(k for r in rows for k in r))      # union: failed rows have fewer keys
     buf = _io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=cols)
@@ -115,6 +115,8 @@ def markdown_table(rows, key_cols) -> str:
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(show)]
     for r in rows:
         cells = [_fmt(r.get(c), 2 if c.endswith("db") else 3) for c in show]
+        if isinstance(r.get("detected"), int) and isinstance(r.get("n_targets"), int):   # found of counted
+            cells[show.index("detected")] = f"{r['detected']}/{r['n_targets']}"
         if r.get("status") == "failed":
             cells[len(key_cols)] = "FAILED"
         lines.append("| " + " | ".join(cells) + " |")
