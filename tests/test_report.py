@@ -310,3 +310,16 @@ def test_reproduce_sec41_equals_closed_forms():
     assert rows["residual_velocity_q_mps"]["ours"] == pytest.approx(0.83, abs=0.005)
     assert rows["depression_deg"]["ours"] == pytest.approx(math.degrees(math.atan2(50.0, 1700.0)), rel=1e-12)
     assert rows["f_dc0_hz"]["ours"] == pytest.approx(2 * 240 * 18e9 * cos_phi0 / C_MPS, rel=1e-12)
+
+
+def test_text_with_a_bar_reads_back_as_metrics_json_has_it():
+    """A metrics text holding '|' (ISAR's integration_gain_reference, "closed_form N a |p(0)|") is written
+    with markdown's escaped bar and read back unchanged, also from a table row (it had been printed
+    "/p(0)/", an independent review found)."""
+    from fwdlook_cli.report.tables import fmt_value, md_table
+
+    text = "closed_form N a |p(0)|"
+    table = md_table(["key", "value"], [["summary.integration_gain_reference", fmt_value(text)], ["n", "3"]])
+    rows = parse_md_table(table.splitlines())
+    assert rows == [["summary.integration_gain_reference", "closed_form N a \\|p(0)\\|"], ["n", "3"]]
+    assert parse_value(rows[0][1]) == text and parse_value(rows[1][1]) == 3

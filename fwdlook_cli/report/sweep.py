@@ -114,6 +114,9 @@ def markdown_table(rows, key_cols) -> str:
     heads = [names.get(c, c.split(".")[-1]) for c in show]
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(show)]
     for r in rows:
+        if r.get("n_resolved") is not None and r.get("n_resolved") == r.get("n_targets"):   # every target
+            r = {**r, "max_abs_range_error_resolved_m": r.get("max_abs_range_error_m"),       # resolved: the
+                 "rms_azimuth_error_resolved_deg": r.get("rms_azimuth_error_deg")}             # same figures
         cells = [_fmt(r.get(c), 2 if c.endswith("db") else 3) for c in show]
         if isinstance(r.get("detected"), int) and isinstance(r.get("n_targets"), int):   # found of counted
             cells[show.index("detected")] = f"{r['detected']}/{r['n_targets']}"

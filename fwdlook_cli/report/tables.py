@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 SIG_DIGITS = 6
 
@@ -18,7 +19,7 @@ def fmt_value(value) -> str:
         return "nan" if not math.isfinite(value) else f"{value:.{SIG_DIGITS}g}"
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(fmt_value(v) for v in value) + "]"
-    return str(value).replace("|", "/")
+    return str(value).replace("|", "\\|")          # markdown's escaped bar: the text reads as metrics.json's
 
 
 def parse_value(text: str):
@@ -35,7 +36,7 @@ def parse_value(text: str):
     try:
         return float(text)
     except ValueError:
-        return text
+        return text.replace("\\|", "|")
 
 
 def md_table(heads, rows) -> str:
@@ -46,7 +47,8 @@ def md_table(heads, rows) -> str:
 
 def parse_md_table(lines: list[str]) -> list[list[str]]:
     """Cells of a markdown table's body rows (header and rule skipped)."""
-    rows = [[c.strip() for c in ln.strip().strip("|").split("|")] for ln in lines if ln.strip().startswith("|")]
+    rows = [[c.strip() for c in re.split(r"(?<!\\)\|", ln.strip().strip("|"))]     # not at an escaped bar
+            for ln in lines if ln.strip().startswith("|")]
     return rows[2:]
 
 
