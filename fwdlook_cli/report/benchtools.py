@@ -494,13 +494,18 @@ def _plot_scaling(result: dict, path: Path) -> None:
 def write_scaling_cube(path, n_pulses: int, n_range: int, paper: dict | None = None) -> dict:
     """A cheap big cube for memory measurements: :func:`scaling_scenario` (three points, the paper's
     radar and motion, the PRF scaled with the pulse count) simulated and written as a raw cube.
-    Returns the scenario (its ``processing`` section is the paper's)."""
+    Returns the scenario (its ``processing`` section is the paper's, with the largest q up to the paper's
+    25 that divides the pulses)."""
     from ..forward.simulate import simulate_scenario
     from ..io.raw import write_raw
     from ..scenario.loader import load_scenario
 
     paper = paper or load_scenario(Path(__file__).resolve().parents[2] / "scenarios" / "paper_fig6_a50.yaml")
     scn = scaling_scenario(paper, n_pulses, n_range)
+    q = scn["processing"]["q"]
+    if n_pulses % q:       # the scenario the cube records simulates and processes as it is (q divides the
+        # pulses; the paper's 25 does not divide 16384: an independent review's re-simulation was refused)
+        scn["processing"] = dict(scn["processing"], q=max(d for d in range(1, q + 1) if n_pulses % d == 0))
     cube, _ = simulate_scenario(scn)
     write_raw(path, cube)
     return scn
