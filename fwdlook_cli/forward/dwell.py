@@ -494,6 +494,11 @@ def dwell_stages(cube, proc: dict, geo: dict):
         geo["range_oversample"] = auto_focus_range_oversample(cube, geo["p_ref"], geo["range_oversample"])
     cal = geo["calibration"]                     # the chain's monopulse calibration (slope, imbalance, offset)
     check_slope_forms_a_beam(cal, cube)
+    if cal.model != "tanh":                      # README, "An antenna fwdlook does not model"
+        log.warning("processing.imaging: dwell measures angles with the two-Gaussian-beam rotation and the "
+                    f"calibrated slope; this cube's ratio curve is a {cal.model} ({cal.source}), so a channel "
+                    "imbalance folded into it is not divided out (up to 0.2 deg on an independent review's "
+                    "cubes); imaging: cpi reads the curve itself")
     two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
     step_deg = float(np.median(np.abs(np.diff(cube.scan_angle_deg))))          # scan per pulse
     # sub-aperture: the beam moves SUB_APERTURE_DEG (40 pulses for the paper's 30 deg/s at 2.5 kHz)
