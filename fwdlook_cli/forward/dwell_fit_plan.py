@@ -78,9 +78,9 @@ def fit_angle_step(model, axis_deg, half_width_deg, range_m, angle_step_deg):
     keeps 0.69-0.76 there."""
     step = float(angle_step_deg)
     edges = np.array([axis_deg - half_width_deg, axis_deg + half_width_deg])
+    a0 = model.atoms(edges, [range_m])[0]                                                 # [2N, 2]
     for _ in range(GRID_MAX_HALVINGS):
-        a = model.atoms(np.concatenate([edges, edges + 0.5 * step]), [range_m])[0]       # [2N, 4]
-        a0, a1 = a[:, :2], a[:, 2:]
+        a1 = model.atoms(edges + 0.5 * step, [range_m])[0]
         corr2 = (np.abs(np.sum(np.conj(a0) * a1, axis=0)) ** 2
                  / (np.sum(np.abs(a0) ** 2, axis=0) * np.sum(np.abs(a1) ** 2, axis=0)))
         if float(corr2.min()) >= GRID_MIN_CORR2:

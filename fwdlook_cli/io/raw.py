@@ -282,9 +282,10 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
             ds = _need(f, f"truth/targets/{key}", source)
             n_t = ds.shape[0] if n_t is None else n_t
             truth[key] = _array(f, f"truth/targets/{key}", source, kind=np.float64, shape=(n_t,))
-            if key != "amplitude" and n_t and float(np.max(np.abs(truth[key]))) > MAX_DISTANCE_M:
-                raise BadInput(f"{source}: /truth/targets/{key}: reaches {float(np.max(np.abs(truth[key]))):.3g} m; "
-                               f"allowed: within {MAX_DISTANCE_M:g} m of the origin")
+            far = float(np.max(np.abs(truth[key]), initial=0.0))
+            if key != "amplitude" and far > MAX_DISTANCE_M:
+                raise BadInput(f"{source}: /truth/targets/{key}: reaches {far:.3g} m; allowed: within "
+                               f"{MAX_DISTANCE_M:g} m of the origin")
         for key in sorted(set(tg) - set(TRUTH_KEYS)):  # extra per-target truth: 1-D, same length
             ds = tg[key]
             if isinstance(ds, h5py.Dataset) and ds.shape == (n_t,) and ds.dtype.kind == "f":
