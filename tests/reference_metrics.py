@@ -92,7 +92,9 @@ def target_metrics_one_by_one(image, range_m, angle_deg, truth_xyz_m, amplitude,
                      "islr_db": _f(islr), "pslr_db": _f(pslr), "detected": detected,
                      "range_width_3db_m": _f(_width(range_cut, i, dr)),
                      "angle_width_3db_deg": _f(_width(angle_cut, j, da)),
-                     "peak_power": float(image[i, j]), "amplitude": float(amplitude[k])})
+                     "peak_power": float(image[max(i0, i - w_r):min(i1, i + w_r + 1),
+                                                max(j0, j - w_a):min(j1, j + w_a + 1)].max()),
+                     "amplitude": float(amplitude[k])})
     return rows
 
 

@@ -399,7 +399,7 @@ SLOPE_BEAM_FACTOR = 2.0    # the largest slope the dwell weights take, in units 
 
 def check_slope_forms_a_beam(cal: Calibration, cube) -> None:
     """The dwell weights model the sum beam as two Gaussian beams, exp(-beta d^2) cosh(k d)
-    (``forward.dwell.pattern_weight``), whose maximum stays on boresight while k^2 <= 2 beta (the
+    (``forward.dwell_grid.pattern_weight``), whose maximum stays on boresight while k^2 <= 2 beta (the
     boresight-dip limit).  A slope above twice that limit is no antenna of this beamwidth (fwdlook's own designs
     reach 0.82 of it with Gaussian beams and 0.91 with sinc2 beams at their widest squint): its modelled
     two-way weight peaks k / (4 beta) off boresight at exp(k^2 / (8 beta)) and overflowed the joint

@@ -25,7 +25,9 @@ range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
    point on its beam axis (acceleration and geometry: 6 kHz/s at a = 50) and FFT-ed over the whole
    PRF with x8 zero padding, both channels.
 3. **Dwell.**  For every sub-aperture j, every direction within ``dwell_half_width_deg`` (0.75 two-way
-   widths, 3.2 deg) of its beam and every range, the spectrum is read (linear interpolation) at the
+   widths, 3.2 deg) of its beam seen from its antenna (``dwell_grid.subaperture_windows``; the directions
+   are the image's, and finer where the dwell's angle lobe is narrower than a bin:
+   ``dwell_grid.focus_per_bin``) and every range, the spectrum is read (linear interpolation) at the
    Doppler of P at the sub-aperture centre, rotated (step 1, delta of P itself: parallax makes it
    range dependent), phased with the exact exp(+j 4 pi (|P - p(t_j)| - r) / lambda) and summed over
    the dwell with the matched-filter weight w = Sigma(delta) e^{-beta delta^2} a target in that
@@ -80,6 +82,7 @@ from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
 from .calibration import check_slope_forms_a_beam, pattern_beta_per_deg2
 from .dwell_fit import start_fit_region
+from .dwell_grid import focus_directions, focus_per_bin, pattern_weight, subaperture_windows
 from .dwell_range import (auto_focus_range_oversample, dwell_duration_s, dwell_stage_params, ground_points,
                           iso_doppler_range)
 
@@ -91,22 +94,6 @@ DWELL_HALF_WIDTH_BEAMS = 0.75    # dwell of a direction: offsets within 0.75 two
 FIT_REGION_BEAMS = 1.5           # dwell_fit: the joint fit owns directions within 1.5 dwell half-widths of the
                                  # flight axis (4.8 deg: the mirror pairs closer than the dwell window and beyond)
 
-
-
-def pattern_weight(offset_deg, beta_per_deg2, slope_per_deg):
-    """Amplitude of the rotated sum S' of a target on the imaged direction: Sigma(d) exp(-beta d^2)."""
-    d = np.asarray(offset_deg, dtype=np.float64)
-    return np.exp(-2.0 * beta_per_deg2 * d**2) * np.cosh(slope_per_deg * d)
-
-
-def subaperture_layout(n_pulses, sub_pulses, beam_deg, angle_deg, dwell_half_width_deg):
-    """Sub-aperture j: pulses [j L, (j+1) L); its local directions g0_j + l, l < n_loc, on the image grid."""
-    n_sub = n_pulses // sub_pulses
-    beam_j = np.asarray(beam_deg[: n_sub * sub_pulses]).reshape(n_sub, sub_pulses).mean(axis=1)
-    step = float(angle_deg[1] - angle_deg[0])
-    half = int(np.ceil(dwell_half_width_deg / step))
-    g0 = np.rint((beam_j - angle_deg[0]) / step).astype(np.int64) - half
-    return n_sub, beam_j, g0, 2 * half + 1
 
 
 def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, velocity_mps, range_m, angle_deg,
@@ -126,22 +113,30 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     m, n_r = sum_rt.shape
     n_a = len(angle_deg)
     L = sub_pulses
-    n_sub, beam_j, g0, n_loc = subaperture_layout(m, L, scan_angle_deg, angle_deg, dwell_half_width_deg)
-    g = g0[:, None] + np.arange(n_loc)[None, :]                              # [n_sub, n_loc] global index
-    valid = (g >= 0) & (g < n_a)
-    gi = np.clip(g, 0, n_a - 1)
-    theta = np.asarray(angle_deg, dtype=np.float64)[gi]                      # direction at t_ref
+    n_sub = m // L
+    beam_j = np.asarray(scan_angle_deg[: n_sub * L], dtype=np.float64).reshape(n_sub, L).mean(axis=1)
     p_ref = np.asarray(position_ref_m, dtype=np.float64)
     n = np.arange(m, dtype=np.float64)
     idx_c = (np.arange(n_sub) + 0.5) * L - 0.5                               # sub-aperture centre (pulses)
     pos_c = np.stack([np.interp(idx_c, n, position_m[:, i]) for i in range(3)], axis=-1)     # [n_sub, 3]
+    # each sub-aperture's directions: those whose offset from its beam, seen from its antenna, lies in the
+    # dwell window (dwell_grid.subaperture_windows); the valid ones a prefix of each row
+    r_mid = 0.5 * (range_m[0] + range_m[-1])
+    p_all = ground_points(r_mid, np.asarray(angle_deg, dtype=np.float64), p_ref)          # [n_a, 3]
+    delta_all = np.degrees(np.arctan2(p_all[None, :, 0] - pos_c[:, None, 0], p_all[None, :, 1] - pos_c[:, None, 1])) \
+        - beam_j[:, None]
+    g, valid, count = subaperture_windows(delta_all, dwell_half_width_deg)    # [n_sub, n_loc] global index
+    n_loc = g.shape[1]
+    gi = np.clip(g, 0, n_a - 1)
+    theta = np.asarray(angle_deg, dtype=np.float64)[gi]                      # direction at t_ref
+    delta = np.take_along_axis(delta_all, gi, axis=1)
+    del p_all, delta_all
     vel_c = np.stack([np.interp(idx_c, n, velocity_mps[:, i]) for i in range(3)], axis=-1)
     acc_c = np.gradient(vel_c, idx_c / prf_hz, axis=0)
     tau = (np.arange(L) - 0.5 * (L - 1)) / prf_hz                            # time from the centre
 
     # 1. dechirp each sub-aperture by the Doppler rate of a fixed point on its beam axis (the
     #    acceleration and the geometric term), then an oversampled FFT over the whole PRF
-    r_mid = 0.5 * (range_m[0] + range_m[-1])
     bp = ground_points(r_mid, beam_j, p_ref) - pos_c
     rb = np.linalg.norm(bp, axis=1)
     ub = bp / rb[:, None]
@@ -152,9 +147,6 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
 
     # 2. per (sub-aperture, direction): offset of the direction from the beam axis at the centre, the
     #    pattern weight, and the twin's envelope (over the whole dwell: small [n_sub, n_loc] arrays)
-    p_dir = ground_points(r_mid, theta, p_ref)
-    delta = np.degrees(np.arctan2(p_dir[..., 0] - pos_c[:, None, 0], p_dir[..., 1] - pos_c[:, None, 1])) \
-        - beam_j[:, None]
     w = pattern_weight(delta, beta_per_deg2, k) * (np.abs(delta) <= dwell_half_width_deg) * valid
     plain_gain = np.bincount(gi[valid], weights=(w**2)[valid], minlength=n_a)
     if twin_null:
@@ -176,17 +168,22 @@ def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, vel
     s_rot = np.zeros((n_a, n_r), np.complex128)
     d_rot = np.zeros((n_a, n_r), np.complex128)
     threads = worker_threads()
-    # the blocks in flight together hold what one block of ``block_cells`` would (the same memory)
-    step = max(1, int(block_cells) // max(1, threads * (n_loc * n_r + n_fft * n_r)))
+    # the blocks in flight together hold what one block of ``block_cells`` would (the same memory), for
+    # the mean window (the windows are wider where the bins are focused in more directions)
+    n_mean = float(count.mean()) if count.size else float(n_loc)
+    step = max(1, int(int(block_cells) // max(1.0, threads * (n_mean * n_r + n_fft * n_r))))
 
     def block(j0):                # one block's sums over its sub-apertures, in its own thread
         j = slice(j0, min(n_sub, j0 + step))
-        s_part, d_part = _focus_block(sum_rt, diff_rt, j, L=L, n_fft=n_fft, chirp=chirp[j], theta=theta[j],
-                                      w=w[j], pos_c=pos_c[j], vel_c=vel_c[j], beam_j=beam_j[j], p_ref=p_ref,
+        n_b = int(count[j].max())             # the block's directions: as many as its widest window holds
+        if n_b == 0:
+            return 0, np.zeros((0, n_r), np.complex64), np.zeros((0, n_r), np.complex64)
+        s_part, d_part = _focus_block(sum_rt, diff_rt, j, L=L, n_fft=n_fft, chirp=chirp[j], theta=theta[j, :n_b],
+                                      w=w[j, :n_b], pos_c=pos_c[j], vel_c=vel_c[j], beam_j=beam_j[j], p_ref=p_ref,
                                       rr=rr, rho=rho, rho32=rho32, lam=lam, prf_hz=prf_hz, k=k,
                                       max_offset_deg=dwell_half_width_deg + NEAR_FIELD_MARGIN_DEG,
                                       fft_workers=1 if threads > 1 else -1)
-        gj, vj = gi[j].ravel(), valid[j].ravel()
+        gj, vj = gi[j, :n_b].ravel(), valid[j, :n_b].ravel()
         lo = int(gj.min())                    # the block's directions: one band of rows of the image
         hi = int(gj.max()) + 1
         acc = scipy.sparse.csr_matrix((vj.astype(np.float32), (gj - lo, np.arange(gj.size))),
@@ -359,6 +356,12 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     vel = data["velocity_mps"]
     m_ref = int(np.argmin(np.abs(data["slow_time_s"] - data.attrs.get("t_ref_s", data["slow_time_s"][0]))))
     twin_axis = float(np.degrees(np.arctan2(vel[m_ref, 0], vel[m_ref, 1])))
+    # the focused directions: each image bin's own, and more where the dwell's angle lobe is narrower than
+    # the bin (dwell_grid.py); looked_dir: the focused ones the scan dwelt on
+    per_bin = focus_per_bin(angle_deg, beam, vel, range_m, p_ref, fc_hz=fc_hz, prf_hz=prf_hz, axis_deg=twin_axis,
+                            beta_per_deg2=beta_per_deg2, slope_per_deg=slope_per_deg,
+                            dwell_half_width_deg=dwell_half_width_deg)
+    dirs, _, first_dir, dir_weight = focus_directions(angle_deg, per_bin)
     diff = data["diff"]
     if diff_gain_db or diff_phase_deg:           # the calibration's channel imbalance divided out first
         imbalance = 10 ** (diff_gain_db / 20) * np.exp(1j * np.radians(diff_phase_deg))
@@ -377,7 +380,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         focus_os = 1
     s_rot, d_rot, gain, pos_dwell, plain_gain = dwell_focus(
         sum_in, diff, slow_time_s=data["slow_time_s"], scan_angle_deg=beam,
-        position_m=data["position_m"], velocity_mps=vel, range_m=range_in, angle_deg=angle_deg, fc_hz=fc_hz,
+        position_m=data["position_m"], velocity_mps=vel, range_m=range_in, angle_deg=dirs, fc_hz=fc_hz,
         prf_hz=prf_hz,
         slope_per_deg=slope_per_deg, beta_per_deg2=beta_per_deg2, position_ref_m=p_ref,
         sub_pulses=sub_pulses, dwell_half_width_deg=dwell_half_width_deg, twin_null=twin_null,
@@ -395,7 +398,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     level = max(floor * 10 ** (threshold_db / 10), float(power32.max()) * 10 ** (-dynamic_range_db / 10))
     max_ratio = np.tanh(slope_per_deg * max_offset_beamwidths * beamwidth_deg)
     finish_fit = None
-    in_fit = (np.abs(angle_deg[looked] - twin_axis) <= fit_half_width_deg) & (fit_half_width_deg > 0)
+    in_fit = (np.abs(dirs[looked] - twin_axis) <= fit_half_width_deg) & (fit_half_width_deg > 0)
     if in_fit.any():                 # the joint fit owns the directions near the flight axis (dwell_fit.py):
         # started as soon as its inputs (the region's profile, the level) are known, it runs on other
         # processes while this one selects and projects the dwell image's cells (a scan that never comes
@@ -419,17 +422,19 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         ok = np.abs(ratio_c) < max_ratio
         i_dir, i_r = np.divmod(over[ok], n_os)                             # np.nonzero's order
         ratio_kept, w = ratio_c[ok], power_c[ok]
+        if dir_weight.min() < 1.0:             # a bin focused in m directions: each cell's power counts 1/m
+            w = w * dir_weight[looked][i_dir]
         del over, ok, ratio_c, power_c
         # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from
         # the dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)
         p_dw = pos_dwell[looked][i_dir]
-        p_dir = ground_points(range_os[i_r], angle_deg[looked][i_dir], p_ref)
+        p_dir = ground_points(range_os[i_r], dirs[looked][i_dir], p_ref)
         az_dw = np.degrees(np.arctan2(p_dir[:, 0] - p_dw[:, 0], p_dir[:, 1] - p_dw[:, 1]))
         az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio_kept) / slope_per_deg
                                     + boresight_offset_deg, p_dw, p_ref)
-        az = np.where(np.isfinite(az), az, angle_deg[looked][i_dir])
+        az = np.where(np.isfinite(az), az, dirs[looked][i_dir])
         if iso_doppler_resolution_m > 0:       # processing.dwell_range: iso_doppler (steep depression)
-            r_new = iso_doppler_range(range_os[i_r], angle_deg[looked][i_dir], az, p_dw, p_ref,
+            r_new = iso_doppler_range(range_os[i_r], dirs[looked][i_dir], az, p_dw, p_ref,
                                       vel[m_ref], lam_m=C_MPS / fc_hz, resolution_m=iso_doppler_resolution_m,
                                       dwell_s=dwell_s)
             i_r = np.clip(np.rint((r_new - range_os[0]) / dr).astype(np.int64), 0, n_os - 1)
@@ -451,7 +456,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         # the gain before the twin null: the fit has parted the twins, so none of the null's loss (up to
         # 10 dB for x = +-30 m) is theirs
         col = np.clip(np.rint((fit_theta - angle_deg[0]) / angle_step_deg).astype(np.int64), 0, len(angle_deg) - 1)
-        prof = oversample_range(fit_prof * (sub_pulses * plain_gain[col])[:, None].astype(np.float32),
+        prof = oversample_range(fit_prof * (sub_pulses * plain_gain[first_dir[col]])[:, None].astype(np.float32),
                                 range_oversample)
         p_fit = (prof.real**2 + prof.imag**2).astype(np.float64)
         k_fit, r_fit = np.nonzero(p_fit > level)
@@ -474,7 +479,9 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
             "monopulse image over each direction's dwell, rotated sum power")
     out.add("real_beam", real_beam.astype(np.float32), ("range_native_m", "angle_deg"), "1",
             "real-beam image: sum power against beam angle")
-    out.add("dwell_gain", gain, ("angle_deg",), "1", "matched-filter gain sum w^2 of each direction's dwell")
+    out.add("dwell_gain", gain[first_dir], ("angle_deg",), "1", "matched-filter gain sum w^2 of each direction's dwell")
+    out.add("focus_directions", per_bin.astype(np.int16), ("angle_deg",), "1",
+            "directions focused per angle bin (dwell_grid.py: the dwell's angle lobe sampled)")
     out.add("cell", np.arange(int(inside.sum()), dtype=np.int32), ("cell",), "1", "projected cell")
     out.add("cell_x_m", ground[:, 0].astype(np.float32), ("cell",), "m", "ground x of each projected cell")
     out.add("cell_y_m", ground[:, 1].astype(np.float32), ("cell",), "m", "ground y of each projected cell")

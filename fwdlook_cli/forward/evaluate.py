@@ -151,7 +151,10 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
     pslr, islr, _ = power_metrics_rows(amp * amp, n_prof, dr)
     range_width = half_power_width_rows(range_rows, i, np.full(len(tg), n_r), dr)
     angle_width = half_power_width_rows(angle_rows, j, np.full(len(tg), n_a), da)
-    peak_power = image[i, j]
+    # the strongest pixel of the point's cell around the measured peak (the cuts' strips, inside the search
+    # window): the cuts' peaks need not meet on one pixel of a projected image, whose cells are sparse (a
+    # dwell image's point split over two adjacent rows and bins put image[i, j] 35 dB under it)
+    peak_power = _cell_max(image, i, j, w_r, w_a, i0[tg], i1[tg], j0[tg], j1[tg])
     for t, k in enumerate(tg.tolist()):
         rows[k].update({"meas_range_m": float(meas_r[t]), "meas_azimuth_deg": float(meas_a[t]),
                         "range_error_m": float(meas_r[t]) - float(r_true[k]),
@@ -162,6 +165,17 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
     for k in np.flatnonzero(missing).tolist():
         rows[k].update(_missing())
     return rows
+
+
+def _cell_max(image, i, j, w_r, w_a, i0, i1, j0, j1):
+    """Per target the largest pixel of ``image`` within +-w_r rows of i and +-w_a columns of j, clipped to
+    its window [i0, i1) x [j0, j1) (which holds i and j)."""
+    rows = i[:, None] + np.arange(-w_r, w_r + 1)[None, :]
+    cols = j[:, None] + np.arange(-w_a, w_a + 1)[None, :]
+    ok = (((rows >= i0[:, None]) & (rows < i1[:, None]))[:, :, None]
+          & ((cols >= j0[:, None]) & (cols < j1[:, None]))[:, None, :])
+    vals = image[np.clip(rows, 0, image.shape[0] - 1)[:, :, None], np.clip(cols, 0, image.shape[1] - 1)[:, None, :]]
+    return np.where(ok, vals.astype(np.float64), -np.inf).reshape(len(i), -1).max(axis=1)
 
 
 def _window_argmax(cuts, lo, hi):
