@@ -379,3 +379,21 @@ def test_real_profile_fast_path_equals_the_general_path():
     for bad, msg in ((np.zeros(5), "all zero"), (np.ones(5), "constant"), (np.array([1.0, np.nan, 1.0]), "finite")):
         with pytest.raises(ValueError, match=msg):
             profile_metrics(bad, spacing=1.0, oversample=1)
+
+
+def test_peak_power_is_the_strongest_pixel_of_the_points_cell():
+    """A projected image's cells are sparse: a point split over two adjacent rows and angle bins, A =
+    (r0, a0) and B = (r0 + 1, a0 + 1), with a third pixel in row r0, puts the range cut's peak on row r0
+    and the angle cut's on column a0 + 1, where the image holds nothing.  ``peak_power`` is the strongest
+    pixel within the cuts' strips around the refined peak (B), not that empty pixel (it read 0)."""
+    from fwdlook_cli.forward.evaluate import target_metrics
+
+    range_m = 990.0 + 1.25 * np.arange(17)
+    angle_deg = np.round(4.0 + 0.05 * np.arange(21), 10)
+    image = np.zeros((17, 21), np.float32)
+    r0, a0 = 8, 10
+    image[r0, a0], image[r0 + 1, a0 + 1], image[r0, a0 + 3] = 100.0, 110.0, 30.0
+    az = np.radians(angle_deg[a0] + 0.025)
+    truth = np.array([[range_m[r0] * np.sin(az), range_m[r0] * np.cos(az), 0.0]])
+    row, = target_metrics(image, range_m, angle_deg, truth, np.ones(1), np.zeros(3), bandwidth_hz=50e6)
+    assert row["peak_power"] == 110.0
