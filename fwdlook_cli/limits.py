@@ -54,7 +54,7 @@ IMAGE_BYTES_PER_CELL = {"dwell": 32, "cpi": 8}   # peak RSS over the image grid,
 
 def check_processing_sizes(*, n_range: int, range_oversample: int, n_angle: int, angle_step_deg: float,
                            imaging: str, n_cpi: int, n_doppler: int, spectra_in_memory: bool = True,
-                           limit: int | None = None) -> None:
+                           limit: int | None = None, n_focus: int | None = None) -> None:
     """The chain's own largest arrays, derived from its settings before any is allocated: the image
     grid (``n_angle`` bins of ``angle_step_deg`` x the range samples x ``range_oversample``), at the
     bytes per cell the imaging was measured to peak at, and (CPI imaging) the Doppler spectra, both
@@ -62,14 +62,17 @@ def check_processing_sizes(*, n_range: int, range_oversample: int, n_angle: int,
     the cube has (``FWDLOOK_MAX_CUBE_BYTES`` or the default): a fine angle step once took the dwell
     image past 23 GB and the kernel ended it."""
     limit = max_cube_bytes() if limit is None else limit
-    cells = n_angle * n_range * range_oversample
+    finer = n_focus is not None and n_focus > n_angle        # the dwell focused finer than its bins (dwell_grid)
+    cells = (n_focus if finer else n_angle) * n_range * range_oversample
     image_bytes = cells * IMAGE_BYTES_PER_CELL[imaging]
     if image_bytes > limit:
+        grid = (f"the dwell focused in {n_focus:,} directions (its angle lobe is finer than the step) x"
+                if finer else f"the image grid of {n_angle:,} angles x")
         raise BadInput(f"processing.angle_step_deg = {angle_step_deg:g} with processing.range_oversample = "
-                       f"{range_oversample}: the image grid of {n_angle:,} angles x {n_range * range_oversample:,} "
+                       f"{range_oversample}: {grid} {n_range * range_oversample:,} "
                        f"ranges needs about {gib(image_bytes)} ({imaging} imaging, "
                        f"{IMAGE_BYTES_PER_CELL[imaging]} bytes a cell); over {limit_source(None)} = {gib(limit)}; "
-                       f"allowed: a coarser angle step or range oversampling")
+                       f"allowed: a coarser {'range oversampling' if finer else 'angle step or range oversampling'}")
     spectra_bytes = 16 * n_cpi * n_doppler * n_range
     if imaging == "cpi" and spectra_in_memory and spectra_bytes > limit:
         raise BadInput(f"processing.n_doppler = {n_doppler}: the Doppler spectra of {n_cpi:,} CPIs x {n_doppler} "

@@ -96,3 +96,28 @@ def test_points_between_the_image_directions_at_w_band_are_focused(tmp_path):
     assert max(abs(r["azimuth_error_deg"]) for r in rows) < 0.03
     peaks = [r["peak_power"] for r in rows]
     assert max(peaks) / min(peaks) < 2.0
+
+
+def test_the_directions_focused_are_held_to_the_size_limit_before_the_chain(tmp_path, monkeypatch):
+    """The focus's arrays are per focused direction, up to 16 times the image's bins (here, 94 GHz, about
+    2,400 directions for 841 bins, on the x 4 range grid the dwell takes).  A size limit that the image
+    grid passes (841 x 960 cells at 32 bytes: 24.6 MiB) but the focused directions do not is one clear
+    error naming them, before any stage runs (limits.check_processing_sizes)."""
+    import re
+
+    import pytest
+
+    from fwdlook_cli.errors import BadInput
+
+    raw = w_band_raw("w-band-size", [[100.0, 1720.0]], snr_db=40.0, seed=1, processing={"dwell_fit": "none"})
+    scn = resolve_with_config(raw, "w-band-size", str(ROOT / "configs" / "tracking.yaml"), [])
+    cube, _ = simulate_scenario(scn)
+    monkeypatch.setenv("FWDLOOK_MAX_CUBE_BYTES", str(40 * 2**20))
+    with pytest.raises(BadInput, match=r"the dwell focused in [\d,]+ directions .* x 960 ranges .* allowed: a "
+                                       r"coarser range oversampling") as err:
+        process_cube(cube, scn, tmp_path / "run", quiet=True, png=False)
+    n_focus = int(re.search(r"focused in ([\d,]+) directions", str(err.value)).group(1).replace(",", ""))
+    assert 2 * 841 < n_focus <= 16 * 841
+    assert not (tmp_path / "run" / "stages").exists()
+    monkeypatch.setenv("FWDLOOK_MAX_CUBE_BYTES", str(128 * 2**20))
+    assert process_cube(cube, scn, tmp_path / "run", quiet=True, png=False)["targets"][0]["detected"]

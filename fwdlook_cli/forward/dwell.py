@@ -82,7 +82,7 @@ from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
 from .calibration import check_slope_forms_a_beam, pattern_beta_per_deg2
 from .dwell_fit import start_fit_region
-from .dwell_grid import focus_directions, focus_per_bin, pattern_weight, subaperture_windows
+from .dwell_grid import check_focus_sizes, focus_directions, focus_per_bin, pattern_weight, subaperture_windows
 from .dwell_range import (auto_focus_range_oversample, dwell_duration_s, dwell_stage_params, ground_points,
                           iso_doppler_range)
 
@@ -501,12 +501,15 @@ def dwell_stages(cube, proc: dict, geo: dict):
         geo["range_oversample"] = auto_focus_range_oversample(cube, geo["p_ref"], geo["range_oversample"])
     cal = geo["calibration"]                     # the chain's monopulse calibration (slope, imbalance, offset)
     check_slope_forms_a_beam(cal, cube)
+    two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
+    half_width_deg = DWELL_HALF_WIDTH_BEAMS * two_way_deg
+    check_focus_sizes(cube, geo, proc, slope_per_deg=float(cal.slope_per_deg),
+                      beta_per_deg2=pattern_beta_per_deg2(cube), dwell_half_width_deg=half_width_deg)
     if cal.model != "tanh":                      # README, "An antenna fwdlook does not model"
         log.warning("processing.imaging: dwell measures angles with the two-Gaussian-beam rotation and the "
                     f"calibrated slope; this cube's ratio curve is a {cal.model} ({cal.source}), so a channel "
                     "imbalance folded into it is not divided out (up to 0.2 deg on an independent review's "
                     "cubes); imaging: cpi reads the curve itself")
-    two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
     step_deg = float(np.median(np.abs(np.diff(cube.scan_angle_deg))))          # scan per pulse
     # sub-aperture: the beam moves SUB_APERTURE_DEG (40 pulses for the paper's 30 deg/s at 2.5 kHz)
     sub_pulses = int(np.clip(round(SUB_APERTURE_DEG / max(step_deg, 1e-9)), 4, max(4, cube.n_pulses // 4)))

@@ -154,3 +154,23 @@ def focus_per_bin(angle_deg, beam_deg, velocity_mps, range_m, p_ref, *, fc_hz, p
     cos_dep = float(np.sqrt(max(1.0 - (p_ref[2] / far) ** 2, 0.0))) if far > abs(p_ref[2]) else 1.0
     return focus_oversample_per_bin(angle, axis_deg=axis_deg, speed_mps=per_bin_speed, lobe_hz=lobe_bin,
                                     fc_hz=fc_hz, cos_depression=cos_dep)
+
+
+def check_focus_sizes(cube, geo: dict, proc: dict, *, slope_per_deg: float, beta_per_deg2: float,
+                      dwell_half_width_deg: float) -> None:
+    """The directions ``dwell.dwell_image`` will focus on this cube (:func:`focus_per_bin` summed), held to
+    the chain's size check (``limits.check_processing_sizes``) before it starts: the focus's arrays are
+    per direction, up to MAX_FOCUS_OVERSAMPLE times the image's bins."""
+    from ..dsp.imaging import image_angle_grid
+    from ..limits import check_processing_sizes
+
+    angle = image_angle_grid(cube.scan_angle_deg, cube.radar["beamwidth_3db_deg"], proc["angle_step_deg"])
+    v_ref = np.asarray(geo["v_ref"], dtype=np.float64)
+    per_bin = focus_per_bin(angle, cube.scan_angle_deg, np.asarray(cube.velocity_mps), cube.range_m,
+                            np.asarray(geo["p_ref"], dtype=np.float64), fc_hz=cube.radar["fc_hz"],
+                            prf_hz=cube.radar["prf_hz"], axis_deg=float(np.degrees(np.arctan2(v_ref[0], v_ref[1]))),
+                            beta_per_deg2=beta_per_deg2, slope_per_deg=slope_per_deg,
+                            dwell_half_width_deg=dwell_half_width_deg)
+    check_processing_sizes(n_range=cube.n_range, range_oversample=int(geo["range_oversample"]), n_angle=len(angle),
+                           n_focus=int(per_bin.sum()), angle_step_deg=proc["angle_step_deg"], imaging="dwell",
+                           n_cpi=0, n_doppler=0)
