@@ -48,7 +48,7 @@ def test_each_subaperture_window_is_taken_from_its_own_antenna():
     whose offset delta_j of the direction from its beam, seen from its own antenna, lies in the dwell
     window: computed here independently by plain geometry.  The paper's flight (a = 50, scan -15..15 deg
     at 30 deg/s) puts the antenna up to 150 m from p_ref; taking the window in the t_ref frame lost up to
-    5 % of the gain 10 deg off the axis (one side of the dwell cut off by the parallax)."""
+    8 % of the gain 5-15 deg off the axis (one side of the dwell cut off by the parallax)."""
     prf, n_p, v0, acc, h = 2500.0, 2500, 240.0, 50.0, 50.0
     t = np.arange(n_p) / prf
     pos = np.stack([np.zeros(n_p), v0 * t + 0.5 * acc * t**2, np.full(n_p, h)], axis=-1)
@@ -121,3 +121,24 @@ def test_the_directions_focused_are_held_to_the_size_limit_before_the_chain(tmp_
     assert not (tmp_path / "run" / "stages").exists()
     monkeypatch.setenv("FWDLOOK_MAX_CUBE_BYTES", str(128 * 2**20))
     assert process_cube(cube, scn, tmp_path / "run", quiet=True, png=False)["targets"][0]["detected"]
+
+
+def test_the_cap_on_focus_directions_is_said_with_a_step_that_samples_the_lobe(caplog):
+    """Beyond MAX_FOCUS_OVERSAMPLE directions per bin the lobe is not sampled: the log says where (degrees
+    off the flight axis, not signed angles) and an angle step, rounded down, under which it would be;
+    that step then needs no more than the cap, and no warning."""
+    import logging
+    import re
+
+    lobe = dict(axis_deg=0.0, speed_mps=300.0, lobe_hz=2.6, fc_hz=94e9)
+    with caplog.at_level(logging.WARNING, logger="fwdlook_cli.forward.dwell_grid"):
+        m = G.focus_oversample_per_bin(np.round(np.arange(-40.0, 40.0001, 0.05), 10), **lobe)
+    assert m.max() == G.MAX_FOCUS_OVERSAMPLE
+    text = caplog.text
+    off = re.search(r"([\d.]+) to ([\d.]+) deg off the flight axis", text)
+    assert off and 0.0 < float(off.group(1)) < float(off.group(2)) == 40.0
+    step = float(re.search(r"angle_step_deg <= ([\d.]+)", text).group(1))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="fwdlook_cli.forward.dwell_grid"):
+        m = G.focus_oversample_per_bin(np.round(np.arange(-40.0, 40.0001, step), 10), **lobe)
+    assert m.max() <= G.MAX_FOCUS_OVERSAMPLE and "dwell image" not in caplog.text

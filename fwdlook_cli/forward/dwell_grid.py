@@ -17,8 +17,11 @@ directions; the paper's 18 GHz flight takes m = 2 at 10.4-13.9 deg.
 **Each sub-aperture's window** (:func:`subaperture_windows`) holds the directions whose offset from its
 beam, seen from its own antenna position, lies within the dwell window.  It was taken in the t_ref frame
 before (the image grid around the beam angle), which up to 0.45 deg of parallax (the antenna 70 m from
-p_ref when the paper's beam passes 10 deg) cut the window's leading edge off: up to 5 % of a direction's
-matched-filter gain lost, on one side of its dwell.
+p_ref when the paper's beam passes 10 deg) cut the window's leading edge off: up to 8 % of a direction's
+matched-filter gain lost 5-15 deg off the axis on the paper's flight, 19 % near the scan's start.
+
+The rule samples the lobe's power; a point's range between two directions is more sensitive (at 94 GHz
+and 15 deg/s, up to 0.56 m off: README, "Where the focus directions are still not enough").
 """
 from __future__ import annotations
 
@@ -62,12 +65,13 @@ def lobe_half_width_hz(beta_per_deg2: float, slope_per_deg: float, half_width_de
 
 
 def focus_oversample_per_bin(angle_deg, *, axis_deg: float, speed_mps, lobe_hz: float, fc_hz: float,
-                             cos_depression: float = 1.0):
+                             cos_depression: float = 1.0, warn: bool = True):
     """Focus directions per image bin (int array like ``angle_deg``): the least m with the bin's step / m
     at most the lobe's full width at :data:`LOBE_LEVEL` in angle, 2 lobe_hz lambda / (2 v cos(phi)
     |sin(theta - axis)|) (``lobe_hz``: its half-width in Doppler, :func:`lobe_half_width_hz`;
     ``speed_mps``: the horizontal speed while the beam dwells on each bin, an array like ``angle_deg`` or
-    one number; ``lobe_hz`` likewise), capped at :data:`MAX_FOCUS_OVERSAMPLE`."""
+    one number; ``lobe_hz`` likewise), capped at :data:`MAX_FOCUS_OVERSAMPLE` (``warn``: say so where the
+    cap is reached, with the angle step that would not need it)."""
     angle = np.asarray(angle_deg, dtype=np.float64)
     step = float(angle[1] - angle[0]) if angle.size > 1 else 1.0
     lam = 299_792_458.0 / fc_hz
@@ -76,11 +80,16 @@ def focus_oversample_per_bin(angle_deg, *, axis_deg: float, speed_mps, lobe_hz: 
     with np.errstate(over="ignore", divide="ignore"):              # (no dwell, or no gradient: one direction)
         width_deg = np.degrees(2.0 * np.asarray(lobe_hz, dtype=np.float64) / np.maximum(grad, 1e-300))
     need = np.ceil(step / width_deg - 1e-9)
-    if need.max(initial=1) > MAX_FOCUS_OVERSAMPLE:
-        log.warning(f"dwell image: the dwell resolves {float(width_deg.min()):.2g} deg off the flight axis, finer than "
-                    f"{MAX_FOCUS_OVERSAMPLE} focus directions per {step:g} deg angle bin sample; points between them "
-                    f"lose power and may be placed off in range (set processing.angle_step_deg <= "
-                    f"{MAX_FOCUS_OVERSAMPLE * float(width_deg.min()):.2g})")
+    over = need > MAX_FOCUS_OVERSAMPLE
+    if warn and over.any():
+        finest = float(width_deg.min())
+        enough = np.floor(MAX_FOCUS_OVERSAMPLE * finest / 10 ** np.floor(np.log10(MAX_FOCUS_OVERSAMPLE * finest) - 1))
+        enough *= 10 ** np.floor(np.log10(MAX_FOCUS_OVERSAMPLE * finest) - 1)         # two digits, rounded down
+        off = np.abs(angle[over] - axis_deg)
+        log.warning(f"dwell image: {float(off.min()):.1f} to {float(off.max()):.1f} deg off the flight axis the "
+                    f"dwell's angle lobe is down to {finest:.2g} deg wide, more than {MAX_FOCUS_OVERSAMPLE} focus "
+                    f"directions per {step:g} deg angle bin would need; points between them there lose power and may "
+                    f"be placed off in range (processing.angle_step_deg <= {enough:.2g} samples it)")
     return np.clip(need, 1, MAX_FOCUS_OVERSAMPLE).astype(np.int64)
 
 
@@ -121,7 +130,7 @@ def pattern_weight(offset_deg, beta_per_deg2, slope_per_deg):
 
 
 def focus_per_bin(angle_deg, beam_deg, velocity_mps, range_m, p_ref, *, fc_hz, prf_hz, axis_deg, beta_per_deg2,
-                  slope_per_deg, dwell_half_width_deg):
+                  slope_per_deg, dwell_half_width_deg, warn: bool = True):
     """Focus directions per image bin (:func:`focus_oversample_per_bin`), with the horizontal speed the
     platform has while the beam dwells on each bin (the largest over the pulses whose beam lies within the
     dwell window of it), the depression at the window's far end (the narrowest lobe), and each bin's own
@@ -153,7 +162,7 @@ def focus_per_bin(angle_deg, beam_deg, velocity_mps, range_m, p_ref, *, fc_hz, p
     far = float(np.max(range_m))
     cos_dep = float(np.sqrt(max(1.0 - (p_ref[2] / far) ** 2, 0.0))) if far > abs(p_ref[2]) else 1.0
     return focus_oversample_per_bin(angle, axis_deg=axis_deg, speed_mps=per_bin_speed, lobe_hz=lobe_bin,
-                                    fc_hz=fc_hz, cos_depression=cos_dep)
+                                    fc_hz=fc_hz, cos_depression=cos_dep, warn=warn)
 
 
 def check_focus_sizes(cube, geo: dict, proc: dict, *, slope_per_deg: float, beta_per_deg2: float,
@@ -170,7 +179,7 @@ def check_focus_sizes(cube, geo: dict, proc: dict, *, slope_per_deg: float, beta
                             np.asarray(geo["p_ref"], dtype=np.float64), fc_hz=cube.radar["fc_hz"],
                             prf_hz=cube.radar["prf_hz"], axis_deg=float(np.degrees(np.arctan2(v_ref[0], v_ref[1]))),
                             beta_per_deg2=beta_per_deg2, slope_per_deg=slope_per_deg,
-                            dwell_half_width_deg=dwell_half_width_deg)
+                            dwell_half_width_deg=dwell_half_width_deg, warn=False)     # (dwell_image says it)
     check_processing_sizes(n_range=cube.n_range, range_oversample=int(geo["range_oversample"]), n_angle=len(angle),
                            n_focus=int(per_bin.sum()), angle_step_deg=proc["angle_step_deg"], imaging="dwell",
                            n_cpi=0, n_doppler=0)
