@@ -8,16 +8,16 @@ carrier).  The lobe in angle, lambda / (2 v |sin theta|) times that, is 0.05 deg
 off the flight axis, but 0.011 deg at 94 GHz: there a point between two of the image's 0.05 deg
 directions was seen only in their sidelobes (an independent review, forty-ninth round; measured in the
 fiftieth, 94 GHz, a = 20, six points 10 deg off the axis: 17-33 dB down and 0.46-1.13 m off in range
-between the directions, against 0.031 m and peaks within 0.1 dB now).  So every image bin is focused
+between the directions, against 0.031 m and peaks within 0.14 dB now).  So every image bin is focused
 in m directions, evenly spaced, m the least that puts a direction at least every half-power width of
 the lobe there (:func:`focus_per_bin`; at -6 dB the six points were still 0.17 m off), and each focused
 cell's power counts 1/m in its bin.  Near the flight axis and at lower carriers m = 1, the image's own
-directions; the paper's 18 GHz flight takes m = 2 at 10.4-13.9 deg.
+directions; the paper's 18 GHz flight at a = 50 takes m = 2 at 10.4-13.9 deg (a = 0 and 10: none).
 
 **Each sub-aperture's window** (:func:`subaperture_windows`) holds the directions whose offset from its
 beam, seen from its own antenna position, lies within the dwell window.  It was taken in the t_ref frame
-before (the image grid around the beam angle), which up to 0.45 deg of parallax (the antenna 70 m from
-p_ref when the paper's beam passes 10 deg) cut the window's leading edge off: up to 8 % of a direction's
+before (the image grid around the beam angle), which 0.57 deg of parallax (the antenna 91 m from p_ref
+when the paper's a = 50 beam passes 10 deg, 1.6 km away) cut on one side of the window: up to 8 % of a direction's
 matched-filter gain lost 5-15 deg off the axis on the paper's flight, 19 % near the scan's start.
 
 The rule samples the lobe's power; a point's range between two directions is more sensitive (at 94 GHz
@@ -33,7 +33,7 @@ from ..dsp.neighbours import running_max
 
 log = logging.getLogger(__name__)
 
-MAX_FOCUS_OVERSAMPLE = 16        # focus directions per image bin at most (94 GHz, 20 deg off the axis: 10)
+MAX_FOCUS_OVERSAMPLE = 16        # focus directions per image bin at most (the review's 94 GHz scene: 5 at most)
 LOBE_LEVEL = 0.5                 # a focus direction at least every half-power width of the lobe: at -6 dB
                                  # (0.25: 3 dB of power at worst, the two neighbours together) the W-band points
                                  # between them were still 0.17 m off in range and 4.3 dB apart (fiftieth round)
