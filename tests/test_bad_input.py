@@ -16,22 +16,14 @@ import numpy as np
 import pytest
 import yaml
 
-from fwdlook_cli.cli import main
 from fwdlook_cli.errors import BadInput
 from fwdlook_cli.scenario.loader import load_scenario, scenario_hash
 from fwdlook_cli.io.raw import write_raw
 from fwdlook_cli.forward.simulate import simulate_scenario
+from cli_runner import run_cli
 
 TINY = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
 TINY_TEXT = TINY.read_text(encoding="utf-8")
-
-
-def run_cli(argv, capsys):
-    """Run ``fwdlook ARGV`` in-process; return (exit code, stdout, stderr)."""
-    with pytest.raises(SystemExit) as exc_info:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return exc_info.value.code, out, err
 
 
 def assert_bad_input(code, out, err, path, fragments):

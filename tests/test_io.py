@@ -14,22 +14,14 @@ import numpy as np
 import pytest
 import yaml
 
-from fwdlook_cli.cli import main
 from fwdlook_cli.scenario.loader import load_scenario, resolve_scenario, scenario_hash
 from fwdlook_cli.io.h5 import atomic_h5
 from fwdlook_cli.io.raw import read_raw, write_raw
 from fwdlook_cli.forward.simulate import simulate_scenario
+from cli_runner import run_cli
 
 TINY = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
 RADAR_KEYS = ("fc_hz", "bandwidth_hz", "fs_hz", "prf_hz", "beamwidth_3db_deg")
-
-
-def run_cli(argv, capsys):
-    """Run ``fwdlook ARGV`` in-process; return (exit code, stdout, stderr)."""
-    with pytest.raises(SystemExit) as exc_info:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return exc_info.value.code, out, err
 
 
 def _same(a, b) -> bool:

@@ -9,17 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from fwdlook_cli.cli import cli, main
+from fwdlook_cli.cli import cli
+from cli_runner import run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "scenarios" / "tiny.yaml"
-
-
-def run_cli(argv, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return exc.value.code, out, err
 
 
 def test_run_progress_and_closing_table(tmp_path, capsys):

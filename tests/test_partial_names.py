@@ -9,20 +9,12 @@ import os
 from pathlib import Path
 
 import h5py
-import pytest
 
-from fwdlook_cli.cli import main
 from fwdlook_cli.io.partial import claim_partial
+from cli_runner import run_cli
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ROOT / "scenarios" / "tiny.yaml"
-
-
-def run_cli(argv, capsys):
-    with pytest.raises(SystemExit) as info:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return info.value.code, out, err
 
 
 def _no_partials_of_ours(folder: Path, *keep: Path):

@@ -25,6 +25,7 @@ import pytest
 from fwdlook_cli.errors import BadInput
 from fwdlook_cli.io import extra_outputs, outputs
 from fwdlook_cli.cli import main
+from cli_runner import run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "scenarios" / "tiny.yaml"
@@ -33,11 +34,6 @@ TINY = ROOT / "scenarios" / "tiny.yaml"
 # ----------------------------------------------------------------------------------------------
 # Helpers
 # ----------------------------------------------------------------------------------------------
-def run_cli(argv, capsys):
-    with pytest.raises(SystemExit) as exc_info:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return exc_info.value.code, out, err
 
 
 def assert_refused(code, out, err, *fragments):

@@ -18,19 +18,12 @@ import pytest
 from fwdlook_cli.cli import main
 from fwdlook_cli.dsp.geometry import C_MPS
 from fwdlook_cli.report.tables import SIG_DIGITS, parse_md_table, parse_value
+from cli_runner import run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = REPO / "scenarios" / "tiny.yaml"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 METHODS = ("tracking", "decimation")
-
-
-def run_cli(argv, capsys):
-    """Run ``fwdlook ARGV`` in-process; return (exit code, stdout, stderr)."""
-    with pytest.raises(SystemExit) as exc_info:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return exc_info.value.code, out, err
 
 
 @pytest.fixture(scope="module")

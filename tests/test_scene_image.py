@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import yaml
 
-from fwdlook_cli.cli import main
 from fwdlook_cli.scenario.loader import resolve_scenario
 from fwdlook_cli.scenario.forward import scene_points
 from fwdlook_cli.scenario.scene_image import SPECKLE_STREAM, make_road_scene
 from fwdlook_cli.forward.simulate import simulate_scenario
 from fwdlook_cli.testing import TINY, _merge
+from cli_runner import run_cli
 
 
 def _tiny(scene, **extra):
@@ -69,13 +69,6 @@ def test_procedural_edges_lie_on_their_lines():
         near = np.abs(v - v_line) < 3.0
         centroid = np.sum(v[near] * col[near]) / np.sum(col[near])
         assert abs(centroid - v_line) < 0.75, name   # quarter pixel: the field on one side biases it
-
-
-def run_cli(argv, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return exc.value.code, out, err
 
 
 def _scenario_file(tmp_path, image):

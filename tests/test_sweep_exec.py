@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from fwdlook_cli.cli import main
 from fwdlook_cli.report.sweep import SUMMARY_KEYS
+from cli_runner import run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = str(ROOT / "scenarios" / "tiny.yaml")
@@ -22,13 +22,6 @@ def sweep_file(tmp_path, methods=("tracking", "beam"), name="t", t_refs=("start"
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(spec))
     return path
-
-
-def run_cli(argv, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return exc.value.code, out, err
 
 
 def rows_of(out_dir):

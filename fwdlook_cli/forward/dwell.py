@@ -357,7 +357,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     m_ref = int(np.argmin(np.abs(data["slow_time_s"] - data.attrs.get("t_ref_s", data["slow_time_s"][0]))))
     twin_axis = float(np.degrees(np.arctan2(vel[m_ref, 0], vel[m_ref, 1])))
     # the focused directions: each image bin's own, and more where the dwell's angle lobe is narrower than
-    # the bin (dwell_grid.py); looked_dir: the focused ones the scan dwelt on
+    # the bin (dwell_grid.py)
     per_bin = focus_per_bin(angle_deg, beam, vel, range_m, p_ref, fc_hz=fc_hz, prf_hz=prf_hz, axis_deg=twin_axis,
                             beta_per_deg2=beta_per_deg2, slope_per_deg=slope_per_deg,
                             dwell_half_width_deg=dwell_half_width_deg)
@@ -421,9 +421,8 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         del s_c, dz_c, power32, s, dz          # (not held through the projection and the fit's end)
         ok = np.abs(ratio_c) < max_ratio
         i_dir, i_r = np.divmod(over[ok], n_os)                             # np.nonzero's order
-        ratio_kept, w = ratio_c[ok], power_c[ok]
-        if dir_weight.min() < 1.0:             # a bin focused in m directions: each cell's power counts 1/m
-            w = w * dir_weight[looked][i_dir]
+        ratio_kept = ratio_c[ok]
+        w = power_c[ok] * dir_weight[looked][i_dir]      # a bin focused in m directions: each cell counts 1/m
         del over, ok, ratio_c, power_c
         # the offset eps is seen from the antenna over the dwell: add it to the direction's azimuth from
         # the dwell's mean antenna position, then solve the point's azimuth from the t_ref antenna (chain)

@@ -29,7 +29,9 @@ import logging
 
 import numpy as np
 
+from ..dsp.imaging import image_angle_grid
 from ..dsp.neighbours import running_max
+from ..limits import check_processing_sizes
 
 log = logging.getLogger(__name__)
 
@@ -83,8 +85,8 @@ def focus_oversample_per_bin(angle_deg, *, axis_deg: float, speed_mps, lobe_hz: 
     over = need > MAX_FOCUS_OVERSAMPLE
     if warn and over.any():
         finest = float(width_deg.min())
-        enough = np.floor(MAX_FOCUS_OVERSAMPLE * finest / 10 ** np.floor(np.log10(MAX_FOCUS_OVERSAMPLE * finest) - 1))
-        enough *= 10 ** np.floor(np.log10(MAX_FOCUS_OVERSAMPLE * finest) - 1)         # two digits, rounded down
+        digit = 10.0 ** (np.floor(np.log10(MAX_FOCUS_OVERSAMPLE * finest)) - 1)
+        enough = np.floor(MAX_FOCUS_OVERSAMPLE * finest / digit) * digit                # two digits, rounded down
         off = np.abs(angle[over] - axis_deg)
         log.warning(f"dwell image: {float(off.min()):.1f} to {float(off.max()):.1f} deg off the flight axis the "
                     f"dwell's angle lobe is down to {finest:.2g} deg wide, more than {MAX_FOCUS_OVERSAMPLE} focus "
@@ -103,9 +105,7 @@ def focus_directions(angle_deg, per_bin):
     bins = np.repeat(np.arange(angle.size), m)
     first = np.concatenate([[0], np.cumsum(m)[:-1]]).astype(np.int64)
     j = np.arange(bins.size) - first[bins]
-    if np.all(m == 1):
-        return angle.copy(), bins, first, np.ones(angle.size)
-    return angle[bins] + step * j / m[bins], bins, first, 1.0 / m[bins]
+    return angle[bins] + step * j / m[bins], bins, first, 1.0 / m[bins]      # (m = 1: the bins themselves)
 
 
 def subaperture_windows(delta_deg, half_width_deg: float):
@@ -170,9 +170,6 @@ def check_focus_sizes(cube, geo: dict, proc: dict, *, slope_per_deg: float, beta
     """The directions ``dwell.dwell_image`` will focus on this cube (:func:`focus_per_bin` summed), held to
     the chain's size check (``limits.check_processing_sizes``) before it starts: the focus's arrays are
     per direction, up to MAX_FOCUS_OVERSAMPLE times the image's bins."""
-    from ..dsp.imaging import image_angle_grid
-    from ..limits import check_processing_sizes
-
     angle = image_angle_grid(cube.scan_angle_deg, cube.radar["beamwidth_3db_deg"], proc["angle_step_deg"])
     v_ref = np.asarray(geo["v_ref"], dtype=np.float64)
     per_bin = focus_per_bin(angle, cube.scan_angle_deg, np.asarray(cube.velocity_mps), cube.range_m,

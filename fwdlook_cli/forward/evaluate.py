@@ -153,7 +153,7 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
     angle_width = half_power_width_rows(angle_rows, j, np.full(len(tg), n_a), da)
     # the strongest pixel of the point's cell around the measured peak (the cuts' strips, inside the search
     # window): the cuts' peaks need not meet on one pixel of a projected image, whose cells are sparse (a
-    # dwell image's point split over two adjacent rows and bins put image[i, j] 35 dB under it)
+    # dwell image's point split over two adjacent rows and bins put image[i, j] 34 dB under it)
     peak_power = _cell_max(image, i, j, w_r, w_a, i0[tg], i1[tg], j0[tg], j1[tg])
     for t, k in enumerate(tg.tolist()):
         rows[k].update({"meas_range_m": float(meas_r[t]), "meas_azimuth_deg": float(meas_a[t]),
