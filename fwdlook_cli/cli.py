@@ -16,7 +16,7 @@ import click
 from . import __version__
 from .errors import BadInput, Terminated
 from .limits import shown
-from .options import GroundMetres, json_option, quiet_option, set_option
+from .options import GroundMetres, check_bench_options, json_option, quiet_option, set_option
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -244,10 +244,14 @@ out_of_core_option = click.option(
 
 
 def _refuse_out_of_core_isar(scn, source, out_of_core: bool) -> None:
-    """``--out-of-core`` is for the forward-looking chain: refused for an ISAR scenario before any work."""
+    """``--out-of-core``: an ISAR scenario, or settings that need whole arrays, refused before any work."""
     if out_of_core and scn["kind"] == "isar":
         raise BadInput(f"{source}: --out-of-core: the ISAR chain runs in memory; --out-of-core is for the "
                        f"forward-looking chain (scenario kind forward)")
+    if out_of_core:
+        from .forward.process import refuse_out_of_core_settings
+
+        refuse_out_of_core_settings(scn.get("processing") or {}, source)
 
 
 def _out_of_core(enabled: bool, output):
@@ -453,11 +457,7 @@ def bench(as_json, scaling, plot_path, repeats, write_cube, shape, scene, backen
     """Timings measured in one process on the paper cube (ratios to one plain 2-D FFT)."""
     from .report.bench import print_bench
 
-    given = click.get_current_context().get_parameter_source
-    for name, flag, needs, present in (("shape", "--shape", "--write-cube", write_cube),
-                                       ("plot_path", "--plot", "--scaling", scaling)):
-        if given(name) == click.core.ParameterSource.COMMANDLINE and not present:
-            raise BadInput(f"{flag}: applies only with {needs}; allowed: {flag} together with {needs}")
+    check_bench_options(click.get_current_context(), write_cube=write_cube, scaling=scaling, backend=backend)
     if write_cube:
         from .io.outputs import prepare_file
         from .limits import check_cube_bytes

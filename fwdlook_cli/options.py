@@ -34,3 +34,34 @@ class GroundMetres(click.ParamType):
         if not math.isfinite(number) or abs(number) > 1e7:
             self.fail(f"{value!r}: allowed: a finite number of metres, |value| <= 1e7", param, ctx)
         return number
+
+
+BENCH_FLAGS = {"--json": "as_json", "--scaling": "scaling", "--plot": "plot_path", "--repeats": "repeats",
+               "--write-cube": "write_cube", "--shape": "shape", "--scene": "scene", "--backend": "backend",
+               "--overwrite": "overwrite"}          # fwdlook bench's options and their parameters' names
+BENCH_MODE_FLAGS = {"--write-cube": ("--shape", "--overwrite"),      # writes a cube, measures nothing
+                    "--scaling": ("--plot", "--repeats", "--json", "--overwrite")}   # the CPU chains only
+
+
+def check_bench_options(ctx, *, write_cube, scaling, backend) -> None:
+    """``fwdlook bench``'s options that do not go together, refused in one line (exit 2) before any
+    timing: an option given on the command line that its mode ignores, and ``--backend gpu`` on a
+    machine without CuPy or a CUDA device (naming the option, not ``processing.backend``)."""
+    from .errors import BadInput
+
+    given = {flag for flag, name in BENCH_FLAGS.items()
+             if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE}
+    if backend != "gpu":
+        given.discard("--backend")                  # --backend cpu: what every mode does
+    for flag, needs, present in (("--shape", "--write-cube", write_cube), ("--plot", "--scaling", scaling)):
+        if flag in given and not present:
+            raise BadInput(f"{flag}: applies only with {needs}; allowed: {flag} together with {needs}")
+    for mode, present in (("--write-cube", write_cube), ("--scaling", scaling)):
+        extra = sorted(given - {mode, *BENCH_MODE_FLAGS[mode]})
+        if present and extra:
+            raise BadInput(f"{extra[0]}: does not apply with {mode}; allowed with {mode}: "
+                           f"{', '.join(BENCH_MODE_FLAGS[mode])}")
+    if backend == "gpu":
+        from .dsp.xp import get_xp
+
+        get_xp("gpu", key="--backend")

@@ -290,6 +290,8 @@ def _first_to_run(paths, keys, recompute_from: int, keep: str, needed: list[int]
             checked[i] = loaded is not None and view_file_key(paths[i]) == keys[i]
         return checked[i]
 
+    if keep == "none":            # every run computes everything: the files of an earlier run are neither
+        return 0                  # read nor reused (its captured stages would be read after they go, below)
     if keep == "all":
         first = recompute_from
         for i in range(recompute_from):

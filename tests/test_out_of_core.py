@@ -252,6 +252,11 @@ def test_the_command_line_flag(tiny_raw, tmp_path, capsys):
     code, err = run("run", os.path.join(root, "scenarios", "isar_theta3.yaml"), "-o", tmp_path / "isar",
                     "--out-of-core", "-q")                      # refused before the cube is simulated
     assert code == 2 and "ISAR chain runs in memory" in err and not (tmp_path / "isar").exists()
+    # `run` refuses the settings --out-of-core cannot honour before it simulates: a refused rerun had
+    # simulated and written raw.h5 first, over the earlier run's cube (an independent review)
+    code, err = run("run", os.path.join(root, "scenarios", "tiny.yaml"), "-o", tmp_path / "iaa_run", "--out-of-core",
+                    "-q", "--set", "processing.doppler_estimator=iaa", "--set", "processing.imaging=cpi")
+    assert code == 2 and "allowed with --out-of-core: fft" in err and not (tmp_path / "iaa_run").exists()
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
     code, err = run("process", tiny_raw, "-o", blocker / "run", "--out-of-core", "-q")

@@ -419,6 +419,24 @@ def test_keep_stages_writes_less_and_gives_the_same_metrics(tiny_raw, tmp_path, 
         assert "[1/7] range_fft" in err
 
 
+@pytest.mark.parametrize("before", ["all", "last"])
+def test_keep_stages_none_over_an_earlier_runs_stage_files(tiny_raw, tmp_path, capsys, before):
+    """A folder whose earlier run kept its stage files, rerun with `--keep-stages none` (an independent
+    review): the rerun had reused those files, removed them as its policy keeps none, and then read the
+    Doppler spectra from the removed file for the CPI profile metrics (a traceback, and the earlier run's
+    outputs gone). `none` computes everything: the same metrics as a fresh run, and no stage file left."""
+    run_dir, fresh = tmp_path / "run", tmp_path / "fresh"
+    _run(["process", tiny_raw, "-o", run_dir, "-q", "--keep-stages", before])
+    assert (run_dir / "stages" / "06_doppler_spectra.h5").exists()
+    capsys.readouterr()
+    _run(["process", tiny_raw, "-o", run_dir, "--keep-stages", "none"])
+    assert "[1/7] range_fft" in capsys.readouterr().err
+    _run(["process", tiny_raw, "-o", fresh, "-q", "--keep-stages", "none"])
+    a, b = (json.loads((d / "metrics.json").read_text()) for d in (run_dir, fresh))
+    assert a["targets"] == b["targets"] and a["stage_sha256"] == b["stage_sha256"]
+    assert list((run_dir / "stages").glob("*.h5")) == [] and (run_dir / "image.h5").is_file()
+
+
 # ----------------------------------------------------------------------------------------------
 # bench tools
 # ----------------------------------------------------------------------------------------------
@@ -905,7 +923,8 @@ def test_the_bench_states_each_target_against_its_bound_and_prints_them_last(mon
     lines = capsys.readouterr().out.splitlines()
     assert lines[-6] == "targets (issue: bound; this run):"
     assert lines[-1] == ("on one core (bench_cores.py): chain_s / fft2_s 30.0, chain_tracking_s / fft2_s 35.0; "
-                         "the second core makes the fft2 2.00 x faster, the chains 1.71 x and 1.56 x")
+                         "the second core's gain (one-core time over two-core time): fft2 2.00 x, the chains "
+                         "1.71 x and 1.56 x")
     assert "one_core[chain_s]            120.00 ms" in lines and "one_core[chain_over_fft2]      30.00 x" in lines
 
 

@@ -402,6 +402,25 @@ def test_bench_scaling_plot_is_guarded_before_the_series(tmp_path, capsys, monke
         assert_refused(code, out, err, flag, "applies only with")
 
 
+def test_bench_refuses_options_its_mode_would_ignore(tmp_path, capsys, monkeypatch):
+    """`--scaling --backend gpu` had run the CPU series for a minute, and `--write-cube` had dropped
+    `--scaling`, `--scene`, `--backend gpu` and `--json` without a word (an independent review): each
+    such option is refused in one line before anything is measured or written (`--backend gpu` without
+    a GPU: tests/test_gpu_backend.py)."""
+    from fwdlook_cli.report import bench
+
+    monkeypatch.setattr(bench, "print_bench", lambda *a, **k: pytest.fail("the bench started"))
+    cube = tmp_path / "c.h5"
+    for argv, flag, mode in ((["--scaling", "--backend", "gpu"], "--backend", "--scaling"),
+                             (["--scaling", "--scene"], "--scene", "--scaling"),
+                             (["--write-cube", cube, "--scaling"], "--scaling", "--write-cube"),
+                             (["--write-cube", cube, "--shape", "64", "64", "--json"], "--json", "--write-cube"),
+                             (["--write-cube", cube, "--repeats", "5"], "--repeats", "--write-cube")):
+        code, out, err = run_cli(["bench", *argv], capsys)
+        assert_refused(code, out, err, f"{flag}: does not apply with {mode}")
+        assert not cube.exists()
+
+
 def test_a_bench_plot_is_recognised_by_its_pngs_software_text(tmp_path):
     """matplotlib writes the mark, the guard's own PNG reader finds it (and nothing in another PNG)."""
     import matplotlib

@@ -22,16 +22,16 @@ ENV_XP = "FWDLOOK_XP"
 INSTALL = "pip install -e .[gpu]"
 
 
-def _no_gpu(reason: str) -> BadInput:
-    return BadInput(f"processing.backend = gpu: {reason}; allowed: {', '.join(BACKENDS)} "
+def _no_gpu(reason: str, key: str) -> BadInput:
+    return BadInput(f"{key} = gpu: {reason}; allowed on this machine: cpu "
                     f"(gpu needs CuPy and a CUDA device: {INSTALL})")
 
 
-def get_xp(backend: str = "cpu"):
+def get_xp(backend: str = "cpu", key: str = "processing.backend"):
     """The array module of ``backend``: numpy for ``cpu``, cupy for ``gpu``.
 
-    Raises :class:`BadInput` (one line naming ``processing.backend``, the allowed values and the
-    install line) when ``gpu`` is asked and CuPy or a CUDA device is missing.
+    Raises :class:`BadInput` (one line naming ``key``, the setting or option that asked for it, what
+    this machine allows and the install line) when ``gpu`` is asked and CuPy or a CUDA device is missing.
     """
     if backend == "cpu":
         return np
@@ -45,13 +45,13 @@ def get_xp(backend: str = "cpu"):
     try:
         import cupy
     except Exception as exc:                    # ImportError, or a broken CUDA install
-        raise _no_gpu(f"CuPy cannot be imported ({exc.__class__.__name__})") from None
+        raise _no_gpu(f"CuPy cannot be imported ({exc.__class__.__name__})", key) from None
     try:
         n_dev = cupy.cuda.runtime.getDeviceCount()
     except Exception as exc:                    # CUDARuntimeError: no driver, no device
-        raise _no_gpu(f"no CUDA device ({exc.__class__.__name__})") from None
+        raise _no_gpu(f"no CUDA device ({exc.__class__.__name__})", key) from None
     if n_dev < 1:
-        raise _no_gpu("no CUDA device")
+        raise _no_gpu("no CUDA device", key)
     return cupy
 
 

@@ -155,6 +155,18 @@ def check_cube_overrides(source, cube, overrides) -> None:
         check_settings_for_cube(cube, scn["processing"], str(source))
 
 
+def refuse_out_of_core_settings(proc: dict, source: str) -> None:
+    """``--out-of-core`` runs the stages that work in blocks only (io/backing.py): the processing settings
+    that need whole arrays refused in one line (the CLI calls this before a cube is simulated or read)."""
+    if proc.get("backend", "cpu") != "cpu":
+        raise BadInput(f"{source}: processing.backend = {proc['backend']} with --out-of-core: the GPU stages "
+                       f"take whole arrays; allowed with --out-of-core: processing.backend = cpu")
+    if proc.get("doppler_estimator", "fft") != "fft" and proc.get("imaging", "cpi") == "cpi":
+        raise BadInput(f"{source}: processing.doppler_estimator = {proc['doppler_estimator']} with "
+                       f"--out-of-core: IAA takes whole CPIs of every range cell; allowed with "
+                       f"--out-of-core: fft")
+
+
 @on_one_blas_thread
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
                  png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False,
@@ -184,14 +196,8 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
 
         proc = dict(proc, **plan_for_cube(cube, proc)["processing"])
     check_settings_for_cube(cube, proc, source)
-    if backing.active():     # --out-of-core: the stages that work in blocks only (io/backing.py)
-        if proc.get("backend", "cpu") != "cpu":
-            raise BadInput(f"{source}: processing.backend = {proc['backend']} with --out-of-core: the GPU stages "
-                           f"take whole arrays; allowed with --out-of-core: processing.backend = cpu")
-        if proc.get("doppler_estimator", "fft") != "fft" and proc.get("imaging", "cpi") == "cpi":
-            raise BadInput(f"{source}: processing.doppler_estimator = {proc['doppler_estimator']} with "
-                           f"--out-of-core: IAA takes whole CPIs of every range cell; allowed with "
-                           f"--out-of-core: fft")
+    if backing.active():
+        refuse_out_of_core_settings(proc, source)
     t_start = time.perf_counter()
     try:
         src, stages, geo = build_forward_stages(cube, proc)
