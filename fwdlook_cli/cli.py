@@ -16,7 +16,7 @@ import click
 from . import __version__
 from .errors import BadInput, Terminated
 from .limits import shown
-from .options import GroundMetres, check_bench_options, json_option, quiet_option, set_option
+from .options import GroundMetres, check_bench_options, check_stage_options, json_option, quiet_option, set_option
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -281,13 +281,10 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
     """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
     from .io.outputs import folder_lock, prepare_run_dir
 
-    if force and from_stage:
-        raise BadInput(f"--force with --from-stage {shown(from_stage)}: --force recomputes every stage, "
-                       f"--from-stage the stages from {shown(from_stage)} on; allowed: one of them")
-
     held = contextlib.ExitStack()        # the run directory's lock, until the command ends
 
     def prepare(scn):
+        check_stage_options(from_stage, force, scn["kind"])          # before any work (a simulation)
         _refuse_out_of_core_isar(scn, raw or source, out_of_core)
         d = prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
         held.enter_context(folder_lock(d))

@@ -65,3 +65,23 @@ def check_bench_options(ctx, *, write_cube, scaling, backend) -> None:
         from .dsp.xp import get_xp
 
         get_xp("gpu", key="--backend")
+
+
+def check_stage_options(from_stage, force: bool, kind: str) -> None:
+    """``process``'s ``--from-stage`` and ``--force``, refused in one line before any work: both given, or
+    a stage that no chain of the scenario's kind has (the chain's own list is checked once it is built:
+    ``runner.run_stages``; a name no chain has had been refused only after the cube was simulated)."""
+    from .errors import BadInput
+    from .limits import shown
+
+    if force and from_stage:
+        raise BadInput(f"--force with --from-stage {shown(from_stage)}: --force recomputes every stage, "
+                       f"--from-stage the stages from {shown(from_stage)} on; allowed: one of them")
+    if from_stage is not None:
+        if kind == "isar":
+            from .isar.chain import STAGE_NAMES
+        else:
+            from .forward.chain import STAGE_NAMES
+        if from_stage not in STAGE_NAMES:
+            raise BadInput(f"--from-stage {shown(from_stage)}: no {kind} chain has this stage; allowed: "
+                           f"{', '.join(STAGE_NAMES)}")

@@ -246,6 +246,41 @@ def test_unknown_from_stage_exits_2_listing_the_stages(tiny_raw, tmp_path, capsy
     assert all(name in lines[0] for name in STAGES), lines[0]
     assert not (run_dir / "metrics.json").exists() and not (run_dir / "image.h5").exists()
     assert not list(run_dir.glob("stages/*.h5"))
+    # from a scenario, a name no chain of its kind has is refused before the cube is simulated (it had
+    # been refused after, the simulator's progress line before the error; an independent review)
+    root = Path(__file__).resolve().parents[1]
+    for scenario, kind in (("tiny.yaml", "forward"), ("isar_theta3.yaml", "isar")):
+        code, out, err = fwdlook(["process", root / "scenarios" / scenario, "-o", tmp_path / kind,
+                                  "--from-stage", "kestone"], capsys)
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and f"no {kind} chain has this stage" in lines[0], err
+        assert not (tmp_path / kind).exists()
+
+
+def test_the_stage_names_the_command_line_checks_first_are_every_chains():
+    """``--from-stage`` is checked against chain.STAGE_NAMES before a cube exists: those lists hold
+    every stage of every forward chain (each method, CPI and dwell imaging) and ISAR chain built."""
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.isar.chain import STAGE_NAMES as ISAR_NAMES, build_isar_stages
+    from fwdlook_cli.isar.simulate import simulate_isar_scenario
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    root = Path(__file__).resolve().parents[1]
+    tiny = load_scenario(root / "scenarios" / "tiny.yaml")
+    cube, _ = simulate_scenario(tiny)
+    seen = set()
+    for method in ("none", "bulk", "beam", "traditional", "decimation", "tracking"):
+        for imaging in ("cpi", "dwell"):
+            _, stages, _ = chain.build_forward_stages(cube, dict(tiny["processing"], method=method, imaging=imaging))
+            seen |= {st.name for st in stages}
+    assert seen == set(chain.STAGE_NAMES)
+    isar = load_scenario(root / "scenarios" / "isar_theta3.yaml")
+    isar_cube, _ = simulate_isar_scenario(isar)
+    seen = set()
+    for correction in ("keystone2_n0_est", "keystone1", "none"):
+        _, stages = build_isar_stages(isar_cube, dict(isar["processing"], correction=correction))
+        seen |= {st.name for st in stages}
+    assert seen == set(ISAR_NAMES)
 
 
 # ----------------------------------------------------------------------------------------------

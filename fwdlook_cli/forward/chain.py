@@ -42,6 +42,8 @@ from .monopulse import monopulse_image   # noqa: F401 (stage 7, forward/monopuls
 
 CONTEXT = ("slow_time_s", "scan_angle_deg", "position_m", "velocity_mps", "xyz")
 KEYSTONE_METHODS = ("traditional", "decimation", "tracking")
+STAGE_NAMES = ("range_fft", "decimate", "keystone", "regroup", "range_curvature", "doppler_spectra",
+               "monopulse_image", "dwell_image")     # every forward chain's stages (CPI or dwell imaging)
 
 
 def _ctx(data: StageData) -> StageData:

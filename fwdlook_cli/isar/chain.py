@@ -16,6 +16,9 @@ from ..scenario.isar import CORRECTIONS
 # ----------------------------------------------------------------------------------------------
 # The chain
 # ----------------------------------------------------------------------------------------------
+STAGE_NAMES = ("estimate_n0", "range_fft", "rcmc", "range_ifft", "azimuth_compress")   # every ISAR chain's stages
+
+
 def build_isar_stages(cube, processing: dict):
     """Source data and stage list for ``processing`` (the resolved ``processing:`` section).
 
