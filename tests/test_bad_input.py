@@ -344,6 +344,17 @@ CUBE_CASES = [
      ["/echo/sum", "largest |sample|"]),
     ("truth-1e300", _h5_edit(lambda f: f["truth/targets/x_m"].__setitem__(slice(None), 1e300)),
      ["/truth/targets/x_m", "1e+300", "1e+07 m"]),
+    # an independent review of recorded cubes (fifty-first round): tracebacks (a dead receiver: the data's
+    # zero slope divided by, the noise level's zero sigma), and a velocity record processed into an empty image
+    ("diff-all-zero", _h5_edit(lambda f: f["echo/diff"].__setitem__(slice(None), 0)),
+     ["/echo/diff", "every sample is zero", "difference channel"]),
+    ("sum-all-zero", _h5_edit(lambda f: [f["echo/" + c].__setitem__(slice(None), 0) for c in ("sum", "diff")]),
+     ["/echo/sum", "every sample is zero"]),
+    ("velocity-y-flipped", _h5_edit(lambda f: f["platform/velocity_mps"].__setitem__(
+        (slice(None), 1), -f["platform/velocity_mps"][:, 1])),
+     ["/platform/velocity_mps", "contradicts /platform/position_m", "allowed: within 0.1 of the speed"]),
+    ("range-axis-jittered", _h5_edit(lambda f: f["axes/range_m"].__setitem__(3, f["axes/range_m"][3] + 1e-3)),
+     ["/axes/range_m", "not uniformly increasing", "float64"]),
     ("truncated-file", _truncated, ["truncated"]),
     ("text-file-named-h5", _text_file, ["HDF5"]),
     ("missing-cube-file", _missing_cube, ["not found"]),
@@ -363,6 +374,33 @@ def test_bad_cube(good_cube, tmp_path, capsys, command, case_id, build, fragment
     code, out, err = run_cli([command, path], capsys)
     assert_bad_input(code, out, err, path, fragments)
     assert list(tmp_path.rglob("*.partial")) == []
+
+
+def test_a_float32_range_axis_is_read_as_its_uniform_float64_axis(good_cube, tmp_path, capsys):
+    """CONTRACT.md asks float64 axes; a recorder's float32 range axis (1.5 km held to 1e-4 m) had been
+    refused as "not uniformly increasing" (an independent review): it is read as the least-squares uniform
+    axis within float32's rounding, and the cube processes as its float64 twin does."""
+    from fwdlook_cli.io.raw import read_raw
+
+    def to_float32(f):
+        r = f["axes/range_m"][()]
+        units = f["axes/range_m"].attrs.get("units")
+        del f["axes/range_m"]
+        f.create_dataset("axes/range_m", data=r.astype(np.float32))
+        if units is not None:
+            f["axes/range_m"].attrs["units"] = units
+
+    path = _h5_edit(to_float32)(good_cube, tmp_path)
+    r64, r32 = read_raw(good_cube).range_m, read_raw(path).range_m
+    assert r32.dtype == np.float64 and np.ptp(np.diff(r32)) < 1e-9 * np.diff(r32)[0]
+    assert np.max(np.abs(r32 - r64)) < 4 * np.finfo(np.float32).eps * r64.max()
+    for cube, run in ((good_cube, "r64"), (path, "r32")):
+        code, out, err = run_cli(["process", cube, "-o", tmp_path / run, "-q"], capsys)
+        assert code == 0, err
+    import json
+    a, b = (json.loads((tmp_path / run / "metrics.json").read_text())["targets"] for run in ("r64", "r32"))
+    for ta, tb in zip(a, b):
+        assert abs(ta["range_error_m"] - tb["range_error_m"]) < 1e-3 and ta["detected"] == tb["detected"]
 
 
 def test_info_lists_a_file_whose_format_is_an_array(good_cube, tmp_path, capsys):

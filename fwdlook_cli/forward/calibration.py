@@ -90,10 +90,16 @@ class Calibration:
         def pm(key):
             return f" +- {s[key]:.4g}" if key in s and np.isfinite(s[key]) else ""
 
-        line = (f"{self.source} ({self.model}): slope {self.slope_per_deg:.4f}{pm('slope_per_deg')} /deg, "
-                f"boresight {self.boresight_offset_deg:+.4f}{pm('boresight_offset_deg')} deg, imbalance "
-                f"{self.diff_gain_db:+.2f}{pm('diff_gain_db')} dB {self.diff_phase_deg:+.2f}"
-                f"{pm('diff_phase_deg')} deg")
+        if "slope_note" in self.stats:   # only the product is determined (estimate_calibration)
+            slope = (f"effective slope {self.stats['effective_slope_per_deg']:.4f}"
+                     f"{pm('effective_slope_per_deg')} /deg (slope and gain apart not determined), ")
+            imbalance = f"phase {self.diff_phase_deg:+.2f}{pm('diff_phase_deg')} deg"
+        else:
+            slope = f"slope {self.slope_per_deg:.4f}{pm('slope_per_deg')} /deg, "
+            imbalance = (f"imbalance {self.diff_gain_db:+.2f}{pm('diff_gain_db')} dB {self.diff_phase_deg:+.2f}"
+                         f"{pm('diff_phase_deg')} deg")
+        line = (f"{self.source} ({self.model}): {slope}boresight {self.boresight_offset_deg:+.4f}"
+                f"{pm('boresight_offset_deg')} deg, {imbalance}")
         if "n_scatterers" in self.stats:
             line += f" ({self.stats['n_scatterers']} scatterers, {self.stats['n_samples']} samples"
             if "noise_chi2_per_sample" in self.stats:      # 1: the samples miss the curve by their noise
@@ -301,6 +307,13 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
         stats["noise_note"] = (f"the samples miss the fitted curve by {chi2_noise:.3g} times their noise: "
                                f"interference the curve does not hold (a neighbour's return, clutter, a channel "
                                f"fault); the uncertainties, scaled by the fit's residual, include it")
+    if not sigma["slope_per_deg"] < abs(float(est[1])):      # relative uncertainty over 1, or not finite
+        # a ratio curve nearly linear over the samples (a sinc pair): the data fix Re(diff/sum)'s slope,
+        # the product of the curve's slope and the difference/sum gain, not the two apart (the angles
+        # use the product: the same offsets either way)
+        stats["slope_note"] = (f"the data fix only the boresight slope of Re(diff/sum), {float(est[0]):.4g} per deg "
+                               f"(the ratio curve is nearly linear over the samples): the curve's slope and the "
+                               f"difference/sum gain apart are not determined")
     cal = Calibration("data", "tanh", float(est[1]), boresight_offset_deg=float(est[2]),
                       diff_gain_db=float(est[3]), diff_phase_deg=float(est[4]), sigma=sigma, stats=stats)
     if chosen == "table" or not np.isfinite(est[3]):
@@ -386,8 +399,10 @@ def antenna_contradiction(cube, data_calibration: Calibration | None = None) -> 
     data_slope = cal.stats["effective_slope_per_deg"]
     cube_slope = cal.stats["cube_effective_slope_per_deg"]        # set beside cube_diff_phase_deg
     sigma = cal.sigma.get("effective_slope_per_deg", np.inf)
-    if (abs(cube_slope / data_slope - 1.0) > SLOPE_CONTRADICTION
+    if (abs(cube_slope - data_slope) > SLOPE_CONTRADICTION * abs(data_slope)
             and abs(cube_slope - data_slope) > SLOPE_CONTRADICTION_SIGMA * sigma):
+        if data_slope == 0.0:      # (the cube reader refuses an all-zero difference channel before this)
+            return "the data show no monopulse slope at boresight: a dead difference channel, or /antenna is wrong"
         return (f"the data's monopulse slope at boresight is {data_slope:.4g} +- {sigma:.2g} per deg, /antenna's "
                 f"{cube_slope:.4g} ({100.0 * (cube_slope / data_slope - 1.0):+.0f} %): its angles would be "
                 f"{data_slope / cube_slope:.2f} times the data's; /antenna is wrong or belongs to another antenna")
@@ -418,11 +433,18 @@ def check_slope_forms_a_beam(cal: Calibration, cube) -> None:
 
 
 def pattern_beta_per_deg2(cube) -> float:
-    """beta of the Gaussian beams (the dwell weights' envelope): the cube's, or, for a cube without
-    ``/antenna``, the one of two beams crossing at -3 dB with its sum beamwidth (the ratio itself comes
-    from the calibration in use, never from this)."""
-    if cube.antenna and "beta_per_deg2" in cube.antenna:
-        return float(cube.antenna["beta_per_deg2"])
+    """beta of the Gaussian beams (the dwell weights' envelope): the cube's; for a ``gaussian2`` /antenna
+    without it, the one its squint and slope fix; for a cube without ``/antenna``, the one of two beams
+    crossing at -3 dB with its sum beamwidth (the ratio itself comes from the calibration in use, never
+    from this)."""
+    antenna = cube.antenna or {}
+    if "beta_per_deg2" in antenna:
+        return float(antenna["beta_per_deg2"])
+    squint, slope = antenna.get("squint_deg"), antenna.get("monopulse_slope_per_deg")
+    if antenna.get("pattern") == "gaussian2" and squint and slope and float(squint) > 0 and float(slope) > 0:
+        # the pair CONTRACT.md names fixes it: Delta/Sigma = tanh(k d) with k = 2 beta s (dsp/antenna.py); the
+        # default design's beta had put a boresight point of such a cube in two ghosts 0.9 deg off (a review)
+        return float(slope) / (2.0 * float(squint))
     from ..dsp.antenna import MonopulseAntenna
 
     return MonopulseAntenna(cube.radar["beamwidth_3db_deg"]).beta_per_deg2

@@ -234,9 +234,7 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
         raise BadInput(f"{source}: /axes/slow_time_s: not strictly increasing")
     _check_motion(position, velocity, dt, source)
     _check_echo_scale((echo_sum, echo_diff), source)
-    dr = np.diff(range_m)
-    if np.any(dr <= 0) or np.ptp(dr) > 1e-6 * abs(dr[0]):
-        raise BadInput(f"{source}: /axes/range_m: not uniformly increasing")
+    range_m = _uniform_range_axis(range_m, f["axes/range_m"].dtype, source)
     if range_m[0] <= 0:
         raise BadInput(f"{source}: /axes/range_m: first slant range {range_m[0]:g} m; allowed: > 0 m")
     worst_scan = float(np.max(np.abs(scan)))
@@ -270,7 +268,7 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
             radar[key] = _plain(value)
     _check_optional_radar(radar, source)
     _check_pulse_timing(slow_time_s, radar["prf_hz"], source)
-    _check_radar_values(radar, dr[0], n_r, source)
+    _check_radar_values(radar, float(range_m[1] - range_m[0]) if n_r > 1 else 0.0, n_r, source)
     antenna = _read_antenna(f, source)
     noise = _read_noise(f["echo"].attrs, source)
     truth = None
@@ -315,6 +313,29 @@ MAX_BEAMWIDTH_DEG = 90.0      # the scenario's own bound on antenna.beamwidth_3d
 TIMING_JITTER_FRACTION = 0.01  # of a pulse interval: 2 pi fd dt <= 0.031 rad at the Doppler band's edge
 PRF_TOLERANCE = 1e-4          # relative: prf_hz against the slow-time axis' own mean rate
 RANGE_STEP_TOLERANCE = 1e-3   # relative: range step against c / (2 fs) (c rounded to 3e8 is 7e-4 off)
+VELOCITY_TOLERANCE = 0.1      # relative, and VELOCITY_TOLERANCE_MPS absolute: the recorded velocities against
+VELOCITY_TOLERANCE_MPS = 1.0  # the positions' differences (a flipped axis is 2 x the speed off, an INS's noise cm/s)
+
+
+def _uniform_range_axis(range_m: np.ndarray, stored_dtype, source: str) -> np.ndarray:
+    """The range axis, uniformly increasing: equal steps within 1e-6 of the step, or within the rounding
+    of the dtype it was stored in (a float32 axis holds 1.5 km to 1.2e-4 m: its steps vary by 1e-4 of a
+    2.5 m step, and it had been refused as "not uniformly increasing"); such an axis is replaced by its
+    least-squares uniform axis in float64 (within that rounding of the stored values)."""
+    dr = np.diff(range_m)
+    if not len(dr):
+        return range_m
+    rounding = 4.0 * float(np.finfo(stored_dtype).eps) * float(np.max(np.abs(range_m)))
+    if np.any(dr <= 0) or np.ptp(dr) > 1e-6 * abs(dr[0]) + rounding:
+        raise BadInput(f"{source}: /axes/range_m: not uniformly increasing (steps {float(dr.min()):.9g} to "
+                       f"{float(dr.max()):.9g} m); allowed: equal positive steps, within 1e-6 of the step or the "
+                       f"rounding of its dtype ({np.dtype(stored_dtype)})")
+    if np.ptp(dr) <= 1e-6 * abs(dr[0]):
+        return range_m                        # float64 axes as they are (the same numbers as before)
+    n = np.arange(len(range_m), dtype=np.float64)
+    n -= n.mean()
+    step = float(np.dot(n, range_m) / np.dot(n, n))
+    return float(np.mean(range_m)) + step * n
 
 
 def _check_pulse_timing(slow_time_s: np.ndarray, prf_hz: float, source: str) -> None:
@@ -361,6 +382,15 @@ def _check_motion(position, velocity, dt, source: str) -> None:
         i = int(np.argmax(implied))
         raise BadInput(f"{source}: /platform/position_m: moves {float(implied[i] * dt[i]):.3g} m between pulses {i} "
                        f"and {i + 1} ({float(implied[i]):.3g} m/s); allowed: a track within {MAX_SPEED_MPS:g} m/s")
+    if len(dt):     # the velocities the positions' differences imply (mid-interval), against the recorded
+        gap = np.linalg.norm(np.diff(position, axis=0) / dt[:, None] - 0.5 * (velocity[1:] + velocity[:-1]), axis=1)
+        speed = float(np.median(np.linalg.norm(velocity, axis=1)))
+        worst = float(np.median(gap))          # the median: an INS's noise and a jump of a few pulses pass
+        if worst > VELOCITY_TOLERANCE * speed + VELOCITY_TOLERANCE_MPS:
+            raise BadInput(f"{source}: /platform/velocity_mps: contradicts /platform/position_m (the median "
+                           f"pulse's velocity {worst:.3g} m/s from the positions' own, at a speed of {speed:.3g} "
+                           f"m/s: a sign, an axis order or a unit); allowed: within {VELOCITY_TOLERANCE:g} of the "
+                           f"speed + {VELOCITY_TOLERANCE_MPS:g} m/s")
 
 
 def _max_abs(a) -> float:
@@ -377,6 +407,11 @@ def _check_echo_scale(channels, source: str) -> None:
         if x is None:
             continue
         peak = _max_abs(x)
+        if peak == 0.0 and x.size:          # a dead receiver: nothing to image, nor a ratio to take (the
+            # calibration divided by the data's zero slope, the noise level by a zero sigma: tracebacks)
+            raise BadInput(f"{source}: /echo/{name}: every sample is zero; allowed: an echo with signal "
+                           f"(a {'sum' if name == 'sum' else 'difference'} channel that recorded nothing cannot be "
+                           f"imaged)")
         if peak * x.shape[0] > MAX_FOCUSED_AMPLITUDE:
             raise BadInput(f"{source}: /echo/{name}: largest |sample| {peak:.3g} x {x.shape[0]} pulses = "
                            f"{peak * x.shape[0]:.3g}; allowed: up to {MAX_FOCUSED_AMPLITUDE:g} (a focused peak's "
