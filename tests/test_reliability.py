@@ -515,6 +515,25 @@ def test_report_refuses_a_users_report(base_run, tmp_path, capsys, name, text):
     assert (d / "report.md").read_text().startswith("# fwdlook report")
 
 
+def test_report_refuses_a_users_file_named_as_one_of_its_run_figures(base_run, tmp_path, capsys):
+    """The figures named after a run (ground_<run>.png) or a sweep (sweep_<name>_*.png) are not in the
+    fixed list the folder check knows: a user's file of such a name had been replaced with exit 0 (an
+    independent review). It is refused as report.md is, with nothing written, and --overwrite replaces it."""
+    d = tmp_path / "rep"
+    code, _, err = run_cli(["report", base_run, "-o", tmp_path / "probe", "-q"], capsys)
+    assert code == 0, err
+    (ground,) = [p.name for p in (tmp_path / "probe").glob("ground_*.png")]
+    d.mkdir()
+    (d / ground).write_text("my own figure")
+    before = snapshot(d)
+    code, out, err = run_cli(["report", base_run, "-o", d, "-q"], capsys)
+    assert_refused(code, out, err, d / ground, "not written by fwdlook report", "--overwrite")
+    assert snapshot(d) == before and sorted(p.name for p in d.iterdir()) == [ground]
+    code, _, err = run_cli(["report", base_run, "-o", d, "-q", "--overwrite"], capsys)
+    assert code == 0, err
+    assert (d / ground).read_bytes().startswith(b"\x89PNG")
+
+
 # ----------------------------------------------------------------------------------------------
 # 2. Full disk: a mocked write failure and a real 1 MiB tmpfs
 # ----------------------------------------------------------------------------------------------

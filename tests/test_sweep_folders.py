@@ -68,6 +68,15 @@ def test_a_grid_value_cannot_put_a_point_outside_the_sweeps_folder(tmp_path, cap
     assert "/" not in run_dir.name and (run_dir / "metrics.json").exists()
 
 
+def test_two_grid_values_that_resolve_to_one_scenario_are_refused(tmp_path, capsys):
+    """4 and 4.0 of an integer key: two folders, one scenario, the same run twice and two identical rows
+    (an independent review); refused in one line before anything runs."""
+    code, err = _run(capsys, _sweep(tmp_path, {"processing.q": [4, 4.0]}), "-o", tmp_path / "o")
+    assert code == 2 and len(err) == 1, err
+    assert "processing.q=4" in err[0] and "processing.q=4.0" in err[0] and "resolve to one scenario" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
 def test_two_points_that_would_share_a_folder_are_refused(tmp_path, capsys):
     code, err = _run(capsys, _sweep(tmp_path, {"processing.q": [8, "8"]}), "-o", tmp_path / "o")
     assert code == 2 and len(err) == 1, err

@@ -402,7 +402,7 @@ def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M, overwr
     """Write the report of ``run_dirs`` into ``out_dir`` (default :func:`default_report_dir`); returns
     the path of report.md.  Raises BadInput before writing anything when a run directory is bad, or
     when ``out_dir`` holds report files fwdlook did not write (unless ``overwrite``)."""
-    from ..io.outputs import prepare_report_dir
+    from ..io.outputs import OVERWRITE_HINT, is_fwdlook_report, prepare_report_dir
 
     from .htmlreport import extra_figures, is_sweep_dir, read_sweep_summary, write_html
 
@@ -433,6 +433,14 @@ def make_report(run_dirs, out_dir=None, *, target_xy=DEFAULT_TARGET_XY_M, overwr
         atomic_write_text(staging / "report.md", text)
         write_html(staging / "index.html", runs, figures, notes, sweep_dirs, summaries)   # one self-contained file
         with mapped_os_errors(final):
+            if not overwrite and not is_fwdlook_report(final):   # the figures named after the runs and
+                # sweeps too (ground_<run>.png, sweep_<name>_*.png), not only REPORT_FILES: a user's file
+                # of such a name had been replaced (an independent review)
+                taken = sorted(q.name for q in staging.iterdir()
+                               if (final / q.name).exists() or (final / q.name).is_symlink())
+                if taken:
+                    raise BadInput(f"{final / taken[0]}: exists and was not written by fwdlook report; refusing "
+                                   f"to overwrite it; {OVERWRITE_HINT}")
             for q in sorted(staging.iterdir(), key=lambda q: q.name == "index.html"):
                 os.replace(q, final / q.name)
     except BadInput as exc:          # (named where the file goes, not the folder it is written in first)

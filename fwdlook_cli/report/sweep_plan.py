@@ -110,7 +110,7 @@ def plan_runs(sweep: dict, out_dir: Path, *, source: str | None = None) -> list[
 def _refuse_shared_folders(runs: list[dict], source: str) -> None:
     """Two points whose runs would share one folder (two scenarios of one name, grid values with one
     label such as 8 and "8"): the second overwrote the first, and its summary row showed the other's
-    results."""
+    results; or that resolve to one scenario."""
     seen: dict[str, dict] = {}
     for run in runs:
         first = seen.setdefault(run["run_dir"], run)
@@ -123,6 +123,16 @@ def _refuse_shared_folders(runs: list[dict], source: str) -> None:
             why = f"the points {_label_text(first['point'])} and {_label_text(run['point'])} of {run['scenario_path']}"
         raise BadInput(f"{source}: {why}: their runs would share the folder {run['run_dir']}; allowed: "
                        f"scenarios with distinct names and grid values with distinct labels")
+    # two labels that resolve to one scenario (4 and 4.0 of an integer key): the same run twice, two rows
+    # of one result (an independent review)
+    resolved: dict[str, dict] = {}
+    for run in runs:
+        key = scenario_hash(run["resolved"])
+        first = resolved.setdefault(key, run)
+        if first is not run:
+            raise BadInput(f"{source}: the points {_label_text(first['point'])} and {_label_text(run['point'])} of "
+                           f"{run['scenario_path']} resolve to one scenario (sha256 {key[:12]}), the same run twice; "
+                           f"allowed: grid values that differ once read (4 and 4.0 of an integer key are one value)")
 
 
 def _label_text(point: dict) -> str:
