@@ -99,6 +99,8 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
         cube = read_raw(raw)          # read first: its channels decide the scenario kind
         if cube.diff is None or cube.attrs.get("scenario_kind") == "isar":
             raw_scn = {"kind": "isar"}
+            if cube.diff is not None:              # (it had been dropped without a word)
+                log.warning(f"{source}: processed as ISAR (/ attribute scenario_kind = isar): /echo/diff is not read")
     else:
         if raw:
             _refuse_unused_sets(raw, overrides, RAW_SETTABLE)
@@ -181,9 +183,7 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", ke
     if scn["kind"] == "isar":
         from .isar.process import process_isar_cube
 
-        if keep_stages != "all":
-            raise BadInput(f"{source}: --keep-stages {keep_stages}: the ISAR chain keeps every stage; allowed: all")
-        _refuse_out_of_core_isar(scn, source, out_of_core)
+        _refuse_out_of_core_isar(scn, source, out_of_core, keep_stages)
         try:
             return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet,
                                      scenario_note=note)
@@ -243,8 +243,11 @@ out_of_core_option = click.option(
          "the same results.")
 
 
-def _refuse_out_of_core_isar(scn, source, out_of_core: bool) -> None:
-    """``--out-of-core``: an ISAR scenario, or settings that need whole arrays, refused before any work."""
+def _refuse_out_of_core_isar(scn, source, out_of_core: bool, keep_stages: str = "all") -> None:
+    """``--out-of-core``, or ``--keep-stages`` other than all, with an ISAR scenario (refused after its cube
+    had been simulated and written), or settings that need whole arrays: refused before any work."""
+    if keep_stages != "all" and scn["kind"] == "isar":
+        raise BadInput(f"{source}: --keep-stages {keep_stages}: the ISAR chain keeps every stage; allowed: all")
     if out_of_core and scn["kind"] == "isar":
         raise BadInput(f"{source}: --out-of-core: the ISAR chain runs in memory; --out-of-core is for the "
                        f"forward-looking chain (scenario kind forward)")
@@ -285,7 +288,7 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
 
     def prepare(scn):
         check_stage_options(from_stage, force, scn["kind"])          # before any work (a simulation)
-        _refuse_out_of_core_isar(scn, raw or source, out_of_core)
+        _refuse_out_of_core_isar(scn, raw or source, out_of_core, keep_stages)
         d = prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
         held.enter_context(folder_lock(d))
         _start_fit_spawner(scn)
@@ -320,7 +323,7 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
     held = contextlib.ExitStack()        # the run directory's lock, until the command ends
 
     def prepare(scn):
-        _refuse_out_of_core_isar(scn, raw or scenario, out_of_core)
+        _refuse_out_of_core_isar(scn, raw or scenario, out_of_core, keep_stages)
         d = prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config], overwrite=overwrite,
                             writes_raw=writes_raw)
         held.enter_context(folder_lock(d))

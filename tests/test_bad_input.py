@@ -167,6 +167,12 @@ SCENARIO_CASES = [
      ["platform.accel_mps2", "invalid YAML"]),
     ("set-through-a-leaf", _copy_tiny, ["--set", "radar.prf_hz.x=1"], ["radar.prf_hz", "not a mapping"]),
     ("set-with-an-empty-key", _copy_tiny, ["--set", "processing..q=1"], ["processing..q=1", "an empty key"]),
+    # an independent review (fifty-first round): a whole section replaced, its other keys back to their
+    # defaults (noise=null: 20 dB and seed 1, not "no noise"), and YAML 1.1's octal and base-60 numbers
+    ("set-a-whole-section", _copy_tiny, ["--set", "noise=null"], ["--set noise", "a whole section", "noise.snr_db=null"]),
+    ("set-a-whole-subsection", _copy_tiny, ["--set", "processing={q: 4}"], ["--set processing", "a whole section"]),
+    ("set-an-octal-number", _copy_tiny, ["--set", "noise.seed=010"], ["noise.seed", "010", "octal: 8"]),
+    ("set-a-base-60-number", _copy_tiny, ["--set", "noise.seed=1:0"], ["noise.seed", "1:0", "base 60: 60"]),
     # values the chain cannot process (each ran before, with a traceback, an overflow or 24 GB)
     ("carrier-below-half-fs", _set("radar.fc_hz", 1.0e7), [],
      ["radar.fc_hz", "1e+07", "radar.fs_hz / 2 = 1.2e+07"]),
@@ -376,6 +382,22 @@ def test_bad_cube(good_cube, tmp_path, capsys, command, case_id, build, fragment
     assert list(tmp_path.rglob("*.partial")) == []
 
 
+def test_a_scene_key_of_another_kind_is_said_once(tmp_path, capsys):
+    """scene.lattice or center_m set under kind: points are not read: said in one warning (they had been
+    recorded in the cube's /scenario and ignored without a word); a written scenario.yaml, which holds
+    every section, says nothing."""
+    from fwdlook_cli.scenario import forward
+
+    forward._SAID.clear()
+    scenario = _copy_tiny(tmp_path)
+    code, out, err = run_cli(["validate", scenario, "--set", "scene.lattice.nx=5"], capsys)
+    assert code == 0 and err.splitlines() == [f"{scenario}: scene.lattice is not read: scene.kind is points"], err
+    code, out, err = run_cli(["run", scenario, "-o", tmp_path / "run"], capsys)
+    assert code == 0, err
+    code, out, err = run_cli(["validate", tmp_path / "run" / "scenario.yaml"], capsys)
+    assert code == 0 and "is not read" not in err, err
+
+
 def test_a_float32_range_axis_is_read_as_its_uniform_float64_axis(good_cube, tmp_path, capsys):
     """CONTRACT.md asks float64 axes; a recorder's float32 range axis (1.5 km held to 1e-4 m) had been
     refused as "not uniformly increasing" (an independent review): it is read as the least-squares uniform
@@ -526,6 +548,28 @@ def test_a_far_isar_object_is_refused_by_its_window_size_before_simulation(tmp_p
     code, out, err = run_cli(["simulate", scenario, "-o", output], capsys)
     assert_bad_input(code, out, err, scenario, ["radar.range_window_m = auto", "GiB"])
     assert_nothing_written(tmp_path, output)
+
+
+def test_isar_settings_refused_or_said_before_the_cube_is_simulated(tmp_path, capsys):
+    """An independent review of the ISAR chain (fifty-first round): `run --keep-stages none|last` had been
+    refused after the cube was simulated and written (over an earlier run's raw.h5); now before any work.
+    `processing.n0_pulses` under another correction, which does not read it, is said in one warning; and a
+    two-channel cube marked `scenario_kind = isar` says its difference channel is not read."""
+    for keep in ("none", "last"):
+        code, out, err = run_cli(["run", SCENARIOS / "isar_theta3.yaml", "-o", tmp_path / keep,
+                                  "--keep-stages", keep], capsys)
+        assert_bad_input(code, out, err, SCENARIOS / "isar_theta3.yaml", [f"--keep-stages {keep}", "allowed: all"])
+        assert not (tmp_path / keep).exists()
+    code, out, err = run_cli(["validate", SCENARIOS / "isar_theta3.yaml", "--set", "processing.correction=keystone1",
+                              "--set", "processing.n0_pulses=100"], capsys)
+    assert code == 0 and "processing.n0_pulses = 100 is not read: processing.correction is keystone1" in err, err
+    cube, _ = simulate_scenario(load_scenario(SCENARIOS / "tiny.yaml"))
+    cube.attrs["scenario_kind"] = "isar"
+    write_raw(tmp_path / "both.h5", cube)
+    with h5py.File(tmp_path / "both.h5", "a") as f:
+        f.attrs["scenario_kind"] = "isar"
+    code, out, err = run_cli(["process", tmp_path / "both.h5", "-o", tmp_path / "both"], capsys)
+    assert "processed as ISAR (/ attribute scenario_kind = isar): /echo/diff is not read" in err, err
 
 
 def test_a_pattern_file_under_another_pattern_is_said_to_be_unread(tmp_path, capsys):

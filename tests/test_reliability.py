@@ -753,7 +753,8 @@ SIZE_CASES = {
     "lone-point-at-1e9-m": (["scene.points_m=[[0.0, 1.0e9]]"], ["scene.points_m", "unambiguous range"]),
     "window-1e9-m": (["radar.range_window_m=[0.0, 1.0e9]"], ["radar.range_window_m = [0, 1e+09]", "GiB"]),
     "fs-1e15": (["radar.fs_hz=1.0e15"], ["radar.fs_hz = 1e+15", "range samples"]),
-    "huge-lattice": (["scene.kind=lattice", "scene.lattice={nx: 10000, ny: 10000, spacing_m: 0.01}"],
+    "huge-lattice": (["scene.kind=lattice", "scene.lattice.nx=10000", "scene.lattice.ny=10000",
+                      "scene.lattice.spacing_m=0.01"],
                      ["scene:", "scatterers need"]),
     "setting-small-limit": (["simulation.max_cube_bytes=1.0e5"], ["over simulation.max_cube_bytes = 0.0954 MiB"]),
 }

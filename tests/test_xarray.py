@@ -89,3 +89,10 @@ def test_cube_to_xarray_matches_the_file_view(tiny_run):
     xr.testing.assert_equal(mem["sum"].reset_coords(drop=True), disk["sum"].reset_coords(drop=True).load())
     assert mem["position_m"].dims == ("slow_time_s", "xyz")
     assert mem.attrs["radar_prf_hz"] == cube.radar["prf_hz"]
+    # every variable and coordinate with the units the file gives it (the truth had none in memory)
+    truth = xr.open_dataset(tiny_run / "raw.h5", group="truth/targets", engine="h5netcdf")
+    for key in ("x_m", "y_m", "z_m", "amplitude"):
+        assert mem[f"truth_{key}"].attrs["units"] == truth[key].attrs["units"], key
+    assert mem["target"].attrs["units"] == truth["target"].attrs["units"] == "1"
+    assert all("units" in mem[name].attrs for name in list(mem.variables)), [
+        name for name in mem.variables if "units" not in mem[name].attrs]

@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 
 from . import backing
-from .cube import RADAR_KEYS, RawCube
+from .cube import RADAR_KEYS, RawCube, units_of_name
 from ..dsp.geometry import C_MPS
 from ..dsp.pulse import WEIGHTINGS, pulse_rule_broken
 from ..dsp.keystone_common import carrier_floor_text
@@ -95,19 +95,13 @@ def write_raw(path: str | Path, cube: RawCube) -> None:
             for key, units in (("x_m", "m"), ("y_m", "m"), ("z_m", "m"), ("amplitude", "1")):
                 put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), units, f"target {key}", dims=(tid,))
             for key in sorted(cube.truth.keys() - set(TRUTH_KEYS)):  # extra truth, e.g. vx_mps
-                put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), _truth_units(key),
+                put(tg, key, np.asarray(cube.truth[key], dtype=np.float64), units_of_name(key),
                     f"target {key}", dims=(tid,))
 
 
 TRUTH_KEYS = ("x_m", "y_m", "z_m", "amplitude")
 ANTENNA_DATASETS = {"ratio_offset_deg": ("deg", "angle offset from the beam axis of the ratio table"),
                     "ratio": ("1", "monopulse ratio Re(diff/sum), monotone over the main lobe")}
-_UNIT_SUFFIXES = (("_mps", "m/s"), ("_deg", "deg"), ("_m", "m"), ("_s", "s"))
-
-
-def _truth_units(key: str) -> str:
-    """Units of an extra truth dataset from its name's suffix (``vx_mps`` -> m/s); else "1"."""
-    return next((units for suffix, units in _UNIT_SUFFIXES if key.endswith(suffix)), "1")
 
 
 def _need(f: h5py.File, path: str, source: str) -> h5py.Dataset:
@@ -127,7 +121,7 @@ def _check_units(ds, path: str, source: str) -> None:
     """A dataset whose name says its unit (``_m``, ``_s``, ``_deg``, ``_mps``) in that unit: another unit
     (``km``) is refused, not read as metres; none at all is read as the name says (a plain writer's
     cube, as the tests' own minimal one, need not repeat it)."""
-    want = _truth_units(path.rsplit("/", 1)[-1])
+    want = units_of_name(path.rsplit("/", 1)[-1])
     units = ds.attrs.get("units") if want != "1" else None
     if units is None:
         return

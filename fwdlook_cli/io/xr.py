@@ -24,7 +24,7 @@ def cube_to_xarray(cube):
     coords = {
         "slow_time_s": ("slow_time_s", cube.slow_time_s, {"units": "s", "long_name": "slow time, t = 0 at the first pulse"}),
         "range_m": ("range_m", cube.range_m, {"units": "m", "long_name": "slant range"}),
-        "xyz": ("xyz", np.arange(3), {"long_name": "axis: 0 = x cross-range, 1 = y forward, 2 = z up"}),
+        "xyz": ("xyz", np.arange(3), {"units": "1", "long_name": "axis: 0 = x cross-range, 1 = y forward, 2 = z up"}),
     }
     data = {"sum": (("slow_time_s", "range_m"), cube.sum,
                     {"units": "1", "long_name": "range-compressed baseband echo, sum channel"})}
@@ -34,10 +34,12 @@ def cube_to_xarray(cube):
     data["scan_angle_deg"] = ("slow_time_s", cube.scan_angle_deg, {"units": "deg", "long_name": "beam pointing azimuth"})
     data["position_m"] = (("slow_time_s", "xyz"), cube.position_m, {"units": "m", "long_name": "antenna phase centre (INS)"})
     data["velocity_mps"] = (("slow_time_s", "xyz"), cube.velocity_mps, {"units": "m/s", "long_name": "antenna velocity (INS)"})
-    if cube.truth:
-        coords["target"] = ("target", np.arange(len(cube.truth["x_m"])), {"long_name": "target index"})
+    if cube.truth:            # the units raw.h5 gives each (m, m/s, 1): the file view's
+        units_of_name = type(cube).units_of_name
+        coords["target"] = ("target", np.arange(len(cube.truth["x_m"])), {"units": "1", "long_name": "target index"})
         for key, value in cube.truth.items():
-            data[f"truth_{key}"] = ("target", np.asarray(value), {"long_name": f"target {key}"})
+            data[f"truth_{key}"] = ("target", np.asarray(value), {"units": units_of_name(key),
+                                                                  "long_name": f"target {key}"})
     attrs = {f"radar_{k}": v for k, v in cube.radar.items()}
     attrs.update({f"antenna_{k}": v for k, v in cube.antenna.items()})
     attrs.update({f"noise_{k}": v for k, v in cube.noise.items()})

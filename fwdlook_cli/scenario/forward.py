@@ -198,6 +198,34 @@ def scene_points(scn: dict):
 
 _SAID: set[str] = set()          # warnings already logged by this process (a sweep loads a scenario per point)
 
+SCENE_KEYS_READ = {"lattice": ("center_m", "lattice"), "points": ("points_m",), "image": ("center_m", "image")}
+
+
+def warn_unused_scene_keys(raw_scene, set_keys, source: str) -> None:
+    """The scene keys of another ``scene.kind`` that a ``--set`` gave anything but their defaults
+    (``--set scene.lattice.nx=5`` or ``scene.center_m`` under ``kind: points``) are not read: said once
+    per process, as an unread pattern file is (they had been recorded in the cube's /scenario and ignored
+    without a word: an independent review). ``set_keys``: the scene keys the overrides name (a file may
+    keep another kind's keys beside its own, and a written scenario.yaml holds every section)."""
+    if not isinstance(raw_scene, dict):
+        return
+    kind = raw_scene.get("kind", "lattice")
+    schema = FORWARD_SCHEMA["scene"]
+    for key in ("center_m", "lattice", "points_m", "image"):
+        if (kind not in SCENE_KEYS_READ or key in SCENE_KEYS_READ[kind] or key not in raw_scene
+                or key not in set_keys):
+            continue
+        given, default = raw_scene[key], schema[key]
+        if isinstance(default, dict):
+            changed = isinstance(given, dict) and any(k not in default or v != default[k].default
+                                                      for k, v in given.items())
+        else:
+            changed = given is not None and given != default.default
+        said = f"{source}: scene.{key} is not read: scene.kind is {kind}"
+        if changed and said not in _SAID:
+            _SAID.add(said)
+            logging.getLogger(__name__).warning(said)
+
 
 def _antenna_checks(ant: dict, source: str) -> None:
     """The antenna design must be buildable; a pattern file is made absolute (relative to the scenario).

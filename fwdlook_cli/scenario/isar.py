@@ -4,6 +4,7 @@ Geometry and conventions: ``fwdlook_cli.isar`` (package docstring, Serafin et al
 """
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -80,6 +81,10 @@ ISAR_SCHEMA: dict = {
 
 def isar_checks(scn: dict, source: str) -> None:
     radar, tg = scn["radar"], scn["target"]
+    proc = scn["processing"]
+    if proc["n0_pulses"] != "auto" and proc["correction"] != "keystone2_n0":    # (recorded and ignored before)
+        logging.getLogger(__name__).warning(f"{source}: processing.n0_pulses = {proc['n0_pulses']:g} is not read: "
+                                            f"processing.correction is {proc['correction']} (keystone2_n0 reads it)")
     broken = scenario_pulse_rule_text(radar)
     if broken:
         raise BadInput(f"{source}: {broken}")

@@ -18,7 +18,7 @@ import yaml
 
 
 from ..errors import BadInput
-from .forward import FORWARD_SCHEMA, forward_checks
+from .forward import FORWARD_SCHEMA, forward_checks, warn_unused_scene_keys
 from .isar import ISAR_SCHEMA, isar_checks
 from .yamlio import yaml_load
 from .fields import REQUIRED, _show
@@ -71,6 +71,7 @@ def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...], source: s
         if not all(parts):                 # 'processing..q', '.q': a typo, not a path
             raise BadInput(f"{source}: --set {item!r}: an empty key in the path; expected KEY.PATH=VALUE, "
                            f"e.g. processing.q=25")
+        _refuse_whole_section(raw, parts, key, source)
         value = yaml_load(value_text, f"{source}: --set {key}")
         node = raw
         for i, part in enumerate(parts[:-1]):
@@ -82,6 +83,20 @@ def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...], source: s
             node = child
         node[parts[-1]] = value
     return raw
+
+
+def _refuse_whole_section(raw: dict, parts: list[str], key: str, source: str) -> None:
+    """``--set SECTION=VALUE`` (``noise=null``, ``processing={q: 4}``) replaced the whole section, and
+    every key of it the value did not name went back to its default (tiny's noise to 20 dB and seed 1,
+    its CPI to 32: an independent review), as a sweep's grid over a section had: refused, as there."""
+    kind = raw.get("kind", "forward")
+    node = SCHEMAS.get(kind, FORWARD_SCHEMA) if isinstance(kind, str) else FORWARD_SCHEMA
+    for part in parts:
+        node = node.get(part) if isinstance(node, dict) else None
+    if isinstance(node, dict):
+        hint = " (no noise: noise.snr_db=null)" if key.strip() == "noise" else ""
+        raise BadInput(f"{source}: --set {key}: a whole section (the keys the value does not name would go back "
+                       f"to their defaults); allowed: key paths inside it, e.g. --set {key.strip()}.KEY=VALUE{hint}")
 
 
 def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, check_pulses: bool = True) -> dict:
@@ -101,6 +116,9 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, chec
     resolved = _resolve(raw, SCHEMAS[kind], "", source)
     if kind == "forward":
         CROSS_CHECKS[kind](resolved, source, check_pulses=check_pulses)
+        set_keys = {item.split("=", 1)[0].strip().split(".")[1] for item in overrides or ()
+                    if item.split("=", 1)[0].strip().startswith("scene.")}
+        warn_unused_scene_keys(raw.get("scene"), set_keys, source)      # a valid scenario only (one line else)
     else:
         CROSS_CHECKS[kind](resolved, source)
     return resolved

@@ -1,6 +1,7 @@
 """YAML that refuses duplicate keys, with the error naming the dotted key path."""
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import yaml
@@ -101,6 +102,26 @@ def _construct_mapping(loader: _StrictLoader, node: yaml.MappingNode, deep: bool
 
 
 _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+_LEADING_ZERO = re.compile(r"^[-+]?0[0-9_]+$")      # YAML 1.1: octal (010 is 8)
+
+
+def _refuse_yaml11_number(loader: _StrictLoader, node, construct):
+    """A number YAML 1.1 reads other than as its digits: a leading 0 (octal: ``seed: 010`` is 8) or
+    colons (base 60: ``1:0`` is 60); they had been taken silently (an independent review)."""
+    text = str(loader.construct_scalar(node))
+    if _LEADING_ZERO.match(text) or ":" in text:
+        why = "a leading 0 as octal" if _LEADING_ZERO.match(text) else "a:b as base 60"
+        raise yaml.constructor.ConstructorError(
+            None, None, f"the number {text} (YAML 1.1 reads {why}: {construct(loader, node)}); allowed: the "
+            f"digits without a leading 0 or colons, or the value quoted as text", node.start_mark)
+    return construct(loader, node)
+
+
+_StrictLoader.add_constructor("tag:yaml.org,2002:int", lambda loader, node: _refuse_yaml11_number(
+    loader, node, yaml.SafeLoader.construct_yaml_int))
+_StrictLoader.add_constructor("tag:yaml.org,2002:float", lambda loader, node: _refuse_yaml11_number(
+    loader, node, yaml.SafeLoader.construct_yaml_float))
 
 
 def yaml_load(text: str, source: str) -> Any:
