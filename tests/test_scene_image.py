@@ -45,6 +45,37 @@ def test_one_bright_pixel_is_a_one_point_scene(tmp_path):
     assert ci.truth is None                       # an image's truth is its map
 
 
+def test_a_one_row_map_is_a_map_and_a_map_outside_the_beam_is_said(tmp_path, caplog, capsys):
+    """A 1 x 7 map (squeezed to 1-D, it had been refused as "image of shape (7,)", which is not the
+    file's shape) is the same scene as its row in a 5 x 7 map; and a map the beam never reaches, which
+    had run to "detected 0/0" without a word, is said in one warning (an independent review)."""
+    import logging
+
+    row = np.zeros((1, 7), np.float32)
+    row[0, 3] = 2.0
+    np.save(tmp_path / "row.npy", row)
+    one = _tiny({"kind": "image", "center_m": [20.0, 1000.0],
+                 "image": {"file": str(tmp_path / "row.npy"), "pixel_spacing_m": 4.0, "speckle": False}})
+    pts, amps = scene_points(one)
+    assert np.allclose(pts, [[20.0, 1000.0]], atol=1e-9) and np.allclose(amps, [1.0])
+    behind = _tiny({"kind": "image", "center_m": [0.0, -1000.0],
+                    "image": {"file": str(tmp_path / "row.npy"), "pixel_spacing_m": 4.0}})
+    with caplog.at_level(logging.WARNING):
+        _, stats = simulate_scenario(behind)
+    assert stats.n_pairs_kept == 0
+    assert any("no pixel of the image scene is ever in the beam" in r.getMessage() for r in caplog.records)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        simulate_scenario(one)
+    assert not any("never in the beam" in r.getMessage() for r in caplog.records)
+    np.save(tmp_path / "stack.npy", np.ones((2, 5, 5)))
+    bad = _merge(TINY, {"scene": {"kind": "image", "image": {"file": str(tmp_path / "stack.npy")}}})
+    path = tmp_path / "scn.yaml"
+    path.write_text(yaml.safe_dump(bad), encoding="utf-8")
+    code, out, err = run_cli(["validate", path], capsys)       # a stack of two maps: refused, its own shape
+    assert code == 2 and "image of shape (2, 5, 5)" in err, err
+
+
 def test_power_intensity_threshold_and_png(tmp_path):
     from PIL import Image
 

@@ -155,11 +155,14 @@ def read_map(spec: str, *, where: str = "scene.image.file", image_cfg: dict | No
     except Exception as exc:  # noqa: BLE001  (any reader failure is the file's fault)
         raise BadInput(f"{path}: {where}: unreadable image ({exc.__class__.__name__}: "
                        f"{' '.join(str(exc).split())[:80]})") from None
-    arr = np.squeeze(np.asarray(arr))
+    arr = np.asarray(arr)
+    shape = tuple(arr.shape)
+    while arr.ndim > 2 and 1 in arr.shape:   # length-1 axes beyond two (a [1, ny, nx] stack, a [ny, nx, 1] band);
+        arr = np.squeeze(arr, axis=arr.shape.index(1))     # a 1 x n map is a map (squeezing it had refused it)
     if np.iscomplexobj(arr):
         arr = np.abs(arr)
     if arr.ndim != 2 or arr.size == 0 or min(arr.shape) == 0:
-        raise BadInput(f"{path}: {where}: image of shape {tuple(arr.shape)}; allowed: a non-empty 2-D image")
+        raise BadInput(f"{path}: {where}: image of shape {shape}; allowed: a non-empty 2-D image")
     if not np.issubdtype(arr.dtype, np.number) and arr.dtype != bool:
         raise BadInput(f"{path}: {where}: image of type {arr.dtype}; allowed: numbers")
     arr = arr.astype(np.float64)
