@@ -726,3 +726,13 @@ def test_a_sweep_grid_over_a_whole_section_is_refused(tmp_path, capsys):
     code, out, err = run_cli(["sweep", sweep, "-o", tmp_path / "out"], capsys)
     assert_bad_input(code, out, err, sweep, ["grid key 'processing'", "processing.KEY"])
     assert not (tmp_path / "out").exists()
+
+
+def test_info_on_a_run_folder_points_to_its_files(tmp_path, capsys):
+    """`fwdlook info RUN_DIR` is refused (info reads one file) with the folder's own image.h5 named."""
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "image.h5").write_bytes(b"")
+    code, out, err = run_cli(["info", tmp_path / "run"], capsys)
+    assert_bad_input(code, out, err, tmp_path / "run", ["is a directory", str(tmp_path / "run" / "image.h5")])
+    code, out, err = run_cli(["info", tmp_path], capsys)               # a folder of nothing of ours: no hint
+    assert code == 2 and "is a directory" in err and "allowed" not in err

@@ -19,7 +19,9 @@ def describe(path: str) -> str:
             fmt = f.attrs.get("format")
     except OSError:
         if Path(path).is_dir():
-            raise BadInput(f"{path}: is a directory, not an HDF5 file") from None
+            inside = [n for n in ("image.h5", "raw.h5") if (Path(path) / n).is_file()]
+            hint = f"; allowed: a file, e.g. {Path(path) / inside[0]} (a run folder's)" if inside else ""
+            raise BadInput(f"{path}: is a directory, not an HDF5 file{hint}") from None
         if not os.access(path, os.R_OK):
             raise BadInput(f"{path}: permission denied; the file must be readable") from None
         raise BadInput(f"{path}: not a readable HDF5 file (truncated or not HDF5)") from None
