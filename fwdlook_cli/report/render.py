@@ -120,7 +120,8 @@ def fig7(out: Path, runs: dict, t_ref: str) -> list[list[str]]:
         claim = PAPER_CLAIMS["fig7"][pid]
         rows.append([claim["curve"], f"6{pid[1]}", t_ref, f"({t['x_m']:g}, {t['y_m']:g})",
                      _fmt(t.get("range_error_m"), 2), claim["displacement_text"],
-                     _fmt(t.get("islr_db"), 2), _fmt(claim["islr_db"], 2), _fmt(t.get("pslr_db"), 2),
+                     _fmt(t.get("islr_db"), 2), _fmt(t.get("image_islr_db"), 2), _fmt(claim["islr_db"], 2),
+                     _fmt(t.get("pslr_db"), 2),
                      _fmt(t.get("range_width_3db_m"), 2), "yes" if t.get("detected") else "no"])
     truth = [curves["6F"][2]["true_range_m"]] if curves["6F"][2] else []
 
