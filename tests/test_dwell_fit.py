@@ -445,3 +445,25 @@ def test_the_fit_grid_samples_the_statistics_lobe_at_any_carrier():
     assert step < 0.05
     assert min(corr2(w_band, e, 0.5 * step) for e in (-4.78, 4.78)) >= 0.5
     assert min(corr2(w_band, e, step) for e in (-4.78, 4.78)) < 0.5
+
+
+def test_the_cell_history_change_is_the_range_derivative_of_the_history():
+    """``cell_history_cycles`` (the gate on the joint fit's cell model) against the closed form for a
+    straight flight along +y at height h over a point on the axis: R = sqrt((rho - y)^2 + h^2), so one
+    range cell dr moves the history by dr [(rho - y) / R * r / rho - 1], which is 0 at the t_ref antenna
+    (y = 0) and grows with h and the distance flown; in cycles 2 / lambda times its spread."""
+    from fwdlook_cli.forward.dwell_fit_plan import cell_history_cycles
+
+    for h, fc in ((50.0, 18e9), (500.0, 18e9), (500.0, 94e9)):
+        y = np.linspace(0.0, 60.0, 400)
+        pos = np.column_stack([np.zeros_like(y), y, np.full_like(y, h)])
+        rng = 1800.0 + 2.5 * np.arange(9)
+        got = cell_history_cycles(pos, np.zeros_like(y), rng, axis_deg=0.0, window_deg=1.0,
+                                  position_ref_m=[0.0, 0.0, h], fc_hz=fc)
+        r = float(np.median(rng))
+        rho = np.sqrt(r * r - h * h)
+        change = 2.5 * ((rho - y) / np.sqrt((rho - y) ** 2 + h * h) * r / rho - 1.0)
+        want = 2.0 * np.ptp(change) * fc / 299_792_458.0
+        assert got == pytest.approx(want, rel=1e-3), (h, fc, got, want)
+    assert want > 0.25 > cell_history_cycles(pos[:, :] * [1, 1, 0.1], np.zeros_like(y), rng, axis_deg=0.0,
+                                             window_deg=1.0, position_ref_m=[0.0, 0.0, 50.0], fc_hz=18e9)

@@ -82,6 +82,7 @@ from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
 from .calibration import check_slope_forms_a_beam, pattern_beta_per_deg2
 from .dwell_fit import start_fit_region
+from .dwell_fit_plan import fit_cell_model_holds, fit_models_antenna
 from .dwell_grid import check_focus_sizes, focus_directions, focus_per_bin, pattern_weight, subaperture_windows
 from .dwell_range import (auto_focus_range_oversample, dwell_duration_s, dwell_stage_params, ground_points,
                           iso_doppler_range)
@@ -515,7 +516,8 @@ def dwell_stages(cube, proc: dict, geo: dict):
     # mirror directions (same Doppler) are parted only by the beam: inside one dwell window of each
     # other they are integrated together (resolved_flags' angle gate)
     geo["resolution_angle_gate_deg"] = 2.0 * DWELL_HALF_WIDTH_BEAMS * two_way_deg
-    fit = proc.get("dwell_fit", "none") == "joint" and fit_models_antenna(cube)
+    fit = (proc.get("dwell_fit", "none") == "joint" and fit_models_antenna(cube)
+           and fit_cell_model_holds(cube, geo, (FIT_REGION_BEAMS + 1.0) * DWELL_HALF_WIDTH_BEAMS * two_way_deg))
     fit_half_width_deg = FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg if fit else 0.0
     if fit:                                               # the fit's own resolution (dwell_resolution.fit_resolved_flags)
         geo["fit_region"] = {"half_width_deg": fit_half_width_deg,
@@ -533,17 +535,3 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
         "position_ref_m": [float(v) for v in geo["p_ref"]],
         "fit_half_width_deg": fit_half_width_deg, **dwell_stage_params(cube, proc, geo)})]
-
-
-
-def fit_models_antenna(cube) -> bool:
-    """Whether the joint fit's pattern model (two Gaussian beams, dwell_fit.py) is the cube's antenna: a
-    cube whose ``/antenna`` declares ``gaussian2``.  Another pattern (sinc2, a table) or a cube without
-    ``/antenna`` would be fitted with the wrong weights (on the paper lattice with sinc2 beams: 10 m
-    and 0.35 deg off), so there the dwell image stays alone, and the log says so."""
-    pattern = (cube.antenna or {}).get("pattern", "gaussian2" if cube.antenna else None)
-    if pattern == "gaussian2":
-        return True
-    log.warning(f"processing.dwell_fit: joint models two Gaussian beams; this cube's antenna is "
-                f"{pattern or 'not declared (no /antenna)'}: the dwell image is used without the fit")
-    return False

@@ -1,10 +1,16 @@
-"""The joint fit's plan (``forward.dwell_fit``): the clusters of range cells it fits, the channels' noise
+"""The joint fit's plan (``forward.dwell_fit``): whether it runs at all (the cube's antenna its model's, each
+cell's own history close enough to a point's), the clusters of range cells it fits, the channels' noise
 level, and the slow-time decimation its directions allow."""
 from __future__ import annotations
+
+import logging
 
 import numpy as np
 
 from ..dsp.fir import kaiser_lowpass
+from ..dsp.geometry import C_MPS
+
+log = logging.getLogger(__name__)
 
 CLUSTER_HALF_BINS = 2      # range cells fitted on each side of the strong ones (a scatterer's skirts)
 SIDELOBE_DB = 20.0         # range peaks more than 20 dB under the region's strongest: range sidelobes and their
@@ -87,3 +93,63 @@ def fit_angle_step(model, axis_deg, half_width_deg, range_m, angle_step_deg):
             break
         step *= 0.5
     return step
+
+
+FIT_MAX_CELL_CYCLES = 0.25   # the history's change across one range cell over the fit window, in cycles, up to
+                             # which each cell's atom may carry its own range's history (README, "The joint
+                             # fit's cell model"): 0.02 on the paper's flights, 0.12 at 94 GHz (0.2 m bias), 0.2
+                             # at 150 m of height (0.37 m), 2.1 at 500 m (0.85 m, where the dwell image: 0.05 m)
+
+
+def cell_history_cycles(position_m, scan_angle_deg, range_m, *, axis_deg: float, window_deg: float,
+                        position_ref_m, fc_hz: float) -> float:
+    """How much the two-way phase history of the flight-axis direction changes from one range cell to
+    the next over the pulses whose beam is within ``window_deg`` of the axis (the joint fit's window), in
+    cycles: 2 / lambda ptp_n[(R(r + dr/2; n) - R(r - dr/2; n)) - dr] at the window's middle range.  Each
+    of the fit's atoms carries its own cell's history, so a point between two cells is fitted with a
+    history this far from its own (a range bias growing with it: steep depression, short wavelengths)."""
+    beam = np.asarray(scan_angle_deg, dtype=np.float64)
+    win = np.flatnonzero(np.abs(beam - axis_deg) <= window_deg)
+    rng = np.asarray(range_m, dtype=np.float64)
+    if len(win) < 2 or len(rng) < 2:
+        return 0.0
+    pos = np.asarray(position_m, dtype=np.float64)[win]
+    p_ref = np.asarray(position_ref_m, dtype=np.float64)
+    r_mid, dr = float(np.median(rng)), float(rng[1] - rng[0])
+    u = np.array([np.sin(np.radians(axis_deg)), np.cos(np.radians(axis_deg))])
+    hist = []
+    for r in (r_mid - 0.5 * dr, r_mid + 0.5 * dr):
+        rho = np.sqrt(max(r * r - p_ref[2] ** 2, 0.0))
+        ground = np.array([p_ref[0] + rho * u[0], p_ref[1] + rho * u[1], 0.0])
+        hist.append(np.linalg.norm(ground[None, :] - pos, axis=1))
+    return 2.0 * float(np.ptp(hist[1] - hist[0] - dr)) * fc_hz / C_MPS
+
+def fit_models_antenna(cube) -> bool:
+    """Whether the joint fit's pattern model (two Gaussian beams, dwell_fit.py) is the cube's antenna: a
+    cube whose ``/antenna`` declares ``gaussian2``.  Another pattern (sinc2, a table) or a cube without
+    ``/antenna`` would be fitted with the wrong weights (on the paper lattice with sinc2 beams: 10 m
+    and 0.35 deg off), so there the dwell image stays alone, and the log says so."""
+    pattern = (cube.antenna or {}).get("pattern", "gaussian2" if cube.antenna else None)
+    if pattern == "gaussian2":
+        return True
+    log.warning(f"processing.dwell_fit: joint models two Gaussian beams; this cube's antenna is "
+                f"{pattern or 'not declared (no /antenna)'}: the dwell image is used without the fit")
+    return False
+
+
+def fit_cell_model_holds(cube, geo: dict, window_deg: float) -> bool:
+    """Whether each fitted cell may carry its own range's history (``dwell_fit_plan.cell_history_cycles``
+    at most FIT_MAX_CELL_CYCLES over the fit's window); where not (steep depression: 0.85 m of range bias
+    at 500 m of height, a lone point missed at 2000 m; an independent review), the dwell image stays
+    alone near the axis too, and the log says so."""
+    v_ref = np.asarray(geo["v_ref"], dtype=np.float64)
+    axis_deg = float(np.degrees(np.arctan2(v_ref[0], v_ref[1])))
+    cycles = cell_history_cycles(cube.position_m, cube.scan_angle_deg, cube.range_m, axis_deg=axis_deg,
+                                 window_deg=window_deg, position_ref_m=geo["p_ref"], fc_hz=cube.radar["fc_hz"])
+    if cycles <= FIT_MAX_CELL_CYCLES:
+        return True
+    log.warning(f"processing.dwell_fit: joint is not used: a point's phase history changes by {cycles:.2f} cycle "
+                f"from one range cell to the next over the fit's window (steep depression or a short wavelength; "
+                f"the fit's cells hold up to {FIT_MAX_CELL_CYCLES:g}: README, \"The joint fit's cell model\"), so "
+                f"the dwell image is used without it")
+    return False
