@@ -169,8 +169,9 @@ SCENARIO_CASES = [
     ("set-with-an-empty-key", _copy_tiny, ["--set", "processing..q=1"], ["processing..q=1", "an empty key"]),
     # an independent review (fifty-first round): a whole section replaced, its other keys back to their
     # defaults (noise=null: 20 dB and seed 1, not "no noise"), and YAML 1.1's octal and base-60 numbers
-    ("set-a-whole-section", _copy_tiny, ["--set", "noise=null"], ["--set noise", "a whole section", "noise.snr_db=null"]),
-    ("set-a-whole-subsection", _copy_tiny, ["--set", "processing={q: 4}"], ["--set processing", "a whole section"]),
+    ("set-a-section-to-null", _copy_tiny, ["--set", "noise=null"], ["--set noise = null", "is a section",
+                                                                      "noise.snr_db=null"]),
+    ("set-a-section-to-a-number", _copy_tiny, ["--set", "radar=5"], ["--set radar = 5", "a mapping of its keys"]),
     ("set-an-octal-number", _copy_tiny, ["--set", "noise.seed=010"], ["noise.seed", "010", "octal: 8"]),
     ("set-a-base-60-number", _copy_tiny, ["--set", "noise.seed=1:0"], ["noise.seed", "1:0", "base 60: 60"]),
     # values the chain cannot process (each ran before, with a traceback, an overflow or 24 GB)
@@ -380,6 +381,19 @@ def test_bad_cube(good_cube, tmp_path, capsys, command, case_id, build, fragment
     code, out, err = run_cli([command, path], capsys)
     assert_bad_input(code, out, err, path, fragments)
     assert list(tmp_path.rglob("*.partial")) == []
+
+
+def test_a_mapping_set_on_a_section_is_merged_into_it(tmp_path):
+    """`--set 'processing={q: 4}'` had replaced the whole section, tiny's CPI of 16 back to the default 32
+    (an independent review); CONTRACT.md's --set takes any key path with a YAML value, so a mapping on a
+    section is merged into it: q 4, every other key as the file and the earlier --set have it."""
+    scn = load_scenario(_copy_tiny(tmp_path), ["processing.threshold_db=14", "processing={q: 4}",
+                                                "scene={amplitude: 2.0}"])
+    tiny = load_scenario(TINY)
+    assert scn["processing"]["q"] == 4 and scn["processing"]["threshold_db"] == 14
+    assert {k: v for k, v in scn["processing"].items() if k not in ("q", "threshold_db")} == {
+        k: v for k, v in tiny["processing"].items() if k not in ("q", "threshold_db")}
+    assert scn["scene"]["points_m"] == tiny["scene"]["points_m"] and scn["scene"]["amplitude"] == 2.0
 
 
 def test_a_scene_key_of_another_kind_is_said_once(tmp_path, capsys):

@@ -71,8 +71,13 @@ def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...], source: s
         if not all(parts):                 # 'processing..q', '.q': a typo, not a path
             raise BadInput(f"{source}: --set {item!r}: an empty key in the path; expected KEY.PATH=VALUE, "
                            f"e.g. processing.q=25")
-        _refuse_whole_section(raw, parts, key, source)
         value = yaml_load(value_text, f"{source}: --set {key}")
+        section = _is_section(raw, parts)
+        if section and not isinstance(value, dict):
+            hint = " (no noise: noise.snr_db=null)" if key.strip() == "noise" else ""
+            raise BadInput(f"{source}: --set {key} = {_show(value)}: {key.strip()} is a section; allowed: a mapping "
+                           f"of its keys (merged into it) or key paths inside it, e.g. --set {key.strip()}.KEY=VALUE"
+                           f"{hint}")
         node = raw
         for i, part in enumerate(parts[:-1]):
             child = node.get(part)
@@ -81,22 +86,31 @@ def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...], source: s
             if not isinstance(child, dict):
                 raise BadInput(f"{source}: --set {key}: {'.'.join(parts[:i + 1])} is not a mapping")
             node = child
-        node[parts[-1]] = value
+        if section and isinstance(node.get(parts[-1]), dict):
+            node[parts[-1]] = _merged(node[parts[-1]], value)     # the keys it does not name are kept
+        else:
+            node[parts[-1]] = value
     return raw
 
 
-def _refuse_whole_section(raw: dict, parts: list[str], key: str, source: str) -> None:
-    """``--set SECTION=VALUE`` (``noise=null``, ``processing={q: 4}``) replaced the whole section, and
-    every key of it the value did not name went back to its default (tiny's noise to 20 dB and seed 1,
-    its CPI to 32: an independent review), as a sweep's grid over a section had: refused, as there."""
+def _merged(base: dict, over: dict) -> dict:
+    """``over`` merged into a copy of ``base``, mapping by mapping."""
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _is_section(raw: dict, parts: list[str]) -> bool:
+    """Whether the key path names a section of the schema (a mapping of keys). ``--set SECTION=VALUE``
+    had replaced the whole section, every key the value did not name back to its default (``noise=null``
+    meant tiny's noise at 20 dB and seed 1, ``processing={q: 4}`` its CPI at 32: an independent review):
+    a mapping is now merged into the section, anything else refused."""
     kind = raw.get("kind", "forward")
     node = SCHEMAS.get(kind, FORWARD_SCHEMA) if isinstance(kind, str) else FORWARD_SCHEMA
     for part in parts:
         node = node.get(part) if isinstance(node, dict) else None
-    if isinstance(node, dict):
-        hint = " (no noise: noise.snr_db=null)" if key.strip() == "noise" else ""
-        raise BadInput(f"{source}: --set {key}: a whole section (the keys the value does not name would go back "
-                       f"to their defaults); allowed: key paths inside it, e.g. --set {key.strip()}.KEY=VALUE{hint}")
+    return isinstance(node, dict)
 
 
 def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, check_pulses: bool = True) -> dict:
