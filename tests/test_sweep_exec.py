@@ -170,6 +170,17 @@ def test_scheduler_that_does_not_answer_is_bad_input(tmp_path, capsys):
     assert code == 2 and len(err.strip().splitlines()) == 1 and "--scheduler tcp://127.0.0.1:9" in err
 
 
+def test_a_scheduler_that_is_not_an_address_is_refused_on_a_finished_sweep_too(tmp_path, capsys):
+    """A rerun of a finished sweep needs no executor, and it had taken `--scheduler bogus` with exit 0
+    (an independent review): the address's form is checked first thing, as on a fresh folder."""
+    path = sweep_file(tmp_path, methods=("beam",), t_refs=("centre",))
+    code, _, err = run_cli(["sweep", path, "-o", tmp_path / "s", "-q"], capsys)
+    assert code == 0, err
+    for out in (tmp_path / "s", tmp_path / "fresh"):
+        code, _, err = run_cli(["sweep", path, "-o", out, "--scheduler", "bogus"], capsys)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and "--scheduler bogus: not an address" in err
+
+
 def test_a_corrupt_cube_fails_its_points_through_the_pool_and_spares_the_others(tmp_path, capsys):
     """A real fault through the process pool: one scenario's shared cube is truncated on disk before
     the sweep (as by a full disk), so its points fail with the reader's one-line error, while the other

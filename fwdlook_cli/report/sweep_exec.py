@@ -234,10 +234,16 @@ def executor(workers: int, scheduler: str):
             log.warning("--workers %d: this process may use %d core(s) (its CPU affinity within its cgroup's "
                         "CPU limit); the workers share them", workers, cores)
         return _Pool(workers) if workers > 1 else _Serial()
-    if "://" not in scheduler and ":" not in scheduler:
+    _check_scheduler_form(scheduler)
+    return _Dask(scheduler)
+
+
+def _check_scheduler_form(scheduler: str) -> None:
+    """``--scheduler`` local or an address (checked first thing: a finished sweep's rerun, which needs no
+    executor, had taken any text with exit 0)."""
+    if scheduler not in (None, "", "local") and "://" not in scheduler and ":" not in scheduler:
         raise BadInput(f"--scheduler {scheduler}: not an address; allowed: local or tcp://HOST:PORT "
                        f"(a dask.distributed scheduler)")
-    return _Dask(scheduler)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -254,6 +260,7 @@ def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, sc
     from .sweep_plan import _fmt, _label, plan_runs, row_of
 
     say = (lambda *a: None) if quiet else log.info
+    _check_scheduler_form(scheduler)
     remote = scheduler not in (None, "", "local")
     out = out.resolve() if remote else out            # Dask workers may have another working directory
     runs = plan_runs(sweep, out, source=sweep.get("source"))
