@@ -62,7 +62,7 @@ def simulate(scenario, output, overrides, overwrite, out_of_core, quiet):
     from .io.backing import SIMULATE_X_CUBE
 
     scn = load_scenario(scenario, overrides)
-    _refuse_out_of_core_isar(scn, scenario, out_of_core)
+    _refuse_run_options(scn, scenario, out_of_core)
     output = prepare_file(output, inputs=[scenario], overwrite=overwrite)   # where it lands (nodir/.. resolved)
     with _out_of_core(out_of_core, output):    # the scratch files' folder: the output's own
         if scn["kind"] != "forward":
@@ -183,7 +183,7 @@ def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", ke
     if scn["kind"] == "isar":
         from .isar.process import process_isar_cube
 
-        _refuse_out_of_core_isar(scn, source, out_of_core, keep_stages)
+        _refuse_run_options(scn, source, out_of_core, keep_stages)
         try:
             return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet,
                                      scenario_note=note)
@@ -243,9 +243,8 @@ out_of_core_option = click.option(
          "the same results.")
 
 
-def _refuse_out_of_core_isar(scn, source, out_of_core: bool, keep_stages: str = "all") -> None:
-    """``--out-of-core``, or ``--keep-stages`` other than all, with an ISAR scenario (refused after its cube
-    had been simulated and written), or settings that need whole arrays: refused before any work."""
+def _refuse_run_options(scn, source, out_of_core: bool, keep_stages: str = "all") -> None:
+    """The options a scenario cannot take (ISAR: out of core, some stages kept; whole arrays out of core)."""
     if keep_stages != "all" and scn["kind"] == "isar":
         raise BadInput(f"{source}: --keep-stages {keep_stages}: the ISAR chain keeps every stage; allowed: all")
     if out_of_core and scn["kind"] == "isar":
@@ -284,11 +283,12 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
     """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
     from .io.outputs import folder_lock, prepare_run_dir
 
+    check_stage_options(from_stage, force, None)        # first thing; the stage's name once the kind is known
     held = contextlib.ExitStack()        # the run directory's lock, until the command ends
 
     def prepare(scn):
-        check_stage_options(from_stage, force, scn["kind"])          # before any work (a simulation)
-        _refuse_out_of_core_isar(scn, raw or source, out_of_core, keep_stages)
+        check_stage_options(from_stage, False, scn["kind"])          # before any work (a simulation)
+        _refuse_run_options(scn, raw or source, out_of_core, keep_stages)
         d = prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
         held.enter_context(folder_lock(d))
         _start_fit_spawner(scn)
@@ -323,7 +323,7 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
     held = contextlib.ExitStack()        # the run directory's lock, until the command ends
 
     def prepare(scn):
-        _refuse_out_of_core_isar(scn, raw or scenario, out_of_core, keep_stages)
+        _refuse_run_options(scn, raw or scenario, out_of_core, keep_stages)
         d = prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config], overwrite=overwrite,
                             writes_raw=writes_raw)
         held.enter_context(folder_lock(d))

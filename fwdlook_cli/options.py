@@ -53,7 +53,8 @@ def check_bench_options(ctx, *, write_cube, scaling, backend) -> None:
              if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE}
     if backend != "gpu":
         given.discard("--backend")                  # --backend cpu: what every mode does
-    for flag, needs, present in (("--shape", "--write-cube", write_cube), ("--plot", "--scaling", scaling)):
+    for flag, needs, present in (("--shape", "--write-cube", write_cube), ("--plot", "--scaling", scaling),
+                                 ("--overwrite", "--write-cube or --scaling", write_cube or scaling)):
         if flag in given and not present:
             raise BadInput(f"{flag}: applies only with {needs}; allowed: {flag} together with {needs}")
     for mode, present in (("--write-cube", write_cube), ("--scaling", scaling)):
@@ -67,17 +68,17 @@ def check_bench_options(ctx, *, write_cube, scaling, backend) -> None:
         get_xp("gpu", key="--backend")
 
 
-def check_stage_options(from_stage, force: bool, kind: str) -> None:
-    """``process``'s ``--from-stage`` and ``--force``, refused in one line before any work: both given, or
-    a stage that no chain of the scenario's kind has (the chain's own list is checked once it is built:
-    ``runner.run_stages``; a name no chain has had been refused only after the cube was simulated)."""
+def check_stage_options(from_stage, force: bool, kind: str | None) -> None:
+    """``process``'s ``--from-stage`` and ``--force``, refused in one line before any work: both given
+    (first thing), or, once the scenario's ``kind`` is known, a stage that no chain of that kind has (the
+    chain's own list is checked once it is built: ``runner.run_stages``)."""
     from .errors import BadInput
     from .limits import shown
 
     if force and from_stage:
         raise BadInput(f"--force with --from-stage {shown(from_stage)}: --force recomputes every stage, "
                        f"--from-stage the stages from {shown(from_stage)} on; allowed: one of them")
-    if from_stage is not None:
+    if from_stage is not None and kind is not None:
         if kind == "isar":
             from .isar.chain import STAGE_NAMES
         else:

@@ -397,17 +397,26 @@ def test_a_mapping_set_on_a_section_is_merged_into_it(tmp_path):
 
 
 def test_a_scene_key_of_another_kind_is_said_once(tmp_path, capsys):
-    """scene.lattice or center_m set under kind: points are not read: said in one warning (they had been
-    recorded in the cube's /scenario and ignored without a word); a written scenario.yaml, which holds
-    every section, says nothing."""
+    """scene.lattice or center_m set under kind: points are not read: said in one warning, once per
+    process (they had been recorded in the cube's /scenario and ignored without a word); a written
+    scenario.yaml, which holds every section (here the lattice of the run's --set), says nothing: only a
+    --set names what the user meant to change."""
     from fwdlook_cli.scenario import forward
 
     forward._SAID.clear()
     scenario = _copy_tiny(tmp_path)
+    said = f"{scenario}: scene.lattice is not read: scene.kind is points"
     code, out, err = run_cli(["validate", scenario, "--set", "scene.lattice.nx=5"], capsys)
-    assert code == 0 and err.splitlines() == [f"{scenario}: scene.lattice is not read: scene.kind is points"], err
-    code, out, err = run_cli(["run", scenario, "-o", tmp_path / "run"], capsys)
-    assert code == 0, err
+    assert code == 0 and err.splitlines() == [said], err
+    code, out, err = run_cli(["validate", scenario, "--set", "scene.lattice.nx=5"], capsys)
+    assert code == 0 and said not in err, err                          # once per process (a sweep's points)
+    forward._SAID.clear()
+    code, out, err = run_cli(["validate", scenario, "--set", "scene={lattice: {nx: 5}}"], capsys)   # a mapping
+    assert code == 0 and err.splitlines() == [said], err
+    forward._SAID.clear()
+    code, out, err = run_cli(["run", scenario, "-o", tmp_path / "run", "--set", "scene.lattice.nx=5"], capsys)
+    assert code == 0 and said in err, err
+    forward._SAID.clear()                   # its scenario.yaml holds the lattice of nx 5 beside kind: points
     code, out, err = run_cli(["validate", tmp_path / "run" / "scenario.yaml"], capsys)
     assert code == 0 and "is not read" not in err, err
 

@@ -434,7 +434,7 @@ def test_steep_fine_focus_with_the_joint_fit(tmp_path, capsys):
     """fwdlook's own cube (two declared Gaussian beams: the joint fit runs) at 150 m of height, where
     the dwell is focused on the x4 range grid: the fit takes the native samples (it stopped with an
     IndexError when it was handed the fine grid's) and every target is found.  At 1000 m a point's
-    history changes by 2.6 cycles from one range cell to the next over the fit's window, far beyond what
+    history changes by 4.95 cycles from one range cell to the next over the fit's window, far beyond what
     the fit's cells hold (FIT_MAX_CELL_CYCLES): the fit is not used, the log says so, and the dwell image
     finds every target (an independent review: with the fit, 0.98 m and 0.2 deg off at 1000 m on the
     paper's radar, a lone point missed at 2000 m)."""

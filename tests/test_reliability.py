@@ -419,6 +419,8 @@ def test_bench_refuses_options_its_mode_would_ignore(tmp_path, capsys, monkeypat
         code, out, err = run_cli(["bench", *argv], capsys)
         assert_refused(code, out, err, f"{flag}: does not apply with {mode}")
         assert not cube.exists()
+    code, out, err = run_cli(["bench", "--overwrite"], capsys)          # alone: nothing it could overwrite
+    assert_refused(code, out, err, "--overwrite: applies only with --write-cube or --scaling")
 
 
 def test_a_bench_plot_is_recognised_by_its_pngs_software_text(tmp_path):

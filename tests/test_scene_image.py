@@ -47,8 +47,9 @@ def test_one_bright_pixel_is_a_one_point_scene(tmp_path):
 
 def test_a_one_row_map_is_a_map_and_a_map_outside_the_beam_is_said(tmp_path, caplog, capsys):
     """A 1 x 7 map (squeezed to 1-D, it had been refused as "image of shape (7,)", which is not the
-    file's shape) is the same scene as its row in a 5 x 7 map; and a map the beam never reaches, which
-    had run to "detected 0/0" without a word, is said in one warning (an independent review)."""
+    file's shape) is read as a map: its one bright pixel at the map's centre row is a point at the
+    centre; and a map the beam never reaches, which had run to "detected 0/0" without a word, is said in
+    one warning (an independent review)."""
     import logging
 
     row = np.zeros((1, 7), np.float32)
@@ -63,7 +64,9 @@ def test_a_one_row_map_is_a_map_and_a_map_outside_the_beam_is_said(tmp_path, cap
     with caplog.at_level(logging.WARNING):
         _, stats = simulate_scenario(behind)
     assert stats.n_pairs_kept == 0
-    assert any("no pixel of the image scene is ever in the beam" in r.getMessage() for r in caplog.records)
+    said = [r.getMessage() for r in caplog.records
+            if "no pixel of the image scene is ever in the beam" in r.getMessage()]
+    assert len(said) == 1 and "zeros (no noise), which process refuses" in said[0], said   # (noise off here)
     caplog.clear()
     with caplog.at_level(logging.WARNING):
         simulate_scenario(one)

@@ -336,6 +336,7 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
         cal.stats["effective_slope_per_deg"] = cal.slope_per_deg
         cal.stats["note"] = ("general ratio curve (tanh rejected by the model test): the amplitude imbalance "
                              "is part of the curve and not reported apart")
+        cal.stats.pop("slope_note", None)          # (the table's own slope is its curve's: determined)
     return cal
 
 

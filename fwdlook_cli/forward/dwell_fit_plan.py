@@ -124,6 +124,7 @@ def cell_history_cycles(position_m, scan_angle_deg, range_m, *, axis_deg: float,
         hist.append(np.linalg.norm(ground[None, :] - pos, axis=1))
     return 2.0 * float(np.ptp(hist[1] - hist[0] - dr)) * fc_hz / C_MPS
 
+
 def fit_models_antenna(cube) -> bool:
     """Whether the joint fit's pattern model (two Gaussian beams, dwell_fit.py) is the cube's antenna: a
     cube whose ``/antenna`` declares ``gaussian2``.  Another pattern (sinc2, a table) or a cube without

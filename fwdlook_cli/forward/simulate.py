@@ -184,7 +184,8 @@ def simulate_scenario(scn: dict, *, in_memory_x_cube: float | None = None, doing
         logging.getLogger(__name__).warning(
             f"{source or scn['name']}: no pixel of the image scene is ever in the beam (the scan covers "
             f"{float(np.min(beam_deg)):g} to {float(np.max(beam_deg)):g} deg; two-way gain under "
-            f"{scn['simulation']['gain_threshold_db']:g} dB on every pulse): the cube holds noise only")
+            f"{scn['simulation']['gain_threshold_db']:g} dB on every pulse): the cube holds "
+            f"{'noise only' if scn['noise']['snr_db'] is not None else 'zeros (no noise), which process refuses'}")
     cube = RawCube(
         sum=echo_sum, diff=echo_diff, slow_time_s=slow_time_s, range_m=range_m,
         scan_angle_deg=beam_deg, position_m=position_m, velocity_mps=velocity_mps,

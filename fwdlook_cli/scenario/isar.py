@@ -79,12 +79,17 @@ ISAR_SCHEMA: dict = {
 }
 
 
+_SAID: set[str] = set()          # warnings already logged by this process
+
+
 def isar_checks(scn: dict, source: str) -> None:
     radar, tg = scn["radar"], scn["target"]
     proc = scn["processing"]
-    if proc["n0_pulses"] != "auto" and proc["correction"] != "keystone2_n0":    # (recorded and ignored before)
-        logging.getLogger(__name__).warning(f"{source}: processing.n0_pulses = {proc['n0_pulses']:g} is not read: "
-                                            f"processing.correction is {proc['correction']} (keystone2_n0 reads it)")
+    said = (f"{source}: processing.n0_pulses = {proc['n0_pulses']:g} is not read: processing.correction is "
+            f"{proc['correction']} (keystone2_n0 reads it)") if proc["n0_pulses"] != "auto" else ""
+    if proc["n0_pulses"] != "auto" and proc["correction"] != "keystone2_n0" and said not in _SAID:
+        _SAID.add(said)                    # once per process (a sweep resolves a scenario per point)
+        logging.getLogger(__name__).warning(said)
     broken = scenario_pulse_rule_text(radar)
     if broken:
         raise BadInput(f"{source}: {broken}")

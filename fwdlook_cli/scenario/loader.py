@@ -130,8 +130,13 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, chec
     resolved = _resolve(raw, SCHEMAS[kind], "", source)
     if kind == "forward":
         CROSS_CHECKS[kind](resolved, source, check_pulses=check_pulses)
-        set_keys = {item.split("=", 1)[0].strip().split(".")[1] for item in overrides or ()
-                    if item.split("=", 1)[0].strip().startswith("scene.")}
+        set_keys = set()                 # the scene keys the overrides name (scene.KEY..., or scene={KEY: ...})
+        for item in overrides or ():
+            path, value = (part.strip() for part in item.split("=", 1))
+            if path.startswith("scene."):
+                set_keys.add(path.split(".")[1])
+            elif path == "scene" and isinstance(scene_value := yaml_load(value, source), dict):
+                set_keys |= set(scene_value)
         warn_unused_scene_keys(raw.get("scene"), set_keys, source)      # a valid scenario only (one line else)
     else:
         CROSS_CHECKS[kind](resolved, source)
