@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import copy
 
-from .scenario.loader import resolve_scenario
+from .scenario.loader import merged_mapping, resolve_scenario
 
 TINY = {
     "name": "tiny",
@@ -19,13 +19,8 @@ TINY = {
 
 
 def _merge(base: dict, extra: dict) -> dict:
-    out = copy.deepcopy(base)
-    for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
+    """``extra`` merged into ``base`` as ``--set SECTION={...}`` merges (copies of both: nothing shared)."""
+    return merged_mapping(copy.deepcopy(base), copy.deepcopy(extra))
 
 
 def tiny_scenario(**sections) -> dict:

@@ -84,8 +84,8 @@ from .calibration import check_slope_forms_a_beam, pattern_beta_per_deg2
 from .dwell_fit import start_fit_region
 from .dwell_fit_plan import fit_cell_model_holds, fit_models_antenna
 from .dwell_grid import check_focus_sizes, focus_directions, focus_per_bin, pattern_weight, subaperture_windows
-from .dwell_range import (auto_focus_range_oversample, dwell_duration_s, dwell_stage_params, ground_points,
-                          iso_doppler_range)
+from .dwell_range import (auto_focus_range_oversample, dwell_duration_s, dwell_stage_params, flight_axis_deg,
+                          ground_points, iso_doppler_range)
 
 log = logging.getLogger(__name__)
 
@@ -356,7 +356,7 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     angle_deg = image_angle_grid(beam, beamwidth_deg, angle_step_deg)
     vel = data["velocity_mps"]
     m_ref = int(np.argmin(np.abs(data["slow_time_s"] - data.attrs.get("t_ref_s", data["slow_time_s"][0]))))
-    twin_axis = float(np.degrees(np.arctan2(vel[m_ref, 0], vel[m_ref, 1])))
+    twin_axis = flight_axis_deg(vel[m_ref])
     # the focused directions: each image bin's own, and more where the dwell's angle lobe is narrower than
     # the bin (dwell_grid.py)
     per_bin = focus_per_bin(angle_deg, beam, vel, range_m, p_ref, fc_hz=fc_hz, prf_hz=prf_hz, axis_deg=twin_axis,

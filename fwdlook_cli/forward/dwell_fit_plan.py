@@ -9,6 +9,7 @@ import numpy as np
 
 from ..dsp.fir import kaiser_lowpass
 from ..dsp.geometry import C_MPS
+from .dwell_range import flight_axis_deg, ground_points
 
 log = logging.getLogger(__name__)
 
@@ -114,14 +115,9 @@ def cell_history_cycles(position_m, scan_angle_deg, range_m, *, axis_deg: float,
     if len(win) < 2 or len(rng) < 2:
         return 0.0
     pos = np.asarray(position_m, dtype=np.float64)[win]
-    p_ref = np.asarray(position_ref_m, dtype=np.float64)
     r_mid, dr = float(np.median(rng)), float(rng[1] - rng[0])
-    u = np.array([np.sin(np.radians(axis_deg)), np.cos(np.radians(axis_deg))])
-    hist = []
-    for r in (r_mid - 0.5 * dr, r_mid + 0.5 * dr):
-        rho = np.sqrt(max(r * r - p_ref[2] ** 2, 0.0))
-        ground = np.array([p_ref[0] + rho * u[0], p_ref[1] + rho * u[1], 0.0])
-        hist.append(np.linalg.norm(ground[None, :] - pos, axis=1))
+    ground = ground_points(np.array([r_mid - 0.5 * dr, r_mid + 0.5 * dr]), axis_deg, position_ref_m)   # [2, 3]
+    hist = np.linalg.norm(ground[:, None, :] - pos[None], axis=2)                                     # [2, N]
     return 2.0 * float(np.ptp(hist[1] - hist[0] - dr)) * fc_hz / C_MPS
 
 
@@ -143,9 +139,8 @@ def fit_cell_model_holds(cube, geo: dict, window_deg: float) -> bool:
     at most FIT_MAX_CELL_CYCLES over the fit's window); where not (steep depression: 0.85 m of range bias
     at 500 m of height, a lone point missed at 2000 m; an independent review), the dwell image stays
     alone near the axis too, and the log says so."""
-    v_ref = np.asarray(geo["v_ref"], dtype=np.float64)
-    axis_deg = float(np.degrees(np.arctan2(v_ref[0], v_ref[1])))
-    cycles = cell_history_cycles(cube.position_m, cube.scan_angle_deg, cube.range_m, axis_deg=axis_deg,
+    cycles = cell_history_cycles(cube.position_m, cube.scan_angle_deg, cube.range_m,
+                                 axis_deg=flight_axis_deg(geo["v_ref"]),
                                  window_deg=window_deg, position_ref_m=geo["p_ref"], fc_hz=cube.radar["fc_hz"])
     if cycles <= FIT_MAX_CELL_CYCLES:
         return True

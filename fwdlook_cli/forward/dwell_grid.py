@@ -32,6 +32,7 @@ import numpy as np
 from ..dsp.imaging import image_angle_grid
 from ..dsp.neighbours import running_max
 from ..limits import check_processing_sizes
+from .dwell_range import flight_axis_deg
 
 log = logging.getLogger(__name__)
 
@@ -171,10 +172,9 @@ def check_focus_sizes(cube, geo: dict, proc: dict, *, slope_per_deg: float, beta
     the chain's size check (``limits.check_processing_sizes``) before it starts: the focus's arrays are
     per direction, up to MAX_FOCUS_OVERSAMPLE times the image's bins."""
     angle = image_angle_grid(cube.scan_angle_deg, cube.radar["beamwidth_3db_deg"], proc["angle_step_deg"])
-    v_ref = np.asarray(geo["v_ref"], dtype=np.float64)
     per_bin = focus_per_bin(angle, cube.scan_angle_deg, np.asarray(cube.velocity_mps), cube.range_m,
                             np.asarray(geo["p_ref"], dtype=np.float64), fc_hz=cube.radar["fc_hz"],
-                            prf_hz=cube.radar["prf_hz"], axis_deg=float(np.degrees(np.arctan2(v_ref[0], v_ref[1]))),
+                            prf_hz=cube.radar["prf_hz"], axis_deg=flight_axis_deg(geo["v_ref"]),
                             beta_per_deg2=beta_per_deg2, slope_per_deg=slope_per_deg,
                             dwell_half_width_deg=dwell_half_width_deg, warn=False)     # (dwell_image says it)
     check_processing_sizes(n_range=cube.n_range, range_oversample=int(geo["range_oversample"]), n_angle=len(angle),

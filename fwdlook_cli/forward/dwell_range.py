@@ -16,6 +16,13 @@ from ..dsp.antenna import two_way_width_for
 from ..dsp.geometry import C_MPS
 
 
+def flight_axis_deg(velocity_mps) -> float:
+    """Azimuth (deg, from +y towards +x) of the horizontal velocity: the flight axis, the mirror axis of
+    the dwell's twins and the joint fit's region."""
+    v = np.asarray(velocity_mps, dtype=np.float64)
+    return float(np.degrees(np.arctan2(v[0], v[1])))
+
+
 def ground_points(range_m, azimuth_deg, position_ref_m):
     """Ground point (z = 0) at slant range ``range_m`` and azimuth ``azimuth_deg`` from p_ref: [..., 3]."""
     p_ref = np.asarray(position_ref_m, dtype=np.float64)

@@ -290,13 +290,13 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                                beamwidth_two_way_deg=geo.get("resolution_angle_gate_deg", two_way_deg),
                                doppler_resolution_hz=geo.get("doppler_resolution_hz"))
         if "fit_region" in geo:          # dwell_fit: joint: inside its region, what the fit parts
+            from .dwell_range import flight_axis_deg
             from .dwell_resolution import fit_resolved_flags
 
-            v_ref = np.asarray(geo["v_ref"], dtype=np.float64)
             inside, fit_flags = fit_resolved_flags(
                 [r["true_range_m"] for r in rows], [r["true_azimuth_deg"] for r in rows],
                 position_m=cube.position_m, scan_angle_deg=cube.scan_angle_deg,
-                axis_deg=float(np.degrees(np.arctan2(v_ref[0], v_ref[1]))), position_ref_m=geo["p_ref"],
+                axis_deg=flight_axis_deg(geo["v_ref"]), position_ref_m=geo["p_ref"],
                 range_resolution_m=299_792_458.0 / (2.0 * cube.radar["bandwidth_hz"]), **geo["fit_region"])
             flags = np.where(inside, fit_flags, flags)
         for row, flag in zip(rows, flags):

@@ -16,14 +16,6 @@ import xxhash
 RADAR_KEYS = ("fc_hz", "bandwidth_hz", "fs_hz", "prf_hz", "beamwidth_3db_deg")
 
 
-UNIT_SUFFIXES = (("_mps", "m/s"), ("_deg", "deg"), ("_m", "m"), ("_s", "s"))
-
-
-def units_of_name(key: str) -> str:
-    """Units of a dataset from its name's suffix (``vx_mps`` -> m/s, ``x_m`` -> m); else "1"."""
-    return next((units for suffix, units in UNIT_SUFFIXES if key.endswith(suffix)), "1")
-
-
 @dataclass
 class RawCube:
     sum: np.ndarray              # complex64 [n_pulses, n_range]
@@ -40,8 +32,6 @@ class RawCube:
     scenario_yaml: str | None = None
     noise: dict = field(default_factory=dict)     # snr_db, sigma, seed (simulated data)
     attrs: dict = field(default_factory=dict)     # provenance
-
-    units_of_name = staticmethod(units_of_name)   # (for io/xr.py, which imports nothing of the package)
 
     @property
     def n_pulses(self) -> int:

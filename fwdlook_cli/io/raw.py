@@ -17,7 +17,8 @@ import h5py
 import numpy as np
 
 from . import backing
-from .cube import RADAR_KEYS, RawCube, units_of_name
+from .cube import RADAR_KEYS, RawCube
+from .xr import units_of_name
 from ..dsp.geometry import C_MPS
 from ..dsp.pulse import WEIGHTINGS, pulse_rule_broken
 from ..dsp.keystone_common import carrier_floor_text
@@ -262,7 +263,7 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
             radar[key] = _plain(value)
     _check_optional_radar(radar, source)
     _check_pulse_timing(slow_time_s, radar["prf_hz"], source)
-    _check_radar_values(radar, float(range_m[1] - range_m[0]) if n_r > 1 else 0.0, n_r, source)
+    _check_radar_values(radar, float(range_m[1] - range_m[0]), n_r, source)
     antenna = _read_antenna(f, source)
     noise = _read_noise(f["echo"].attrs, source)
     truth = None
@@ -316,9 +317,7 @@ def _uniform_range_axis(range_m: np.ndarray, stored_dtype, source: str) -> np.nd
     of the dtype it was stored in (a float32 axis holds 1.5 km to 1.2e-4 m: its steps vary by 1e-4 of a
     2.5 m step, and it had been refused as "not uniformly increasing"); such an axis is replaced by its
     least-squares uniform axis in float64 (within that rounding of the stored values)."""
-    dr = np.diff(range_m)
-    if not len(dr):
-        return range_m
+    dr = np.diff(range_m)                     # (at least two samples: the reader's shape check)
     rounding = 4.0 * float(np.finfo(stored_dtype).eps) * float(np.max(np.abs(range_m)))
     if np.any(dr <= 0) or np.ptp(dr) > 1e-6 * abs(dr[0]) + rounding:
         raise BadInput(f"{source}: /axes/range_m: not uniformly increasing (steps {float(dr.min()):.9g} to "
@@ -326,20 +325,24 @@ def _uniform_range_axis(range_m: np.ndarray, stored_dtype, source: str) -> np.nd
                        f"rounding of its dtype ({np.dtype(stored_dtype)})")
     if np.ptp(dr) <= 1e-6 * abs(dr[0]):
         return range_m                        # float64 axes as they are (the same numbers as before)
-    n = np.arange(len(range_m), dtype=np.float64)
+    centre, step, n = _least_squares_uniform(range_m)
+    return centre + step * n
+
+
+def _least_squares_uniform(values: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """The least-squares uniform sequence through ``values``, in closed form (no Vandermonde matrix):
+    (its centre, its step, the sample indices about their mean); it is centre + step * indices."""
+    n = np.arange(len(values), dtype=np.float64)
     n -= n.mean()
-    step = float(np.dot(n, range_m) / np.dot(n, n))
-    return float(np.mean(range_m)) + step * n
+    centre = float(np.mean(values))
+    return centre, float(np.dot(n, values - centre) / np.dot(n, n)), n
 
 
 def _check_pulse_timing(slow_time_s: np.ndarray, prf_hz: float, source: str) -> None:
     """The chain's slow-time FFTs need uniform pulses: every pulse within 1 % of an interval of a
     uniform train (a dropped pulse or a gap is a whole interval), and ``prf_hz`` equal to the
     least-squares train's rate within 1e-4 (float32 times stay well inside both)."""
-    n = np.arange(len(slow_time_s), dtype=np.float64)
-    n -= n.mean()                                   # least squares in closed form (no Vandermonde matrix)
-    t_mean = float(np.mean(slow_time_s))
-    interval_s = float(np.dot(n, slow_time_s - t_mean) / np.dot(n, n))
+    _, interval_s, n = _least_squares_uniform(slow_time_s)
     # the best uniform train in the max norm, approximately: for the least-squares interval and for
     # 1/prf_hz, the offset at the residuals' midrange (half their spread: the least-squares offset can
     # put a train whose pulses all lie within 1 % of a uniform one at 1.02 %)

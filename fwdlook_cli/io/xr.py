@@ -18,6 +18,14 @@ def _xarray():
     return xarray
 
 
+UNIT_SUFFIXES = (("_mps", "m/s"), ("_deg", "deg"), ("_m", "m"), ("_s", "s"))
+
+
+def units_of_name(key: str) -> str:
+    """Units of a dataset from its name's suffix (``vx_mps`` -> m/s, ``x_m`` -> m); else "1"."""
+    return next((units for suffix, units in UNIT_SUFFIXES if key.endswith(suffix)), "1")
+
+
 def cube_to_xarray(cube):
     """A :class:`~fwdlook_cli.cube.RawCube` as an ``xarray.Dataset`` (arrays shared, not copied)."""
     xr = _xarray()
@@ -35,7 +43,6 @@ def cube_to_xarray(cube):
     data["position_m"] = (("slow_time_s", "xyz"), cube.position_m, {"units": "m", "long_name": "antenna phase centre (INS)"})
     data["velocity_mps"] = (("slow_time_s", "xyz"), cube.velocity_mps, {"units": "m/s", "long_name": "antenna velocity (INS)"})
     if cube.truth:            # the units raw.h5 gives each (m, m/s, 1): the file view's
-        units_of_name = type(cube).units_of_name
         coords["target"] = ("target", np.arange(len(cube.truth["x_m"])), {"units": "1", "long_name": "target index"})
         for key, value in cube.truth.items():
             data[f"truth_{key}"] = ("target", np.asarray(value), {"units": units_of_name(key),

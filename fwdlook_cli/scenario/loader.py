@@ -87,17 +87,17 @@ def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...], source: s
                 raise BadInput(f"{source}: --set {key}: {'.'.join(parts[:i + 1])} is not a mapping")
             node = child
         if section and isinstance(node.get(parts[-1]), dict):
-            node[parts[-1]] = _merged(node[parts[-1]], value)     # the keys it does not name are kept
+            node[parts[-1]] = merged_mapping(node[parts[-1]], value)     # the keys it does not name are kept
         else:
             node[parts[-1]] = value
     return raw
 
 
-def _merged(base: dict, over: dict) -> dict:
-    """``over`` merged into a copy of ``base``, mapping by mapping."""
+def merged_mapping(base: dict, over: dict) -> dict:
+    """``over`` merged into a (shallow) copy of ``base``, mapping by mapping (the values shared)."""
     out = dict(base)
     for k, v in over.items():
-        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+        out[k] = merged_mapping(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
     return out
 
 
