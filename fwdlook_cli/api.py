@@ -78,16 +78,29 @@ def run_chain(cube, processing: dict):
     return data
 
 
-def measure(cube, final, processing: dict) -> dict:
-    """``{"targets": [...], "summary": {...}}`` of a forward-looking image against the cube's truth,
-    with metrics.json's definitions (image peak refined on its cuts, detection 10 dB over the median)."""
+def measure(cube, final, processing: dict, spectra=None) -> dict:
+    """``{"targets": [...], "summary": {...}}`` of a forward-looking image against the cube's truth: the
+    rows and summary metrics.json holds for the same image (``forward.run_metrics.target_rows``: the
+    peak refined on its cuts, detection 10 dB over the median, the resolved flags, and for CPI imaging
+    ISLR/PSLR/width/peak loss from each target's range profile over its dwell).  Those need the chain's
+    Doppler spectra: ``spectra`` (the ``doppler_spectra`` stage's output), else computed here by running
+    the chain up to that stage once more."""
     from .forward.chain import build_forward_stages
-    from .forward.evaluate import summarize, target_metrics
+    from .forward.evaluate import summarize
+    from .forward.run_metrics import target_rows
 
-    truth = cube.truth_xyz_m()
-    if truth is None:
+    if cube.truth_xyz_m() is None:
         return {"targets": [], "summary": {"n_targets": 0, "detected": 0}}
-    _, _, geo = build_forward_stages(cube, _forward_processing(cube, processing))
-    rows = target_metrics(final["image"], final["range_m"], final["angle_deg"], truth, cube.truth["amplitude"],
-                          geo["p_ref"], bandwidth_hz=cube.radar["bandwidth_hz"])
-    return {"targets": rows, "summary": summarize(rows)}
+    proc = _forward_processing(cube, processing)
+    data, stages, geo = build_forward_stages(cube, proc)
+    spectra_of = None
+    if any(st.name == "doppler_spectra" for st in stages):
+        if spectra is None:
+            for st in stages:
+                data = st.fn(data, **st.params)
+                if st.name == "doppler_spectra":
+                    spectra = data
+                    break
+        spectra_of = lambda: spectra  # noqa: E731
+    rows, islr_from = target_rows(cube, final, proc, geo, spectra_of=spectra_of)
+    return {"targets": rows, "summary": {**summarize(rows), "islr_from": islr_from}}

@@ -14,8 +14,8 @@ from pathlib import Path
 import click
 
 from . import __version__
+from .cube_source import RAW_SETTABLE, is_cube_path, reads_cube, refuse_unused_sets, scenario_note
 from .errors import BadInput, Terminated
-from .limits import shown
 from .options import GroundMetres, check_bench_options, check_stage_options, json_option, quiet_option, set_option
 
 
@@ -58,12 +58,13 @@ def simulate(scenario, output, overrides, overwrite, out_of_core, quiet):
     from .scenario.loader import load_scenario
     from .io.raw import write_raw
     from .io.outputs import prepare_file
+    from .scenario.scene_image import scenario_input_files
     from .forward.simulate import simulate_scenario
     from .io.backing import SIMULATE_X_CUBE
 
     scn = load_scenario(scenario, overrides)
     _refuse_run_options(scn, scenario, out_of_core)
-    output = prepare_file(output, inputs=[scenario], overwrite=overwrite)   # where it lands (nodir/.. resolved)
+    output = prepare_file(output, inputs=[scenario, *scenario_input_files(scn)], overwrite=overwrite)
     with _out_of_core(out_of_core, output):    # the scratch files' folder: the output's own
         if scn["kind"] != "forward":
             from .isar.simulate import simulate_isar_scenario  # noqa: F401  (ISAR scenario kind)
@@ -91,10 +92,10 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
     from .dsp.xp import require_backend
 
     src = Path(source)
-    if _is_cube_path(src):
+    if is_cube_path(src):
         if raw:
             raise BadInput(f"{source}: give either a raw cube or --raw, not both")
-        _refuse_unused_sets(source, overrides)
+        refuse_unused_sets(source, overrides)
         raw, raw_scn, name = source, {}, src.stem
         cube = read_raw(raw)          # read first: its channels decide the scenario kind
         if cube.diff is None or cube.attrs.get("scenario_kind") == "isar":
@@ -103,7 +104,7 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
                 log.warning(f"{source}: processed as ISAR (/ attribute scenario_kind = isar): /echo/diff is not read")
     else:
         if raw:
-            _refuse_unused_sets(raw, overrides, RAW_SETTABLE)
+            refuse_unused_sets(raw, overrides, RAW_SETTABLE)
         raw_scn, name = read_scenario_raw(source), None   # the one scenario reader (readers.py)
     if raw_scn is not None and not isinstance(raw_scn, dict):
         raise BadInput(f"{source}: top level: expected a mapping of scenario sections")
@@ -113,65 +114,23 @@ def _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=None):
     require_backend(scn, source)              # a GPU asked for and absent: refused before any work
     if before_cube is not None:
         before_cube(scn)
-    if name is not None:
-        pass                          # the source itself is the cube, already read
-    elif raw:
+    if raw and name is None:          # (a named source is the cube itself, already read)
         cube = read_raw(raw)
-    else:
+    elif name is None:
         if scn["kind"] != "forward":
             from .isar.simulate import simulate_isar_scenario
 
             cube, _ = simulate_isar_scenario(scn)
         else:
-            from .forward.simulate import simulate_scenario
+            from .forward.simulate import refuse_an_all_zero_cube, simulate_scenario
             from .io.backing import IN_MEMORY_X_CUBE
 
             cube, stats = simulate_scenario(scn, in_memory_x_cube=IN_MEMORY_X_CUBE, doing="simulating and processing",
                                             source=source)
             _log(quiet, f"simulate: {cube.n_pulses} x {cube.n_range}, {stats.n_pairs_kept}/{stats.n_pairs} "
                         f"target-pulse pairs above the gain threshold")
+            refuse_an_all_zero_cube(scn, stats, source)             # as process refuses such a RAW.h5
     return scn, cube
-
-
-CUBE_SETTABLE = ("processing", "name")     # what a --set can change where the source is a cube
-RAW_SETTABLE = ("processing", "name", "kind", "scene")   # with --raw: the scene map of an image scene's metrics
-
-
-def _refuse_unused_sets(cube, overrides, settable=CUBE_SETTABLE) -> None:
-    """A cube is processed with its own radar, antenna, motion and truth (CONTRACT.md section 3): a --set
-    of another section would be recorded in scenario.yaml and used nowhere (it was, silently)."""
-    for item in overrides or ():
-        key = str(item).split("=", 1)[0].strip()
-        if "=" in str(item) and key.split(".", 1)[0] not in settable:
-            raise BadInput(f"--set {shown(str(item))}: {cube} is processed with its own radar, antenna, "
-                           f"platform motion and truth (CONTRACT.md section 3), so {key} would change nothing; "
-                           f"allowed with a cube: {', '.join(k + '.*' if k in ('processing', 'scene') else k for k in settable)}")
-
-
-def cube_scenario_note(cube, *, raw_option: bool = False) -> str:
-    """The comment that heads scenario.yaml where the chain read a cube: which sections it used (a reader
-    must not take the others for the cube's)."""
-    unused = ("radar, antenna, platform, noise and simulation sections below are the scenario's" if raw_option
-              else "other sections below are the schema's defaults")
-    used = "name, kind, scene and processing" if raw_option else "name and processing"
-    return (f"# processed from the cube {cube}: the chain took the radar, antenna, platform motion and truth\n"
-            f"# from the cube itself (CONTRACT.md section 3); {used} are this run's settings, the\n"
-            f"# {unused} and were not used.\n")
-
-
-def _note(source, raw) -> str:
-    if _is_cube_path(source):
-        return cube_scenario_note(source)
-    return cube_scenario_note(raw, raw_option=True) if raw else ""
-
-
-def _reads_cube(source, raw) -> bool:
-    """Whether the command processes a cube read from a file (RAW.h5 as the source, or --raw)."""
-    return bool(raw) or _is_cube_path(source)
-
-
-def _is_cube_path(source) -> bool:
-    return Path(source).suffix.lower() in (".h5", ".hdf5", ".hdf")
 
 
 def _default_run_dir(scn, output):
@@ -179,46 +138,25 @@ def _default_run_dir(scn, output):
 
 
 def _process(scn, cube, run_dir, force, from_stage, quiet, source="raw cube", keep_stages="all",
-             out_of_core=False, from_file=False, note=""):
+             out_of_core=False, from_file=False, note="", raw_staged=False):
     if scn["kind"] == "isar":
         from .isar.process import process_isar_cube
 
         _refuse_run_options(scn, source, out_of_core, keep_stages)
         try:
             return process_isar_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet,
-                                     scenario_note=note)
+                                     scenario_note=note, raw_staged=raw_staged)
         except BadInput as exc:         # a stage's refusal of a setting (e.g. processing.n0_pulses): the file too
             if str(exc).startswith("processing."):
                 raise BadInput(f"{source}: {exc}") from None
             raise
+    from .forward.calibration import check_antenna_against_data
     from .forward.process import process_cube
 
     if from_file:
-        _check_antenna_against_data(scn, cube, source)
+        check_antenna_against_data(scn, cube, source)
     return process_cube(cube, scn, run_dir, force=force, from_stage=from_stage, quiet=quiet, source=source,
-                        keep_stages=keep_stages, release_cube=True, scenario_note=note)
-
-
-def _antenna_checked(scn, cube) -> bool:
-    """Whether :func:`_check_antenna_against_data` has anything to check: ``auto`` and an /antenna group."""
-    return (scn["processing"].get("monopulse_calibration", "auto") == "auto" and bool(cube.antenna)
-            and cube.diff is not None)
-
-
-def _check_antenna_against_data(scn, cube, source):
-    """A cube read from a file, processed with ``monopulse_calibration: auto`` (the /antenna group where
-    there is one): refused where the data contradict the group (``forward.calibration.
-    antenna_contradiction``: a reversed difference channel would mirror every angle, silently).  A
-    cube simulated in this process carries its own antenna and is not checked.  Out of core too: the
-    check reads the cube in blocks of pulses (``forward/point_returns.py``), its memory bounded by them."""
-    if not _antenna_checked(scn, cube):
-        return
-    from .forward.calibration import antenna_contradiction
-
-    contradiction = antenna_contradiction(cube)
-    if contradiction:
-        raise BadInput(f"{source}: processing.monopulse_calibration = auto: {contradiction}; allowed: data "
-                       f"(calibrate from the data), cube (/antenna as it is) or a slope per degree")
+                        keep_stages=keep_stages, release_cube=True, scenario_note=note, raw_staged=raw_staged)
 
 
 def _print_summary(metrics, run_dir, quiet):
@@ -282,6 +220,7 @@ def _out_of_core(enabled: bool, output):
 def process(source, output, config, raw, overrides, from_stage, force, overwrite, keep_stages, out_of_core, quiet):
     """Run the chain stage by stage on SCENARIO.yaml (simulated or --raw) or on RAW.h5."""
     from .io.outputs import folder_lock, prepare_run_dir
+    from .scenario.scene_image import scenario_input_files
 
     check_stage_options(from_stage, force, None)        # first thing; the stage's name once the kind is known
     held = contextlib.ExitStack()        # the run directory's lock, until the command ends
@@ -289,7 +228,8 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
     def prepare(scn):
         check_stage_options(from_stage, False, scn["kind"])          # before any work (a simulation)
         _refuse_run_options(scn, raw or source, out_of_core, keep_stages)
-        d = prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config], overwrite=overwrite)
+        d = prepare_run_dir(_default_run_dir(scn, output), inputs=[source, raw, config, *scenario_input_files(scn)],
+                            overwrite=overwrite)
         held.enter_context(folder_lock(d))
         _start_fit_spawner(scn)
 
@@ -299,7 +239,7 @@ def process(source, output, config, raw, overrides, from_stage, force, overwrite
         scn, cube = _scenario_and_cube(source, raw, config, overrides, quiet, before_cube=prepare)
         run_dir = _default_run_dir(scn, output)
         metrics = _process(scn, cube, run_dir, force, from_stage, quiet, raw or source, keep_stages, out_of_core,
-                           from_file=_reads_cube(source, raw), note=_note(source, raw))
+                           from_file=reads_cube(source, raw), note=scenario_note(source, raw))
     _print_summary(metrics, run_dir, quiet)
 
 
@@ -318,14 +258,16 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
     """The main job: simulate (or load --raw), process and report into RUN_DIR."""
     from .io.raw import write_raw
     from .io.outputs import folder_lock, prepare_run_dir
+    from .io.pending import discarded_on_failure, staged
+    from .scenario.scene_image import scenario_input_files
 
-    writes_raw = not _reads_cube(scenario, raw)
+    writes_raw = not reads_cube(scenario, raw)
     held = contextlib.ExitStack()        # the run directory's lock, until the command ends
 
     def prepare(scn):
         _refuse_run_options(scn, raw or scenario, out_of_core, keep_stages)
-        d = prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config], overwrite=overwrite,
-                            writes_raw=writes_raw)
+        d = prepare_run_dir(_default_run_dir(scn, output), inputs=[scenario, raw, config, *scenario_input_files(scn)],
+                            overwrite=overwrite, writes_raw=writes_raw)
         held.enter_context(folder_lock(d))
         _start_fit_spawner(scn)
 
@@ -334,10 +276,13 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
     with held, painting(), _out_of_core(out_of_core, output):   # the PNG's matplotlib in a child (io/painter.py)
         scn, cube = _scenario_and_cube(scenario, raw, config, overrides, quiet, before_cube=prepare)
         run_dir = _default_run_dir(scn, output)
-        if writes_raw:
-            write_raw(run_dir / "raw.h5", cube)
-        metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages, out_of_core,
-                           from_file=not writes_raw, note=_note(scenario, raw))
+        # the new cube staged, put in place with the new outputs once all are written: a rerun refused or
+        # failing on the way leaves the earlier run whole, its cube with it (io/pending.py)
+        with discarded_on_failure(run_dir, raw=writes_raw):
+            if writes_raw:
+                write_raw(staged(run_dir, "raw.h5"), cube)
+            metrics = _process(scn, cube, run_dir, force, None, quiet, raw or scenario, keep_stages, out_of_core,
+                               from_file=not writes_raw, note=scenario_note(scenario, raw), raw_staged=writes_raw)
     _print_summary(metrics, run_dir, quiet)
     click.echo(str(run_dir / "metrics.json"))
 
@@ -425,8 +370,8 @@ def validate(path, overrides):
     from .forward.process import check_cube_overrides
 
     p = Path(path)
-    if _is_cube_path(p):
-        _refuse_unused_sets(path, overrides)
+    if is_cube_path(p):
+        refuse_unused_sets(path, overrides)
         with read_without_holding():             # any size of cube: checked block by block, not held
             cube = read_raw(p)
         check_cube_overrides(path, cube, overrides)        # a --set checked as process checks it
@@ -499,33 +444,46 @@ def _command_of(args) -> str | None:
 
 def main(argv=None):
     """Console entry point: maps BadInput and click usage errors to one line and exit 2."""
-    from .dsp.blas import fft_workers_on_usable_cores, one_blas_thread_for_the_process
+    from .io import signals     # (light: os, signal, threading; numpy is not imported yet)
+
+    # the handlers first: a Ctrl-C or SIGTERM in a command's first half second (the painter's fork, scipy's
+    # import) had given a traceback, or no word at all; only the interpreter's own start is Python's
+    restore = signals.install(Terminated)  # SIGTERM cleanly, as Ctrl-C; neither inside HDF5's calls (io/signals.py)
+    try:
+        _main(argv)
+    finally:
+        restore()
+
+
+def _early(argv) -> None:
+    """The process's set-up before a command: the BLAS on one thread, the quick look's painter forked
+    (both before numpy is imported), scipy.fft's workers, one allocator arena."""
+    from .dsp.blas import fft_workers_on_usable_cores, one_blas_thread_for_the_process, share_one_allocator_arena
     from .io import painter
 
     one_blas_thread_for_the_process()   # before numpy, here and in the painter: no idle BLAS thread spinning
-
     args = sys.argv[1:] if argv is None else list(argv)
     runs = _command_of(args) if not {"-h", "--help"} & set(args) else None
     if runs in QUICKLOOK_COMMANDS:
         painter.fork_early(QUICKLOOK_WARM_UP)    # before numpy is imported (io/painter.py)
     if runs:
         fft_workers_on_usable_cores()           # scipy.fft's workers=-1 on this process's cores (dsp/blas.py)
-    try:
-        _main(argv)
-    finally:
-        painter.close_early()
+    share_one_allocator_arena()          # the stages' thread pools: one allocator arena (dsp/blas.py)
+
+
+def _run(argv):
+    from .io import signals
+
+    # a signal's exception turned into a library's own, or kept past the end, is the signal's
+    return signals.as_signalled(cli.main, args=argv, prog_name="fwdlook", standalone_mode=False)
 
 
 def _main(argv):
-    from .dsp.blas import share_one_allocator_arena
+    from .io import painter
 
-    share_one_allocator_arena()          # the stages' thread pools: one allocator arena (dsp/blas.py)
-    from .io import signals
-
-    restore = signals.install(Terminated)  # SIGTERM cleanly, as Ctrl-C; neither inside HDF5's calls (io/signals.py)
     try:
-        # a signal's exception turned into a library's own, or kept past the end, is the signal's
-        rv = signals.as_signalled(cli.main, args=argv, prog_name="fwdlook", standalone_mode=False)
+        _early(argv)
+        rv = _run(argv)
     except BadInput as exc:
         click.echo(f"fwdlook: error: {exc}", err=True)
         sys.exit(2)
@@ -542,7 +500,7 @@ def _main(argv):
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
     finally:
-        restore()
+        painter.close_early()
     sys.exit(rv if isinstance(rv, int) else 0)
 
 

@@ -168,3 +168,24 @@ def shown(value, limit: int = SHOW_CHARS) -> str:
 # ----------------------------------------------------------------------------------------------
 # Derived sizes of a forward-looking scenario, before any array is made
 # ----------------------------------------------------------------------------------------------
+
+
+KEYSTONE_WORK_FACTOR = 8   # the CZT keystone's peak memory over its complex64 input (measured: 4.1 GB of
+                           # peak RSS for 0.5 GB of padded rows, isar_theta3 at n0 = 1e7 pulses)
+
+
+def check_keystone_padding(n, pad, n_cols, t0_index, worst_stretch, n0_auto: bool = False):
+    """(ISAR, ``isar/stages.py``) Refuse, before allocating it, a zero-padded keystone input over the cube size limit: a range
+    minimum far outside the dwell (``processing.n0_pulses``, given or from eq. 13) moves the resampling
+    positions ``|1 - alpha| |m - t0|`` pulses out, and the padding grows with it."""
+    limit = max_cube_bytes("auto")
+    need = KEYSTONE_WORK_FACTOR * 8.0 * (n + 2 * pad) * n_cols
+    if need <= limit:
+        return
+    room = max((limit / (KEYSTONE_WORK_FACTOR * 8.0 * n_cols) - n) / 2.0 - 16.0, 0.0)   # the widest that fits
+    n0_room = max(room / max(worst_stretch, 1e-300) - (n - 1) / 2.0, 0.0)
+    said = " = auto (eq. 13, from the geometry)" if n0_auto else ""
+    raise BadInput(f"processing.n0_pulses{said}: the range minimum at pulse {t0_index - (n - 1) / 2.0:.6g} from the "
+                   f"dwell's centre ({n} pulses) moves the keystone's resampling up to {pad - 16:,} pulses "
+                   f"outside it; the keystone over its zero-padded rows would take {gib(need)}, over {limit_source(None)} = "
+                   f"{gib(limit)}; allowed: a range minimum within about {n0_room:,.0f} pulses of the centre")

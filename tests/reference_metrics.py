@@ -99,7 +99,7 @@ def target_metrics_one_by_one(image, range_m, angle_deg, truth_xyz_m, amplitude,
 
 
 def dwell_profile_metrics_one_by_one(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_per_deg2, position_ref_m,
-                                     oversample=8):
+                                     oversample=8, range_window_m=RANGE_WINDOW_M):
     r_ref, _ = truth_at_t_ref(truth_xyz_m, np.asarray(position_ref_m))
     s, range_m = spectra["sum_z"], spectra["range_m"]
     dr = float(range_m[1] - range_m[0])
@@ -111,8 +111,8 @@ def dwell_profile_metrics_one_by_one(spectra, truth_xyz_m, amplitude, slope_per_
         off = np.degrees(np.arctan2(d[:, 0], d[:, 1])) - beam
         sigma = np.exp(-beta_per_deg2 * off**2) * np.cosh(slope_per_deg * off)
         dwell = np.nonzero(sigma**4 >= 0.5)[0]
-        i0 = int(np.searchsorted(range_m, r_ref[k] - RANGE_WINDOW_M))
-        i1 = int(np.searchsorted(range_m, r_ref[k] + RANGE_WINDOW_M))
+        i0 = int(np.searchsorted(range_m, r_ref[k] - range_window_m))
+        i1 = int(np.searchsorted(range_m, r_ref[k] + range_window_m))
         ic = int(np.argmin(np.abs(range_m - r_ref[k])))
         if len(dwell) == 0 or i1 - i0 < 4:
             out.append({"peak_loss_db": None, "islr_db": None, "pslr_db": None, "range_width_3db_m": None})

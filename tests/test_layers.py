@@ -31,7 +31,7 @@ ALLOWED = {
     "cli": {"base", "dsp", "io", "scenario", "runner", "forward", "isar", "report"},
 }
 TOP_LEVEL = {"errors": "base", "limits": "base", "runner": "runner", "testing": "testing", "cli": "cli", "options": "cli",
-             "console": "cli", "api": "cli"}
+             "console": "cli", "api": "cli", "cube_source": "cli"}
 
 
 def module_name(path: Path) -> str:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fwdlook_cli.dsp.antenna import sum_voltage_for
 from fwdlook_cli.forward.evaluate import dwell_profile_metrics, target_metrics
 from fwdlook_cli.forward.process import ground_image, process_cube
 from fwdlook_cli.forward.simulate import simulate_scenario
@@ -69,9 +70,14 @@ def test_target_metrics_batched_equal_one_by_one(finished, crop):
 def test_dwell_profile_metrics_batched_equal_one_by_one(finished):
     cube, final, spectra, _ = finished
     p_ref = np.asarray(json.loads(final.attrs["position_ref_m"]))
-    args = (spectra, cube.truth_xyz_m(), cube.truth["amplitude"], float(cube.antenna["monopulse_slope_per_deg"]),
-            float(cube.antenna["beta_per_deg2"]), p_ref)
-    batched, one = dwell_profile_metrics(*args), dwell_profile_metrics_one_by_one(*args)
+    slope, beta = float(cube.antenna["monopulse_slope_per_deg"]), float(cube.antenna["beta_per_deg2"])
+    window_m = 5 * 299_792_458.0 / (2 * cube.radar["bandwidth_hz"])       # +-5 range resolution cells
+    one = dwell_profile_metrics_one_by_one(spectra, cube.truth_xyz_m(), cube.truth["amplitude"], slope, beta, p_ref,
+                                           range_window_m=window_m)
+    # the cube's /antenna as the sum pattern (dsp.antenna.sum_voltage_for: the Gaussian pair's closed form)
+    batched = dwell_profile_metrics(spectra, cube.truth_xyz_m(), cube.truth["amplitude"],
+                                    sum_voltage_for(cube.radar["beamwidth_3db_deg"], cube.antenna), p_ref,
+                                    range_window_m=window_m)
     assert any(r["islr_db"] is not None for r in batched)
     for a, b in zip(batched, one):
         _close(a, b, 1e-12)

@@ -455,6 +455,24 @@ def antenna_from_scenario(ant: dict):
                             pattern=ant.get("pattern", "gaussian2"), crossover_db=ant.get("crossover_db"))
 
 
+def sum_voltage_for(beamwidth_3db_deg: float, attrs: dict | None):
+    """The one-way sum voltage gain against the offset from the beam axis (deg) of a cube's antenna, as
+    a function, where its ``/antenna`` attributes fix it: a Gaussian pair by its beta and slope (the
+    closed form), a two-beam design by its pattern and squint; None otherwise (a measured table, whose
+    cube holds the ratio curve only, or a recorded cube that does not say)."""
+    a = attrs or {}
+    pattern = a.get("pattern", "gaussian2")
+    try:
+        beta, slope = float(a.get("beta_per_deg2", np.nan)), float(a.get("monopulse_slope_per_deg", np.nan))
+        if pattern == "gaussian2" and np.isfinite(beta) and np.isfinite(slope):
+            return lambda d: np.exp(-beta * np.asarray(d) ** 2) * np.cosh(slope * np.asarray(d))
+        if pattern in ("gaussian2", "sinc2") and np.isfinite(float(a.get("squint_deg", np.nan))):
+            return MonopulseAntenna(float(beamwidth_3db_deg), float(a["squint_deg"]), pattern=pattern).sum_voltage
+    except (AntennaDesignError, TypeError, ValueError):
+        pass
+    return None
+
+
 def two_way_width_for(beamwidth_3db_deg: float, attrs: dict | None) -> float:
     """Two-way 3 dB width of a cube's antenna: its ``/antenna`` attributes when they name a two-beam
     design, else two Gaussian beams crossing at -3 dB with that sum beamwidth (never a default squint)."""

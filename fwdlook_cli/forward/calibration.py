@@ -123,6 +123,9 @@ def _finite(obj):
 # ----------------------------------------------------------------------------------------------
 # from the cube's /antenna group, or a plain slope
 # ----------------------------------------------------------------------------------------------
+TABLE_SLOPE_AGREEMENT = 0.05      # relative: an /antenna slope attribute that is its ratio table's
+
+
 def calibration_from_antenna(antenna: dict, beamwidth_deg: float) -> Calibration | None:
     """The /antenna group as a calibration (None when it does not fix the ratio curve)."""
     if not antenna:
@@ -138,9 +141,17 @@ def calibration_from_antenna(antenna: dict, beamwidth_deg: float) -> Calibration
     if "ratio" in antenna:
         d = np.asarray(antenna["ratio_offset_deg"], dtype=np.float64)
         r = np.asarray(antenna["ratio"], dtype=np.float64)
-        k = float(slope) if slope is not None else float(np.gradient(r, d)[np.argmin(np.abs(d))])
-        return Calibration("cube", "table", k, diff_gain_db=gain, diff_phase_deg=phase, ratio_offset_deg=d,
-                           ratio=r, pattern=pattern)
+        # the image reads the table, so its slope is the table's own at the null; the attribute only where
+        # it agrees (fwdlook's designs: the exact derivative of the curve tabulated), else the table's and
+        # a note (an attribute of another antenna had stood for the table in the check against the data)
+        k_table = float(np.gradient(r, d)[np.argmin(np.abs(d))])
+        agrees = slope is not None and abs(float(slope) - k_table) <= TABLE_SLOPE_AGREEMENT * abs(k_table)
+        cal = Calibration("cube", "table", float(slope) if agrees else k_table, diff_gain_db=gain,
+                          diff_phase_deg=phase, ratio_offset_deg=d, ratio=r, pattern=pattern)
+        if slope is not None and not agrees:
+            cal.stats["note"] = (f"/antenna attribute monopulse_slope_per_deg = {float(slope):.4g} is not its "
+                                 f"ratio table's slope at the null, {k_table:.4g}: the table is used")
+        return cal
     if pattern in ("gaussian2", "sinc2") and "squint_deg" in antenna:
         from ..dsp.antenna import MonopulseAntenna
 
@@ -449,3 +460,23 @@ def pattern_beta_per_deg2(cube) -> float:
     from ..dsp.antenna import MonopulseAntenna
 
     return MonopulseAntenna(cube.radar["beamwidth_3db_deg"]).beta_per_deg2
+
+
+def antenna_checked(scn, cube) -> bool:
+    """Whether :func:`check_antenna_against_data` has anything to check: ``auto`` and an /antenna group."""
+    return (scn["processing"].get("monopulse_calibration", "auto") == "auto" and bool(cube.antenna)
+            and cube.diff is not None)
+
+
+def check_antenna_against_data(scn, cube, source):
+    """A cube read from a file, processed with ``monopulse_calibration: auto`` (the /antenna group where
+    there is one): refused where the data contradict the group (``forward.calibration.
+    antenna_contradiction``: a reversed difference channel would mirror every angle, silently).  A
+    cube simulated in this process carries its own antenna and is not checked.  Out of core too: the
+    check reads the cube in blocks of pulses (``forward/point_returns.py``), its memory bounded by them."""
+    if not antenna_checked(scn, cube):
+        return
+    contradiction = antenna_contradiction(cube)
+    if contradiction:
+        raise BadInput(f"{source}: processing.monopulse_calibration = auto: {contradiction}; allowed: data "
+                       f"(calibrate from the data), cube (/antenna as it is) or a slope per degree")

@@ -426,6 +426,7 @@ def build_forward_stages(cube, proc: dict):
         curvature = "beam" if method == "tracking" else "eq12"
     if not proc["range_curvature"] or method not in KEYSTONE_METHODS:
         curvature = "off"       # bulk and beam already shift by the whole predicted range history
+    geo["curvature_model"] = curvature                  # what stage 5 runs (metrics.json's params)
     stages = [
         Stage("range_fft", range_fft, {"fs_hz": cube.radar["fs_hz"]}),
         Stage("decimate", decimate, {"q": q}, view=True),

@@ -508,8 +508,9 @@ def dwell_stages(cube, proc: dict, geo: dict):
     if cal.model != "tanh":                      # README, "An antenna fwdlook does not model"
         log.warning("processing.imaging: dwell measures angles with the two-Gaussian-beam rotation and the "
                     f"calibrated slope; this cube's ratio curve is a {cal.model} ({cal.source}), so neither its "
-                    "shape (0.05 deg for sinc2 beams, noise off) nor a channel imbalance folded into it (up to 0.2 "
-                    "deg on an independent review's cubes) is followed; imaging: cpi reads the curve itself")
+                    "shape (0.05 deg for sinc2 beams, 0.25 deg for a measured table, noise off) nor a channel "
+                    "imbalance folded into it (0.2-0.5 deg on independent reviews' cubes) is followed; imaging: cpi "
+                    "reads the curve itself")
     step_deg = float(np.median(np.abs(np.diff(cube.scan_angle_deg))))          # scan per pulse
     # sub-aperture: the beam moves SUB_APERTURE_DEG (40 pulses for the paper's 30 deg/s at 2.5 kHz)
     sub_pulses = int(np.clip(round(SUB_APERTURE_DEG / max(step_deg, 1e-9)), 4, max(4, cube.n_pulses // 4)))

@@ -35,9 +35,17 @@ def range_clusters(profile, level, half_bins=CLUSTER_HALF_BINS, sidelobe_db=SIDE
 
 
 def noise_sigma(x):
-    """Noise standard deviation of a mostly-empty channel: median sample power / ln 2, square-rooted."""
+    """Noise standard deviation of a mostly-empty channel: median sample power / ln 2, square-rooted.  A
+    noiseless channel (median zero: a simulation with ``noise.snr_db: null``) gets 1e-6 of its largest
+    sampled magnitude (-120 dB: the fit then stops by its dynamic range, not by a noise level), 1 where
+    every sample is zero (no 1/0 in the fit's channel weights)."""
     p = np.asarray(x[:: max(1, x.shape[0] // 256)])
-    return float(np.sqrt(np.median(p.real**2 + p.imag**2) / np.log(2.0)))
+    power = p.real**2 + p.imag**2
+    sigma = float(np.sqrt(np.median(power) / np.log(2.0)))
+    if sigma > 0:
+        return sigma
+    peak = float(np.sqrt(power.max(initial=0.0)))
+    return 1e-6 * peak if peak > 0 else 1.0
 
 
 def decimation_plan(model, grid_deg, range_m, axis_deg, prf_hz):

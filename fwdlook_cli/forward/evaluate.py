@@ -119,6 +119,10 @@ def target_metrics(image, range_m, angle_deg, truth_xyz_m, amplitude, position_r
     rows = [{"id": k, "x_m": float(truth_xyz_m[k, 0]), "y_m": float(truth_xyz_m[k, 1]),
              "true_range_m": float(r_true[k]), "true_azimuth_deg": float(az_true[k])} for k in range(len(r_true))]
     tg = np.flatnonzero(~missing)                               # the targets with a peak in their window
+    if len(tg) == 0:                                            # none: every target missed (no gathers)
+        for row in rows:
+            row.update(_missing())
+        return rows
     # every measured target's two cuts as rows ([T', n_r] and [T', n_a]); a strip the image's edge clips
     # summed on its own
     range_rows = np.empty((len(tg), n_r))
@@ -187,7 +191,8 @@ def _window_argmax(cuts, lo, hi):
 
 def _centroid_rows(power, index, half_width):
     """Per row the power-weighted centroid of ``power[t, index-half_width : index+half_width+1]`` (clipped
-    to the row; fractional index), ``index`` itself where that power sums to zero."""
+    to the row; fractional index), ``index`` itself where that power sums to zero.  Not clipped to the
+    search window: where a neighbour's energy pulls the centroid beyond it, the error says so."""
     cols = index[:, None] + np.arange(-half_width, half_width + 1)[None, :]
     inside = (cols >= 0) & (cols < power.shape[1])
     w = np.where(inside, np.take_along_axis(power, np.clip(cols, 0, power.shape[1] - 1), axis=1), 0.0)
@@ -207,19 +212,24 @@ def _missing():
             "angle_width_3db_deg": None, "peak_power": 0.0}
 
 
-def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_per_deg2, position_ref_m, *,
-                          range_window_m=RANGE_WINDOW_M, oversample=8):
+def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, sum_voltage, position_ref_m, *, range_window_m,
+                          two_way_width_deg=None, oversample=8):
     """Range-profile quality of each target over its dwell, from the zoomed Doppler spectra.
 
     For every CPI in which the target lies inside the two-way 3 dB beam, the complex range profile of
-    the Doppler cell holding the target (the strongest cell at its t_ref range) is taken over +-15 m,
-    band-limited oversampled x8, and its power accumulated over the dwell.  The accumulated profile
-    shows what the residual range migration did across the dwell, with its real sidelobes (the
-    monopulse image only holds cells above the projection threshold, so its sidelobes are cut and an
-    image-based ISLR reads better than an ideal sinc).  ISLR (eq. 27, main lobe between the first
-    minima, window +-15 m = +-5 resolution cells, ideal sinc -10.7 dB), PSLR and the 3 dB width come
-    from it; peak loss compares the strongest single-CPI sample with an ideally focused target
-    (amplitude x two-way sum gain at that CPI's beam offset x the window's coherent gain).
+    the Doppler cell holding the target (the strongest cell at its t_ref range) is taken over
+    +-``range_window_m`` (the caller's +-5 range resolution cells, +-15 m for the paper), band-limited
+    oversampled x8, and its power accumulated over the dwell.  The accumulated profile shows what the
+    residual range migration did across the dwell, with its real sidelobes (the monopulse image only
+    holds cells above the projection threshold, so its sidelobes are cut and an image-based ISLR reads
+    better than an ideal sinc).  ISLR (eq. 27, main lobe between the first minima, ideal sinc -10.7 dB
+    over +-5 cells), PSLR and the 3 dB width come from it; peak loss compares the strongest single-CPI
+    sample with an ideally focused target (amplitude x two-way sum gain at that CPI's beam offset x the
+    window's coherent gain).
+
+    ``sum_voltage``: the antenna's one-way sum voltage against the beam offset (deg)
+    (``dsp.antenna.sum_voltage_for``); where the cube does not fix it (None), the dwell is the CPIs
+    within half of ``two_way_width_deg`` of the target and the peak loss is None (no gain to compare with).
     """
     from ..dsp.imaging import oversample_profiles
 
@@ -235,8 +245,12 @@ def dwell_profile_metrics(spectra, truth_xyz_m, amplitude, slope_per_deg, beta_p
     # two-way 3 dB beam ([target, cpi]); its search window and centre range bin
     d = truth_xyz_m[:, None, :] - pos[None, :, :]
     off = np.degrees(np.arctan2(d[..., 0], d[..., 1])) - beam[None, :]
-    sigma = np.exp(-beta_per_deg2 * off**2) * np.cosh(slope_per_deg * off)
-    in_dwell = sigma**4 >= 0.5
+    if sum_voltage is not None:
+        sigma = np.asarray(sum_voltage(off), dtype=np.float64)
+        in_dwell = sigma**4 >= 0.5
+    else:                                       # the two-way 3 dB beam of the cube's width, no gain known
+        sigma = np.full(off.shape, np.nan)
+        in_dwell = np.abs(off) <= 0.5 * float(two_way_width_deg)
     i0 = np.searchsorted(range_m, r_ref - range_window_m)
     i1 = np.searchsorted(range_m, r_ref + range_window_m)
     ic = np.argmin(np.abs(range_m[None, :] - r_ref[:, None]), axis=1)

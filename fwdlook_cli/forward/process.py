@@ -13,7 +13,7 @@ from ..dsp import spawner
 from ..dsp.blas import on_one_blas_thread, worker_threads
 from ..errors import BadInput
 from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, json_text, put_scale, put_sparse_gzip, set_attrs
-from ..io import backing, signals
+from ..io import backing, pending, signals
 from ..io.cube import cube_hash
 
 
@@ -113,13 +113,6 @@ def write_image_h5(path, final, ground, ground_x, ground_y, *, scenario_yaml, t_
                         "monopulse image projected on the ground (y, x)", dims=(gy, gx))
 
 
-def _two_way_beamwidth_deg(cube) -> float:
-    """Two-way 3 dB width of the cube's antenna (``dsp.antenna.two_way_width_for``)."""
-    from ..dsp.antenna import two_way_width_for
-
-    return two_way_width_for(float(cube.radar["beamwidth_3db_deg"]), cube.antenna)
-
-
 def start_fit_spawner(proc: dict) -> None:
     """Where the processing settings ask for the dwell image's joint fit and the fit forks its workers
     (more than one worker thread: not in a sweep's one-thread workers): their spawner forked now
@@ -170,7 +163,8 @@ def refuse_out_of_core_settings(proc: dict, source: str) -> None:
 @on_one_blas_thread
 def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stage=None, quiet=False,
                  png=True, source: str = "raw cube", keep_stages: str = "all", release_cube: bool = False,
-                 stage_cpu: dict | None = None, file_cpu: dict | None = None, scenario_note: str = "") -> dict:
+                 stage_cpu: dict | None = None, file_cpu: dict | None = None, scenario_note: str = "",
+                 raw_staged: bool = False) -> dict:
     """Run the chain of the resolved scenario's processing settings on ``cube``; returns metrics.
     ``scenario_note``: comment lines that head scenario.yaml (what of it the chain did not use).
     ``stage_cpu``: as :func:`runner.run_stages` (each computed stage's user and system CPU time), and
@@ -221,22 +215,23 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
                                       stage_cpu=stage_cpu, file_cpu=file_cpu)
     t_out = time.perf_counter()
     cpu_out = cpu_split_s() if stage_cpu is not None else None
-    for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):   # the chain done: the earlier
-        (run_dir / name).unlink(missing_ok=True)                             # run's outputs go now
+    pending.discard(run_dir, raw=False)      # a killed run's staged outputs (not this run's staged cube)
     pending_png = []
-    try:
-        metrics, scenario_yaml = _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured,
-                                          writes, t_start, t_out, png, pending_png)
-        if cpu_out is not None:
-            cpu_end = cpu_split_s()
-            stage_cpu["outputs"] = (cpu_end[0] - cpu_out[0], cpu_end[1] - cpu_out[1])
-    finally:
-        while writes:                    # waited for even when the outputs failed (then re-raised), a second
-            signals.call_held(writes.pop())   # signal held meanwhile (runner.run_stages)
-        signals.raise_pending()
-        while pending_png:               # begun and not finished: the outputs failed, no PNG left
-            pending_png.pop().discard()
-    atomic_write_text(run_dir / "scenario.yaml", scenario_note + scenario_yaml)
+    with pending.discarded_on_failure(run_dir, raw=raw_staged):     # every output staged (io/pending.py)
+        try:
+            metrics, scenario_yaml = _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured,
+                                              writes, t_start, t_out, png, pending_png)
+            if cpu_out is not None:
+                cpu_end = cpu_split_s()
+                stage_cpu["outputs"] = (cpu_end[0] - cpu_out[0], cpu_end[1] - cpu_out[1])
+        finally:
+            while writes:                    # waited for even when the outputs failed (then re-raised), a second
+                signals.call_held(writes.pop())   # signal held meanwhile (runner.run_stages)
+            signals.raise_pending()
+            while pending_png:               # begun and not finished: the outputs failed, no PNG left
+                pending_png.pop().discard()
+        atomic_write_text(pending.staged(run_dir, "scenario.yaml"), scenario_note + scenario_yaml)
+        pending.commit(run_dir, raw=raw_staged)      # the earlier run's outputs replaced, scenario.yaml last
     return metrics
 
 
@@ -253,7 +248,7 @@ def _start_quicklook(run_dir, final, truth, scn, proc, geo):
     sel = np.any(final["image"] > 0, axis=1)
     rows_idx = np.nonzero(sel)[0]
     lo, hi = (rows_idx[0], rows_idx[-1] + 1) if len(rows_idx) else (0, len(final["range_m"]))
-    return start_image_png(run_dir / "image.png", final["image"][lo:hi], final["angle_deg"], final["range_m"][lo:hi],
+    return start_image_png(pending.staged(run_dir, "image.png"), final["image"][lo:hi], final["angle_deg"], final["range_m"][lo:hi],
                            xlabel="azimuth at t_ref (deg)", ylabel="slant range at t_ref (m)",
                            title=f"{scn['name']}: {proc['method']} (q={geo['q']}, "
                                  f"{proc['keystone']}), t_ref = {proc['t_ref']}", markers=markers)
@@ -263,7 +258,9 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
              pending_png):
     """image.h5, metrics.json, image.png of a finished chain; returns (metrics, scenario YAML).
     ``pending_png``: a list that holds image.png while it is drawn (the caller discards it on failure)."""
-    from .evaluate import dwell_profile_metrics, summarize, target_metrics
+    from .chain import KEYSTONE_METHODS
+    from .evaluate import summarize
+    from .run_metrics import target_rows
 
     truth = cube.truth_xyz_m()
     if png:        # begun first: a painter running (io/painter.py) draws it beside the metrics and files
@@ -274,49 +271,14 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
     packed = {name: GzipChunks(a) for name, a in (("image", final["image"]), ("real_beam", final["real_beam"]),
                                                   ("ground_image", ground)) if a.ndim == 2 and a.size}
     # the Doppler spectra (2 x the cube, in memory when this run computed them): the only reference
-    # left is this one, dropped once the dwell metrics have read them, or unread (no truth)
+    # left is the one target_rows reads and drops (imaging: cpi), or unread (no truth, dwell imaging)
     spectra_of = captured.pop("doppler_spectra", None)
-    rows = []
-    if truth is not None:
-        rows = target_metrics(final["image"], final["range_m"], final["angle_deg"], truth,
-                              cube.truth["amplitude"], geo["p_ref"], bandwidth_hz=cube.radar["bandwidth_hz"])
-        from .evaluate import resolved_flags
-
-        two_way_deg = _two_way_beamwidth_deg(cube)
-        flags = resolved_flags([r["true_range_m"] for r in rows], [r["true_azimuth_deg"] for r in rows],
-                               bandwidth_hz=cube.radar["bandwidth_hz"], wavelength_m=299_792_458.0 / cube.radar["fc_hz"],
-                               speed_mps=float(np.linalg.norm(geo["v_ref"])), prf_hz=cube.radar["prf_hz"],
-                               cpi=proc["cpi"], depression_deg=geo["depression_deg"],
-                               beamwidth_two_way_deg=geo.get("resolution_angle_gate_deg", two_way_deg),
-                               doppler_resolution_hz=geo.get("doppler_resolution_hz"))
-        if "fit_region" in geo:          # dwell_fit: joint: inside its region, what the fit parts
-            from .dwell_range import flight_axis_deg
-            from .dwell_resolution import fit_resolved_flags
-
-            inside, fit_flags = fit_resolved_flags(
-                [r["true_range_m"] for r in rows], [r["true_azimuth_deg"] for r in rows],
-                position_m=cube.position_m, scan_angle_deg=cube.scan_angle_deg,
-                axis_deg=flight_axis_deg(geo["v_ref"]), position_ref_m=geo["p_ref"],
-                range_resolution_m=299_792_458.0 / (2.0 * cube.radar["bandwidth_hz"]), **geo["fit_region"])
-            flags = np.where(inside, fit_flags, flags)
-        for row, flag in zip(rows, flags):
-            row["resolved"] = bool(flag)
-        beta = float(cube.antenna.get("beta_per_deg2", np.nan)) if cube.antenna else np.nan
-        if (np.isfinite(beta) and cube.antenna.get("pattern", "gaussian2") == "gaussian2"
-                and "monopulse_slope_per_deg" in cube.antenna     # (a recorded /antenna may not say it)
-                and "doppler_spectra" in names):                  # imaging: cpi (dwell has no CPI spectra)
-            spectra, spectra_of = spectra_of(), None
-            dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
-                                          float(cube.antenna["monopulse_slope_per_deg"]), beta, geo["p_ref"])
-            for row, extra in zip(rows, dwell):
-                row["image_islr_db"], row["image_pslr_db"] = row["islr_db"], row["pslr_db"]
-                row["image_range_width_3db_m"] = row["range_width_3db_m"]
-                row.update(extra)
-            del spectra                               # 2x the cube: not held while the PNG is drawn
+    rows, islr_from = target_rows(cube, final, proc, geo,
+                                  spectra_of=spectra_of if "doppler_spectra" in names else None)
     spectra_of = None
     scenario_yaml = dump_scenario(scn)
     waited = sum(writes.pop()() for _ in range(len(writes)))       # every stage file written before these
-    write_image_h5(run_dir / "image.h5", final, ground, gx, gy, scenario_yaml=scenario_yaml,
+    write_image_h5(pending.staged(run_dir, "image.h5"), final, ground, gx, gy, scenario_yaml=scenario_yaml,
                    t_ref_s=geo["t_ref_s"], method=proc["method"], packed=packed)
     del packed
     timings["outputs"] = time.perf_counter() - t_out - waited      # (the wait counts to the last stage)
@@ -326,8 +288,11 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
         "fwdlook_version": __version__,
         "scenario": scn["name"],
         "method": proc["method"],
-        "params": {"q": geo["q"], "keystone": proc["keystone"],
-                   "range_curvature": bool(proc["range_curvature"]), "t_ref": proc["t_ref"],
+        # what ran: the keystone implementation of a keystone method (None for none, bulk, beam), the
+        # curvature stage's model ("off" where the method or the setting skips it)
+        "params": {"q": geo["q"], "keystone": proc["keystone"] if proc["method"] in KEYSTONE_METHODS else None,
+                   "range_curvature": geo["curvature_model"] != "off", "curvature_model": geo["curvature_model"],
+                   "t_ref": proc["t_ref"],
                    "doppler_centroid": bool(proc["doppler_centroid"]), "cpi": proc["cpi"],
                    "imaging": proc.get("imaging", "cpi"), "doppler_estimator": proc.get("doppler_estimator", "fft"),
                    "ambiguity_number": geo["ambiguity_number"],
@@ -343,14 +308,14 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
         "scenario_sha256": scenario_hash(scn),
         "stage_sha256": keys,
         "targets": rows,
-        "summary": summarize(rows) if rows else {"n_targets": 0, "detected": 0},
+        "summary": ({**summarize(rows), "islr_from": islr_from} if rows else {"n_targets": 0, "detected": 0}),
         "timing_s": timing,
     }
     if scn["scene"]["kind"] == "image":                  # extended scene: metrics against its map
         from .scene_metrics import scene_metrics
 
         metrics["scene"] = scene_metrics(final["image"], final["range_m"], final["angle_deg"], geo["p_ref"], scn)
-    atomic_write_text(run_dir / "metrics.json", json_text(metrics))
+    atomic_write_text(pending.staged(run_dir, "metrics.json"), json_text(metrics))
     if pending_png:
         pending_png.pop().finish()
     return metrics, scenario_yaml

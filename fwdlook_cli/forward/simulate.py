@@ -28,6 +28,7 @@ import logging
 
 import numpy as np
 
+from ..errors import BadInput
 from ..dsp.antenna import MonopulseAntenna, antenna_from_scenario
 from ..dsp.geometry import C_MPS, azimuth_deg, scan_angle_deg, slant_range_m
 from ..scenario.forward import scene_geometry
@@ -203,3 +204,13 @@ def simulate_scenario(scn: dict, *, in_memory_x_cube: float | None = None, doing
         attrs={"scenario_sha256": scenario_hash(scn), "scenario_name": scn["name"]},
     )
     return cube, stats
+
+
+def refuse_an_all_zero_cube(scn: dict, stats, source: str) -> None:
+    """``run`` / ``process SCENARIO``: a noiseless scene no target or pixel of which is ever in the beam
+    gives a cube of zeros, which ``process RAW.h5`` refuses (``io.raw``); refused here the same way (the
+    chain had run on it to "detected 0/0", and the joint fit to a division by a zero noise level)."""
+    if stats.n_pairs_kept == 0 and scn["noise"]["snr_db"] is None:
+        raise BadInput(f"{source}: scene: no target or pixel is ever in the beam and noise.snr_db is null, so "
+                       f"every sample of the cube is zero: nothing to image; allowed: a scene inside the scan, "
+                       f"or noise")

@@ -16,6 +16,8 @@ too), set and restored by :func:`file_backed`.
 """
 from __future__ import annotations
 
+import errno
+import os
 import tempfile
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
@@ -127,7 +129,15 @@ def empty(shape, dtype, *, fill=np.empty) -> np.ndarray:
     if _scratch_dir is None or nbytes < _min_bytes or nbytes == 0:
         return fill(shape, dtype)
     with tempfile.TemporaryFile(dir=_scratch_dir, prefix=".fwdlook-scratch-") as f:
-        f.truncate(nbytes)
+        # the file's blocks reserved, not a sparse file: a page written into a full file system through a
+        # map is a SIGBUS (the command had died by it, no word), where this refuses in one line
+        try:
+            os.posix_fallocate(f.fileno(), 0, nbytes)
+        except OSError as exc:
+            if exc.errno not in (errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
+                raise BadInput(f"cannot write {_scratch_dir}: {exc.strerror or exc} (--out-of-core scratch "
+                               f"of {nbytes / 2**20:.0f} MiB for an array {shape})") from None
+            f.truncate(nbytes)                # a file system without it: sparse, as before
         # the map holds the file open (its own descriptor): the file lives as long as the array
         return np.memmap(f, dtype=dtype, mode="r+", shape=shape)
 

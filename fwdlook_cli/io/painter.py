@@ -84,6 +84,7 @@ def _resolve(name: str):
 
 def _child_main(job_fd: int, reply_fd: int, warm_up: str | None) -> None:   # pragma: no cover (the child)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)    # (forked after the command's handlers were installed)
     if warm_up:
         with contextlib.suppress(Exception):  # an import failure shows when a job is run
             _resolve(warm_up)()

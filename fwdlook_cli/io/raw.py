@@ -227,7 +227,7 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     dt = np.diff(slow_time_s)
     if np.any(dt <= 0):
         raise BadInput(f"{source}: /axes/slow_time_s: not strictly increasing")
-    _check_motion(position, velocity, dt, source)
+    _check_motion(position, velocity, dt, source, stored_dtype=f["platform/position_m"].dtype)
     _check_echo_scale((echo_sum, echo_diff), source)
     range_m = _uniform_range_axis(range_m, f["axes/range_m"].dtype, source)
     if range_m[0] <= 0:
@@ -363,10 +363,15 @@ def _check_pulse_timing(slow_time_s: np.ndarray, prf_hz: float, source: str) -> 
 OPTIONAL_RADAR_NUMBERS = ("pulse_width_s",)   # positive numbers where a cube records them (the ISAR closed form)
 
 
-def _check_motion(position, velocity, dt, source: str) -> None:
+def _check_motion(position, velocity, dt, source: str, stored_dtype=np.float64) -> None:
     """The INS track is a platform's: speeds (recorded, and implied by consecutive positions) within
     ``MAX_SPEED_MPS`` and positions within ``MAX_DISTANCE_M`` (1e12 m/s, a platform 1e7 km away or a
-    500 m jump between pulses had been processed into an empty image with exit 0)."""
+    500 m jump between pulses had been processed into an empty image with exit 0).  The recorded
+    velocities against the positions: over spans of pulses long enough that the positions' storage step
+    (float32 map coordinates: 0.03-0.25 m at 5e5-4e6 m, more than a pulse's travel) moves a span's mean
+    velocity by under 0.1 m/s, each span's displacement against its velocities' trapezoidal integral
+    (exact for a constant acceleration, whatever the span; per pulse, float32 UTM positions had been
+    refused as a velocity of the wrong sign or unit)."""
     far = float(np.max(np.abs(position)))
     if far > MAX_DISTANCE_M:
         raise BadInput(f"{source}: /platform/position_m: reaches {far:.3g} m; allowed: within "
@@ -379,8 +384,14 @@ def _check_motion(position, velocity, dt, source: str) -> None:
         i = int(np.argmax(implied))
         raise BadInput(f"{source}: /platform/position_m: moves {float(implied[i] * dt[i]):.3g} m between pulses {i} "
                        f"and {i + 1} ({float(implied[i]):.3g} m/s); allowed: a track within {MAX_SPEED_MPS:g} m/s")
-    if len(dt):     # the velocities the positions' differences imply (mid-interval), against the recorded
-        gap = np.linalg.norm(np.diff(position, axis=0) / dt[:, None] - 0.5 * (velocity[1:] + velocity[:-1]), axis=1)
+    if len(dt):     # the velocities the positions' differences imply, against the recorded (span means)
+        floating = np.issubdtype(stored_dtype, np.floating)     # (far is within 1e7 m: checked above)
+        step_m = float(np.spacing(np.asarray(far, dtype=stored_dtype))) if floating else 1.0
+        span = int(min(len(dt), max(1, np.ceil(10.0 * step_m / float(np.median(dt))))))
+        t = np.concatenate([[0.0], np.cumsum(dt)])
+        moved = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (velocity[1:] + velocity[:-1]) * dt[:, None], axis=0)])
+        gap = np.linalg.norm(((position[span:] - position[:-span]) - (moved[span:] - moved[:-span]))
+                             / (t[span:] - t[:-span])[:, None], axis=1)
         speed = float(np.median(np.linalg.norm(velocity, axis=1)))
         worst = float(np.median(gap))          # the median: an INS's noise and a jump of a few pulses pass
         if worst > VELOCITY_TOLERANCE * speed + VELOCITY_TOLERANCE_MPS:

@@ -103,6 +103,14 @@ def estimate_n0(data: StageData, *, half_span_lobes: float = 4.0, points_per_lob
         c2, c1, c0 = np.polyfit(t_rel[inliers], track[inliers], 2)
     r0, rdot, rddot = float(c0), float(c1), 2.0 * float(c2)
     lobe_v2 = lam * r0 / (2.0 * dwell**2)                              # |v|^2 error of one lobe
+    if r0 * rddot < lobe_v2:
+        # the track's curvature (the tangential |v|^2 = r0 R'') under one lobe: the dwell's aperture, v_t T,
+        # spans less than one cross-range resolution cell, lambda r0 / (2 v_t T), and no image sharpness
+        # can tell n0 (a 32-pulse dwell had given n0 = 1 010 089 for 4 318, exit 0, the target lost)
+        raise BadInput(f"processing.correction = keystone2_n0_est: the dwell ({n} pulses, {dwell:.3g} s) is too "
+                       f"short to measure the object's cross-range motion (its range track's curvature gives "
+                       f"|v_t|^2 = {max(r0 * rddot, 0.0):.3g} m^2/s^2, under the {lobe_v2:.3g} the dwell resolves); "
+                       f"use keystone2_n0 (n0 from the geometry), keystone1, or a longer dwell")
     v2 = max(r0 * rddot + rdot**2, rdot**2 + lobe_v2)
     n0_coarse = -r0 * rdot * prf / v2
 

@@ -15,7 +15,7 @@ from .evaluate import isar_outputs
 # Run directory (called by ``fwdlook run`` / ``fwdlook process`` for kind: isar)
 # ----------------------------------------------------------------------------------------------
 def process_isar_cube(cube, scn: dict, run_dir, *, force=False, from_stage=None, quiet=False,
-                      png=True, scenario_note: str = "") -> dict:
+                      png=True, scenario_note: str = "", raw_staged: bool = False) -> dict:
     """Run the ISAR chain with its stage files, write image.h5, image.png and metrics.json
     (``scenario_note``: comment lines that head scenario.yaml)."""
     from ..scenario.loader import dump_scenario, scenario_hash
@@ -35,27 +35,31 @@ def process_isar_cube(cube, scn: dict, run_dir, *, force=False, from_stage=None,
         raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
     final, timings, keys = run_stages(stages, src, cube_hash(cube), run_dir, force=force,
                                       from_stage=from_stage, quiet=quiet)
-    for name in ("metrics.json", "image.h5", "image.png", "scenario.yaml"):   # the earlier run's, kept until
-        (run_dir / name).unlink(missing_ok=True)                             # the chain has finished
-    t_out = time.perf_counter()
-    image, metrics = isar_outputs(final, cube, proc)
-    with atomic_h5(run_dir / "image.h5") as f:
-        for k, v in image.attrs.items():
-            f.attrs[k] = v
-        f.attrs["scenario"] = dump_scenario(scn)
-        r = put_scale(f, "range_m", image["range_m"], "m", image.vars["range_m"].long_name)
-        d = put_scale(f, "doppler_hz", image["doppler_hz"], "Hz", image.vars["doppler_hz"].long_name)
-        put(f, "cross_range_m", image["cross_range_m"], "m", image.vars["cross_range_m"].long_name, dims=(d,))
-        put(f, "image", image["image"], "1", image.vars["image"].long_name, dims=(r, d))
-    timings["outputs"] = time.perf_counter() - t_out
-    timing = {k: float(v) for k, v in timings.items()}
-    timing["total"] = time.perf_counter() - t_start
-    metrics.update(scenario=scn["name"], scenario_sha256=scenario_hash(scn), stage_sha256=keys,
-                   timing_s=timing)
-    atomic_write_text(run_dir / "metrics.json", json_text(metrics))
-    if png:        # after metrics.json (a PNG with none beside it is not taken for fwdlook's), as the forward run's
-        _save_image_quicklook(run_dir / "image.png", image, title=f"{scn['name']}: ISAR {proc['correction']}")
-    atomic_write_text(run_dir / "scenario.yaml", scenario_note + dump_scenario(scn))   # last: the run is complete
+    from ..io import pending
+
+    pending.discard(run_dir, raw=False)     # a killed run's staged outputs; each output staged (io/pending.py)
+    with pending.discarded_on_failure(run_dir, raw=raw_staged):
+        t_out = time.perf_counter()
+        image, metrics = isar_outputs(final, cube, proc)
+        with atomic_h5(pending.staged(run_dir, "image.h5")) as f:
+            for k, v in image.attrs.items():
+                f.attrs[k] = v
+            f.attrs["scenario"] = dump_scenario(scn)
+            r = put_scale(f, "range_m", image["range_m"], "m", image.vars["range_m"].long_name)
+            d = put_scale(f, "doppler_hz", image["doppler_hz"], "Hz", image.vars["doppler_hz"].long_name)
+            put(f, "cross_range_m", image["cross_range_m"], "m", image.vars["cross_range_m"].long_name, dims=(d,))
+            put(f, "image", image["image"], "1", image.vars["image"].long_name, dims=(r, d))
+        timings["outputs"] = time.perf_counter() - t_out
+        timing = {k: float(v) for k, v in timings.items()}
+        timing["total"] = time.perf_counter() - t_start
+        metrics.update(scenario=scn["name"], scenario_sha256=scenario_hash(scn), stage_sha256=keys,
+                       timing_s=timing)
+        atomic_write_text(pending.staged(run_dir, "metrics.json"), json_text(metrics))
+        if png:
+            _save_image_quicklook(pending.staged(run_dir, "image.png"), image,
+                                  title=f"{scn['name']}: ISAR {proc['correction']}")
+        atomic_write_text(pending.staged(run_dir, "scenario.yaml"), scenario_note + dump_scenario(scn))
+        pending.commit(run_dir, raw=raw_staged)       # the earlier run's outputs replaced, scenario.yaml last
     return metrics
 
 

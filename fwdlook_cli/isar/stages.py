@@ -12,6 +12,7 @@ from ..dsp.keystone_common import _cis  # exp(j 2 pi cycles), reduced modulo one
 from ..io.stagefile import StageData
 from .geometry import LineModel
 from ..errors import BadInput
+from ..limits import check_keystone_padding
 
 
 def _alpha(order, fr_hz, fc_hz):
@@ -27,28 +28,6 @@ def _ambiguity_rows(ambiguity, doppler_hz, fr_hz, fc_hz, prf_hz):
     if doppler_hz is None:
         return np.zeros(len(fr_hz), dtype=np.int64)
     return ambiguity_number((1.0 + np.asarray(fr_hz) / fc_hz) * doppler_hz, prf_hz)
-
-
-KEYSTONE_WORK_FACTOR = 8   # the CZT keystone's peak memory over its complex64 input (measured: 4.1 GB of
-                           # peak RSS for 0.5 GB of padded rows, isar_theta3 at n0 = 1e7 pulses)
-
-
-def _check_padding(n, pad, n_cols, t0_index, worst_stretch):
-    """Refuse, before allocating it, a zero-padded keystone input over the cube size limit: a range
-    minimum far outside the dwell (``processing.n0_pulses``, given or from eq. 13) moves the resampling
-    positions ``|1 - alpha| |m - t0|`` pulses out, and the padding grows with it."""
-    from ..limits import gib, limit_source, max_cube_bytes
-
-    limit = max_cube_bytes("auto")
-    need = KEYSTONE_WORK_FACTOR * 8.0 * (n + 2 * pad) * n_cols
-    if need <= limit:
-        return
-    room = max((limit / (KEYSTONE_WORK_FACTOR * 8.0 * n_cols) - n) / 2.0 - 16.0, 0.0)   # the widest that fits
-    n0_room = max(room / max(worst_stretch, 1e-300) - (n - 1) / 2.0, 0.0)
-    raise BadInput(f"processing.n0_pulses: the range minimum at pulse {t0_index - (n - 1) / 2.0:.6g} from the "
-                   f"dwell's centre ({n} pulses) moves the keystone's resampling up to {pad - 16:,} pulses "
-                   f"outside it; the keystone over its zero-padded rows would take {gib(need)}, over {limit_source('auto')} = "
-                   f"{gib(limit)}; allowed: a range minimum within about {n0_room:,.0f} pulses of the centre")
 
 
 def _keystone(echo_f, fr_hz, fc_hz, *, order, t0_index, ambiguity_rows, method):
@@ -67,7 +46,7 @@ def _keystone(echo_f, fr_hz, fc_hz, *, order, t0_index, ambiguity_rows, method):
     n = echo_f.shape[0]
     excursion = float(np.max(np.abs(1.0 - alpha))) * max(abs(t0_index), abs(n - 1 - t0_index))
     pad = int(np.ceil(excursion)) + 16
-    _check_padding(n, pad, echo_f.shape[1], t0_index, float(np.max(np.abs(1.0 - alpha))))
+    check_keystone_padding(n, pad, echo_f.shape[1], t0_index, float(np.max(np.abs(1.0 - alpha))))
     padded = np.zeros((n + 2 * pad, echo_f.shape[1]), dtype=np.complex64)
     padded[pad:pad + n] = echo_f
     if method == "dft":
@@ -162,6 +141,8 @@ def rcmc(data: StageData, *, correction: str, keystone: str = "czt", ambiguity="
         rows = np.zeros(len(fr), dtype=np.int64)
     else:
         rows = _ambiguity_rows(ambiguity, doppler, fr, fc, prf)
+        if m is not None:
+            _warn_if_the_doppler_crosses_a_fold(m, np.asarray(data["slow_time_s"], dtype=np.float64), fc, prf)
         corrected = _keystone(echo_f, fr, fc, order=1 if correction == "keystone1" else 2, t0_index=t0,
                               ambiguity_rows=rows, method=keystone)
     if m is not None and correction in ("keystone2_n0", "keystone2_n0_est"):
@@ -182,6 +163,23 @@ def rcmc(data: StageData, *, correction: str, keystone: str = "czt", ambiguity="
     out.attrs.update(correction=correction, keystone_centre_index=float(t0), n0_used_pulses=float(shift),
                      t_ref_s=float(t0 / prf))
     return out
+
+
+def _warn_if_the_doppler_crosses_a_fold(m, slow_time_s, fc_hz: float, prf_hz: float) -> None:
+    """One ambiguity number serves the whole dwell (per range-frequency row, from its middle); where the
+    model's Doppler history crosses +-PRF/2 within the dwell the rows past the fold are resampled with
+    the wrong one and the image loses gain (README, the ISAR section's second review: 51 pulses at
+    93.1 Hz, -2.1 dB): said, not corrected (no Doppler-centroid demodulation here)."""
+    t = slow_time_s[[0, -1]]
+    tau = t - m.t_mid_s
+    rdot = (m.r0_m * m.rdot_mps + m.v2_m2ps2 * tau) / np.maximum(m.range_m(t), 1e-9)
+    f_hz = -2.0 * rdot * fc_hz / C_MPS
+    folds = ambiguity_number(f_hz, prf_hz)
+    if folds[0] != folds[1]:
+        logging.getLogger(__name__).warning(
+            f"the Doppler centroid moves from {f_hz[0]:.1f} to {f_hz[1]:.1f} Hz over the dwell, across +-PRF/2 "
+            f"(ambiguity number {int(folds[0])} to {int(folds[1])} at a {prf_hz:g} Hz PRF): the keystone takes the "
+            f"dwell's middle one for every pulse, and the image loses gain (a higher PRF, or a shorter dwell)")
 
 
 def range_ifft(data: StageData) -> StageData:

@@ -280,7 +280,7 @@ def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None
     if sc["kind"] == "points" and sc["points_m"] is None:
         raise BadInput(f"{source}: scene.points_m: required when scene.kind is points")
     _antenna_checks(ant, source)
-    pts, amps = scene_points(scn)
+    pts = scene_points(scn)[0] if sc["kind"] != "image" else ()    # (a map's amplitude is one number: checked)
     if isinstance(sc["amplitude"], list) and len(sc["amplitude"]) != len(pts):
         raise BadInput(f"{source}: scene.amplitude: list of {len(sc['amplitude'])} values; "
                        f"allowed: one number or one per point ({len(pts)})")

@@ -131,6 +131,50 @@ def isar_checks(scn: dict, source: str) -> None:
     why = carrier_floor_text(radar["fc_hz"], radar["fs_hz"])    # after the size: a huge fs is first a size
     if why:
         raise BadInput(f"{source}: radar.fc_hz = {radar['fc_hz']:g}: {why.replace('fs_hz', 'radar.fs_hz')}")
+    n_cols = None
+    if radar["range_window_m"] == "auto":          # the simulator's axis (bounded: the size is checked)
+        from ..dsp.pulse import CompressedPulse, auto_range_axis_m
+
+        pulse = CompressedPulse(radar["bandwidth_hz"], radar["pulse_width_s"], radar["fs_hz"], radar["range_weighting"])
+        axis = auto_range_axis_m(*auto_range_extent_m(pos0, vel, r), radar["fs_hz"], pulse)
+        if axis[0] <= 0:
+            closest = auto_range_extent_m(pos0, vel, r)[0]
+            raise BadInput(f"{source}: target.velocity_mps = {list(tg['velocity_mps'])}: the object's straight track "
+                           f"passes {closest:.1f} m from the radar (its closest approach, where the range-minimum "
+                           f"shift refers to), and the auto range window holding it would begin at {axis[0]:.1f} m; "
+                           f"allowed: a track whose closest approach is farther than the compressed pulse's reach "
+                           f"(a larger target.theta0_deg or target.range_m), or a radar.range_window_m with keystone1 "
+                           f"or keystone2")
+        n_cols = len(axis)
+    _check_n0_padding(scn, source, len(t), vel, n_cols)
+
+
+def _check_n0_padding(scn: dict, source: str, n: int, vel, n_cols) -> None:
+    """``keystone2_n0``'s zero-padded keystone input against the size limit, before the simulation (the
+    stage's own check, ``limits.check_keystone_padding``, with the same numbers: n0 as given or from the
+    geometry, the range axis the simulator will make, the widest second-order stretch of the band)."""
+    radar, tg, proc = scn["radar"], scn["target"], scn["processing"]
+    if proc["correction"] != "keystone2_n0":       # (the estimator's n0 comes from the data)
+        return
+    from ..limits import check_keystone_padding
+
+    fc, fs = radar["fc_hz"], radar["fs_hz"]
+    if proc["n0_pulses"] != "auto":
+        n0 = float(proc["n0_pulses"])
+    else:                        # eq. (13): the reference point's closest approach, from the dwell's centre
+        th = math.radians(tg["theta0_deg"])
+        p_mid = tg["range_m"] * np.array([math.cos(th), -math.sin(th), 0.0])
+        n0 = -float(p_mid @ vel) / float(vel @ vel) * radar["prf_hz"]
+    if n_cols is None:                             # a given window: its samples
+        near, far = radar["range_window_m"]
+        n_cols = int(np.floor((far - near) * 2.0 * fs / C_MPS)) + 1
+    t0 = (n - 1) / 2.0 + n0
+    worst = math.sqrt(fc / (fc - fs / 2.0)) - 1.0                 # |1 - alpha| at the band's lower edge, eq. (12)
+    pad = int(math.ceil(worst * max(abs(t0), abs(n - 1 - t0)))) + 16
+    try:
+        check_keystone_padding(n, pad, n_cols, t0, worst, n0_auto=proc["n0_pulses"] == "auto")
+    except BadInput as exc:
+        raise BadInput(f"{source}: {exc}") from None
 
 
 # ----------------------------------------------------------------------------------------------

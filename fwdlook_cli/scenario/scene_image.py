@@ -109,6 +109,21 @@ def _split_h5(spec: str):
     return spec, None
 
 
+def scenario_input_files(scn: dict) -> list[str]:
+    """The files a resolved scenario reads besides itself: the scene's map (``scene.image.file``, the
+    HDF5 file of ``path.h5:/dataset``) and a measured antenna pattern (``antenna.pattern_file``), so that
+    no command writes its output over them (io/outputs.py refuses an input as an output, ``--overwrite``
+    or not)."""
+    files = []
+    scene, ant = scn.get("scene") or {}, scn.get("antenna") or {}
+    spec = (scene.get("image") or {}).get("file") if scene.get("kind") == "image" else None
+    if spec and spec not in PROCEDURAL:
+        files.append(_split_h5(str(spec))[0])
+    if ant.get("pattern") == "table" and ant.get("pattern_file"):
+        files.append(str(ant["pattern_file"]))
+    return files
+
+
 def read_map(spec: str, *, where: str = "scene.image.file", image_cfg: dict | None = None) -> np.ndarray:
     """The 2-D float64 map named by ``spec`` (see module docstring); BadInput on any problem."""
     if spec in PROCEDURAL:
@@ -196,13 +211,51 @@ def ground_to_local(x, y, center_m, orientation_deg):
     return dx * np.cos(a) - dy * np.sin(a), dx * np.sin(a) + dy * np.cos(a)
 
 
+_LAST_MAP: list = []     # [(key, map)]: the last map read, as every check of a command asks for it again
+
+
 def reference_amplitude(scn: dict) -> np.ndarray:
-    """Normalised (max 1) real amplitude map of an image scene, before threshold and speckle."""
+    """Normalised (max 1) real amplitude map of an image scene, before threshold and speckle (read-only).
+
+    The last one read is kept, by the file's path, size and modification time and the settings that
+    shape it: a command's checks, its size check and its simulation ask for the same map, and a large
+    map had been read and converted four times before the size check could refuse it."""
     im = scn["scene"]["image"]
-    arr = read_map(im["file"], image_cfg=im)
+    spec = str(im["file"])
+    try:
+        st = Path(_split_h5(spec)[0]).stat() if spec not in PROCEDURAL else None
+    except OSError:
+        st = None
+    key = (spec, None if st is None else (st.st_size, st.st_mtime_ns), im["intensity"],
+           repr(sorted((k, v) for k, v in im.items() if k in ("size_px", "pixel_spacing_m", "procedural_seed"))))
+    if _LAST_MAP and _LAST_MAP[0][0] == key and (st is not None or spec in PROCEDURAL):
+        return _LAST_MAP[0][1]
+    _LAST_MAP.clear()                     # (not held while the next one is read)
+    arr = read_map(spec, image_cfg=im)
     if im["intensity"] == "power":
-        arr = np.sqrt(arr)
-    return arr / np.max(arr)
+        np.sqrt(arr, out=arr)
+    arr /= np.max(arr)
+    arr.flags.writeable = False
+    _LAST_MAP.append((key, arr))
+    return arr
+
+
+def image_scene_extent(scn: dict):
+    """(number of scatterers, (x0, x1, y0, y1) their ground bounding box) of an image scene, from the map
+    alone (no per-pixel coordinates: the size check's arithmetic): the kept pixels' index box, whose
+    four corners bound them on the ground (the pixel grid is an affine image of its indices)."""
+    sc, im = scn["scene"], scn["scene"]["image"]
+    amp = reference_amplitude(scn)
+    keep = (amp > 0) & (amp >= im["threshold"])
+    rows, cols = np.flatnonzero(keep.any(axis=1)), np.flatnonzero(keep.any(axis=0))
+    if not len(rows):
+        raise BadInput(f"scene.image.threshold = {im['threshold']:g}: drops every pixel of {im['file']}; "
+                       f"allowed: below the brightest normalised amplitude (1)")
+    ny, nx = amp.shape
+    u = (np.array([cols[0], cols[-1]]) - (nx - 1) / 2.0) * im["pixel_spacing_m"]
+    v = ((ny - 1) / 2.0 - np.array([rows[0], rows[-1]])) * im["pixel_spacing_m"]
+    x, y = local_to_ground(u[None, :], v[:, None], sc["center_m"], im["orientation_deg"])
+    return int(np.count_nonzero(keep)), (float(x.min()), float(x.max()), float(y.min()), float(y.max()))
 
 
 def image_scene_points(scn: dict):

@@ -36,10 +36,9 @@ def forward_sizes_check(scn: dict, source: str) -> None:
         n_x = len(range(lat["x_offset"], lat["nx"], lat["x_stride"]))
         n_targets = n_x * lat["ny"]
     elif sc["kind"] == "image":
-        from .scene_image import image_scene_points
+        from .scene_image import image_scene_extent
 
-        pts_img, _ = image_scene_points(scn)    # the map's pixels above the threshold (bounded by the file)
-        n_targets = len(pts_img)
+        n_targets, box = image_scene_extent(scn)   # the map's pixels above the threshold, their ground box
     else:
         n_targets = len(sc["points_m"] or ())
     # the scene simulator (forward/scene_sim.py) works in bounded chunks: its memory grows with the
@@ -50,7 +49,7 @@ def forward_sizes_check(scn: dict, source: str) -> None:
                        f"over {where} = {gib(limit)}")
     dr = C_MPS / (2.0 * radar["fs_hz"])
     if radar["range_window_m"] == "auto":
-        r_min, r_max = _range_extent_estimate_m(scn, m, n_targets)
+        r_min, r_max = _range_extent_estimate_m(scn, m, box if sc["kind"] == "image" else None)
         reach = C_MPS * radar["pulse_width_s"] / 2.0 + 10 * dr
         n_range = (r_max - r_min + 2 * reach) / dr + 1
         key = (f"radar.range_window_m = auto: the scene spans slant ranges {r_min:.6g} to {r_max:.6g} m, "
@@ -68,9 +67,10 @@ def forward_sizes_check(scn: dict, source: str) -> None:
                        f"arrive after the next pulse; allowed: targets within {unambiguous_m:.6g} m")
 
 
-def _range_extent_estimate_m(scn: dict, m: int, n_targets: int):
+def _range_extent_estimate_m(scn: dict, m: int, box=None):
     """(min, max) slant range from the antenna to the scene over the scan: antenna at up to 4097 of the
-    m pulse times; targets as their ground bounding box (max at a corner, min at the clamped point)."""
+    m pulse times; targets as their ground bounding box (max at a corner, min at the clamped point);
+    ``box``: an image scene's (x0, x1, y0, y1) (``scene_image.image_scene_extent``)."""
     import numpy as np
 
     from ..dsp.geometry import platform_state
@@ -84,13 +84,10 @@ def _range_extent_estimate_m(scn: dict, m: int, n_targets: int):
         cx, cy = sc["center_m"]
         half_x, half_y = (lat["nx"] - 1) / 2 * lat["spacing_m"], (lat["ny"] - 1) / 2 * lat["spacing_m"]
         x0, x1, y0, y1 = cx - half_x, cx + half_x, cy - half_y, cy + half_y
+    elif box is not None:
+        x0, x1, y0, y1 = box
     else:
-        if sc["kind"] == "image":
-            from .scene_image import image_scene_points
-
-            pts = np.asarray(image_scene_points(scn)[0], dtype=np.float64)
-        else:
-            pts = np.asarray(sc["points_m"], dtype=np.float64)
+        pts = np.asarray(sc["points_m"], dtype=np.float64)
         x0, x1, y0, y1 = pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(), pts[:, 1].max()
     dz2 = pos[:, 2] ** 2
     near_dx = np.clip(pos[:, 0], x0, x1) - pos[:, 0]

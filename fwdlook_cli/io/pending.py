@@ -1,0 +1,59 @@
+"""A run's outputs written under staged names and put in place together, once all are written.
+
+The run directory's outputs of an earlier run stay whole until the new ones are all written: a rerun
+refused or failing on the way (a refusal after the simulation, a full disk at image.png or scenario.yaml)
+leaves them as they were, and never new outputs beside old ones.  Each output is written as
+``<stem>.new<suffix>`` (``image.new.h5``, ``metrics.new.json``, ``image.new.png``, ``scenario.new.yaml``;
+``run``'s simulated cube as ``raw.new.h5``, before the chain, which releases the cube's echoes after its
+first stage), and :func:`commit` removes the earlier ``scenario.yaml`` (the folder then reads as
+unfinished), renames each staged file over its name in the order image.h5, metrics.json, image.png
+(a PNG is taken for fwdlook's only with a metrics.json beside it), removes an earlier output this run
+did not write, and puts ``scenario.yaml`` last: the run is complete.  A failure removes the staged files
+(:func:`discard`); a killed command leaves them, and the next run writes over them.  (Fifty-second
+round: an ISAR rerun refused after its simulation had left its new cube beside the earlier run's
+outputs, the earlier cube lost; a full disk at image.png had left a new metrics.json and image.h5
+beside no scenario.yaml, the earlier run's PNG and scenario.yaml removed.)
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+OUTPUTS = ("raw.h5", "image.h5", "metrics.json", "image.png", "scenario.yaml")   # the order of commit
+
+
+def staged(run_dir, name: str) -> Path:
+    """Where output ``name`` is written before :func:`commit`: ``<stem>.new<suffix>`` (the suffix kept:
+    matplotlib and h5py read the format from it)."""
+    p = Path(name)
+    return Path(run_dir) / f"{p.stem}.new{p.suffix}"
+
+
+def discard(run_dir, *, raw: bool) -> None:
+    """Remove the staged outputs (``raw``: the staged cube too)."""
+    for name in OUTPUTS if raw else OUTPUTS[1:]:
+        staged(run_dir, name).unlink(missing_ok=True)
+
+
+def commit(run_dir, *, raw: bool) -> None:
+    """Put the staged outputs in place (module docstring); ``raw``: the staged cube too (``run`` only:
+    a cube another command left staged is not this run's)."""
+    run_dir = Path(run_dir)
+    (run_dir / "scenario.yaml").unlink(missing_ok=True)
+    for name in OUTPUTS if raw else OUTPUTS[1:]:
+        new = staged(run_dir, name)
+        if new.exists():
+            os.replace(new, run_dir / name)
+        elif name != "raw.h5":
+            (run_dir / name).unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def discarded_on_failure(run_dir, *, raw: bool):
+    """Runs the body; where it raises (a refusal, a failure, an interrupt), :func:`discard`."""
+    try:
+        yield
+    except BaseException:
+        discard(run_dir, raw=raw)
+        raise

@@ -1,0 +1,329 @@
+"""What a run's outputs mean, and what a refused run leaves (the fifty-second round's independent reviews).
+
+* metrics.json's rows are one function's (``forward.run_metrics.target_rows``), so the Python API's
+  ``measure`` gives the command's numbers; a run with no target found writes its metrics;
+* the dwell range profile's ISLR window is +-5 range resolution cells whatever the bandwidth, the
+  ideal sinc's ISLR over that window computed here independently, and the profile is taken for any
+  antenna whose cube fixes its sum pattern (``islr_from`` says which ISLR the rows hold);
+* ``params`` records what ran (no curvature stage, no keystone for ``none``, ``bulk``, ``beam``);
+* refusals before the work: a noiseless scene with nothing in the beam, an output over the scene's own map;
+* a rerun refused after its simulation leaves the earlier run whole, its cube with it;
+* recorded cubes: float32 map-coordinate INS positions, a ratio table of another slope than its attribute.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+import fwdlook_cli as fw
+from cli_runner import run_cli
+from fwdlook_cli.forward.evaluate import target_metrics
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "scenarios" / "tiny.yaml"
+C = 299_792_458.0
+
+
+def _tiny(tmp_path, name="s.yaml", **edits):
+    raw = yaml.safe_load(TINY.read_text())
+    for dotted, value in edits.items():
+        section, key = dotted.split("__")
+        raw.setdefault(section, {})[key] = value
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+# ----------------------------------------------------------------------------------------------
+# metrics
+# ----------------------------------------------------------------------------------------------
+def test_no_target_found_gives_every_target_missed_not_a_crash():
+    """An image with no pixel in any search window (had: ValueError in the cell maximum, exit 1)."""
+    truth = np.array([[0.0, 1000.0, 0.0], [50.0, 1100.0, 0.0]])
+    range_m, angle_deg = np.arange(900.0, 1200.0, 1.0), np.arange(-5.0, 5.0, 0.05)
+    rows = target_metrics(np.zeros((len(range_m), len(angle_deg)), np.float32), range_m, angle_deg, truth,
+                          np.ones(2), np.array([0.0, 0.0, 50.0]), bandwidth_hz=50e6)
+    assert [r["detected"] for r in rows] == [False, False]
+    assert all(r["meas_range_m"] is None and r["peak_power"] == 0.0 for r in rows)
+
+
+def test_measure_gives_the_rows_metrics_json_holds(tmp_path):
+    """fw.measure against process_cube on the same cube: every key of every row, and the summary (it had
+    the image cut's ISLR where metrics.json has the dwell profile's, and no resolved flags)."""
+    scn = fw.load_scenario(TINY, ["processing.method=tracking"])
+    cube = fw.simulate_cube(scn)
+    final = fw.run_chain(cube, scn["processing"])
+    mem = fw.measure(cube, final, scn["processing"])
+    disk = fw.process_cube(cube, scn, tmp_path, png=False)
+    assert disk["summary"]["islr_from"] == mem["summary"]["islr_from"] == "dwell_profile"
+    for a, b in zip(mem["targets"], disk["targets"]):
+        assert set(a) == set(b) and {"resolved", "peak_loss_db", "image_islr_db"} <= set(a)
+        for key in a:
+            assert a[key] == b[key], key
+    assert mem["summary"] == disk["summary"]
+
+
+def _ideal_sinc_islr_db(half_cells: float, oversample: int = 64) -> float:
+    """ISLR of sinc^2 over +-half_cells resolution cells, main lobe between the first nulls (+-1 cell)."""
+    u = np.arange(-half_cells, half_cells + 1e-9, 1.0 / oversample)
+    p = np.sinc(u) ** 2
+    main = np.abs(u) < 1.0
+    return float(10 * np.log10(p[~main].sum() / p[main].sum()))
+
+
+@pytest.mark.parametrize("bandwidth_hz", [20e6, 100e6])
+def test_the_dwell_profile_islr_window_is_five_cells_at_any_bandwidth(tmp_path, capsys, bandwidth_hz):
+    """One noiseless point, `beam` method, CPI imaging: ISLR near the ideal sinc's over +-5 cells at 20 and
+    100 MHz alike (the window was +-15 m: +-2 cells at 20 MHz, -12.0 dB against -10.7, +-10 at 100)."""
+    path = _tiny(tmp_path, radar__bandwidth_hz=bandwidth_hz, radar__fs_hz=1.2 * bandwidth_hz,
+                 noise__snr_db=None, processing__method="beam", processing__q=1)
+    raw = yaml.safe_load(path.read_text())
+    raw["scene"]["points_m"] = [[0.0, 1000.0]]
+    path.write_text(yaml.safe_dump(raw))
+    code, out, err = run_cli(["-q", "run", str(path), "-o", str(tmp_path / "r")], capsys)
+    assert code == 0, err
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    ideal = _ideal_sinc_islr_db(5.0)                     # -10.7 dB
+    assert m["summary"]["islr_from"] == "dwell_profile"
+    assert abs(m["targets"][0]["islr_db"] - ideal) < 0.5, (m["targets"][0]["islr_db"], ideal)
+
+
+def test_a_sinc2_antenna_gets_the_dwell_profile_metrics(tmp_path, capsys):
+    """The profile needs the sum pattern only: a sinc2 pair's cube fixes it (pattern and squint), so its
+    ISLR is the profile's, with a peak loss, as a Gaussian pair's (it had switched to the image cut)."""
+    path = _tiny(tmp_path, antenna__pattern="sinc2")
+    code, out, err = run_cli(["-q", "run", str(path), "-o", str(tmp_path / "r")], capsys)
+    assert code == 0, err
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert m["summary"]["islr_from"] == "dwell_profile"
+    assert all(t["peak_loss_db"] is not None and "image_islr_db" in t for t in m["targets"])
+
+
+def test_sum_voltage_for_is_the_antennas_own_sum_pattern():
+    from fwdlook_cli.dsp.antenna import MonopulseAntenna, sum_voltage_for
+
+    d = np.linspace(-4.0, 4.0, 81)
+    for pattern in ("gaussian2", "sinc2"):
+        model = MonopulseAntenna(6.0, 1.5, pattern=pattern)
+        np.testing.assert_allclose(sum_voltage_for(6.0, model.to_attrs())(d), model.sum_voltage(d), rtol=1e-12)
+    assert sum_voltage_for(6.0, {"pattern": "table", "ratio": [0.0]}) is None and sum_voltage_for(6.0, {}) is None
+
+
+@pytest.mark.parametrize("method, curvature", [("none", False), ("bulk", False), ("beam", False),
+                                               ("tracking", True)])
+def test_params_record_what_ran(tmp_path, method, curvature):
+    scn = fw.load_scenario(TINY, [f"processing.method={method}"])
+    m = fw.process_cube(fw.simulate_cube(scn), scn, tmp_path, png=False)
+    with h5py.File(tmp_path / "stages" / "05_range_curvature.h5", "r") as f:
+        ran = f.attrs["range_curvature"]
+        ran = ran.decode() if isinstance(ran, bytes) else str(ran)
+    assert m["params"]["range_curvature"] is curvature and m["params"]["curvature_model"] == ran
+    assert (m["params"]["keystone"] is None) is (method != "tracking")
+
+
+# ----------------------------------------------------------------------------------------------
+# refusals before the work; nothing of the user's replaced
+# ----------------------------------------------------------------------------------------------
+def test_a_noiseless_scene_outside_the_beam_is_refused_as_process_refuses_its_cube(tmp_path, capsys):
+    path = _tiny(tmp_path, noise__snr_db=None)
+    raw = yaml.safe_load(path.read_text())
+    raw["scene"]["points_m"] = [[900.0, 1000.0]]
+    path.write_text(yaml.safe_dump(raw))
+    for preset in ([], ["-c", str(ROOT / "configs" / "tracking.yaml")]):   # (the joint fit had divided by 0)
+        code, out, err = run_cli(["-q", "run", str(path), "-o", str(tmp_path / "r"), *preset], capsys)
+        assert code == 2 and "every sample of the cube is zero" in err and "Traceback" not in err
+        assert not (tmp_path / "r" / "metrics.json").exists()
+
+
+def test_the_fit_noise_level_of_a_noiseless_channel_is_not_zero():
+    from fwdlook_cli.forward.dwell_fit_plan import noise_sigma
+
+    x = np.zeros((512, 64), np.complex64)
+    x[100, 10] = 3.0
+    assert noise_sigma(x[::2]) == pytest.approx(3e-6) and noise_sigma(np.zeros((4, 4))) == 1.0
+
+
+def test_no_output_over_the_scenes_own_map(tmp_path, capsys):
+    """simulate / run writing their cube over the map the scene reads (had: replaced, exit 0)."""
+    map_path = tmp_path / "map.npy"
+    np.save(map_path, np.ones((40, 40)))
+    path = _tiny(tmp_path, noise__snr_db=30.0)
+    raw = yaml.safe_load(path.read_text())
+    raw["scene"] = {"kind": "image", "center_m": [0.0, 1000.0], "image": {"file": str(map_path)}}
+    path.write_text(yaml.safe_dump(raw))
+    before = map_path.read_bytes()
+    code, out, err = run_cli(["-q", "simulate", str(path), "-o", str(map_path), "--overwrite"], capsys)
+    assert code == 2 and "never writes over an input" in err
+    h5map = tmp_path / "r" / "raw.h5"
+    h5map.parent.mkdir()
+    with h5py.File(h5map, "w") as f:
+        f["m"] = np.ones((40, 40))
+    raw["scene"]["image"]["file"] = f"{h5map}:/m"
+    path.write_text(yaml.safe_dump(raw))
+    code, out, err = run_cli(["-q", "run", str(path), "-o", str(tmp_path / "r"), "--overwrite"], capsys)
+    assert code == 2 and "never writes over an input" in err
+    assert map_path.read_bytes() == before and h5py.is_hdf5(h5map) and list(h5py.File(h5map, "r")) == ["m"]
+
+
+def test_the_size_check_counts_a_maps_pixels_without_their_coordinates():
+    from fwdlook_cli.scenario.scene_image import image_scene_extent, image_scene_points
+
+    for orientation in (0.0, 30.0):
+        scn = fw.load_scenario(ROOT / "scenarios" / "paper_fig8_a50.yaml",
+                               [f"scene.image.orientation_deg={orientation}"])
+        n, (x0, x1, y0, y1) = image_scene_extent(scn)
+        pts, _ = image_scene_points(scn)
+        assert n == len(pts)
+        assert x0 <= pts[:, 0].min() + 1e-9 and pts[:, 0].max() <= x1 + 1e-9
+        assert y0 <= pts[:, 1].min() + 1e-9 and pts[:, 1].max() <= y1 + 1e-9
+        if orientation == 0.0:                                    # an upright map: the box itself
+            assert (x0, x1, y0, y1) == pytest.approx((pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(),
+                                                      pts[:, 1].max()))
+
+
+def test_a_rerun_refused_after_its_simulation_leaves_the_earlier_run_whole(tmp_path, capsys):
+    """ISAR: the estimator refuses a track of noise after the cube is simulated; the folder keeps the
+    earlier run's cube and outputs together (the new cube had replaced raw.h5 beside the old metrics)."""
+    scen = ROOT / "scenarios" / "isar_theta3.yaml"
+    run_dir = tmp_path / "r"
+    code, out, err = run_cli(["-q", "run", str(scen), "-o", str(run_dir), "--set", "radar.n_pulses=1500"], capsys)
+    assert code == 0, err
+    before = {n: (run_dir / n).read_bytes() for n in ("raw.h5", "metrics.json", "scenario.yaml")}
+    code, out, err = run_cli(["-q", "run", str(scen), "-o", str(run_dir), "--set", "radar.n_pulses=1500",
+                              "--set", "noise.snr_db=-10", "--set", "processing.correction=keystone2_n0_est"], capsys)
+    assert code == 2 and "follows no curve" in err
+    assert {n: (run_dir / n).read_bytes() for n in before} == before
+    assert not list(run_dir.glob("*.new.*")) and not list(run_dir.glob("*.partial*"))
+
+
+def test_a_rerun_failing_at_its_last_output_leaves_the_earlier_run_whole(tmp_path, monkeypatch):
+    """A full disk at scenario.yaml (the last output): the earlier run's four outputs as they were, nothing
+    of the new run's left (it had left a new metrics.json and image.h5 beside no scenario.yaml, the
+    earlier image.png and scenario.yaml removed)."""
+    from fwdlook_cli.errors import BadInput
+    from fwdlook_cli.forward import process as forward_process
+
+    scn = fw.load_scenario(TINY)
+    fw.process_cube(fw.simulate_cube(scn), scn, tmp_path)
+    names = ("metrics.json", "image.h5", "image.png", "scenario.yaml")
+    before = {n: (tmp_path / n).read_bytes() for n in names}
+    real = forward_process.atomic_write_text
+
+    def full_disk(path, text):
+        if Path(path).name.startswith("scenario"):
+            raise BadInput(f"cannot write {path}: No space left on device")
+        real(path, text)
+
+    monkeypatch.setattr(forward_process, "atomic_write_text", full_disk)
+    scn2 = fw.load_scenario(TINY, ["processing.angle_step_deg=0.02"])
+    with pytest.raises(BadInput, match="No space left"):
+        fw.process_cube(fw.simulate_cube(scn2), scn2, tmp_path)
+    assert {n: (tmp_path / n).read_bytes() for n in names} == before
+    assert not list(tmp_path.glob("*.new.*")) and not list(tmp_path.glob("*.partial*"))
+
+
+# ----------------------------------------------------------------------------------------------
+# recorded cubes
+# ----------------------------------------------------------------------------------------------
+def _paper_cube(tmp_path):
+    scn = fw.load_scenario(TINY)
+    cube = fw.simulate_cube(scn)
+    path = tmp_path / "cube.h5"
+    fw.write_raw(path, cube)
+    return path
+
+
+def test_float32_positions_in_map_coordinates_are_accepted_and_a_flipped_velocity_is_not(tmp_path, capsys):
+    """4e6 m from the origin a float32 position moves in 0.25 m steps, more than a pulse's 7.5 cm: per
+    pulse the implied velocity is noise (refused as 'a sign, an axis order or a unit'); over spans it
+    is the recorded one.  A velocity of the wrong sign is still refused."""
+    src = _paper_cube(tmp_path)
+    shifted = tmp_path / "utm.h5"
+    shutil.copy(src, shifted)
+    with h5py.File(shifted, "a") as f:
+        pos = f["platform/position_m"][()] + np.array([5e5, 4e6, 0.0])
+        del f["platform/position_m"]
+        f["platform/position_m"] = pos.astype(np.float32)
+        f["truth/targets/x_m"][...] = f["truth/targets/x_m"][()] + 5e5
+        f["truth/targets/y_m"][...] = f["truth/targets/y_m"][()] + 4e6
+    code, out, err = run_cli(["-q", "process", str(shifted), "-o", str(tmp_path / "r")], capsys)
+    assert code == 0, err
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert m["summary"]["detected"] == 3 and m["summary"]["max_abs_range_error_m"] < 1.0
+    flipped = tmp_path / "flipped.h5"
+    shutil.copy(shifted, flipped)
+    with h5py.File(flipped, "a") as f:
+        f["platform/velocity_mps"][:, 1] *= -1.0
+    code, out, err = run_cli(["-q", "process", str(flipped), "-o", str(tmp_path / "r2")], capsys)
+    assert code == 2 and "contradicts /platform/position_m" in err
+
+
+def test_a_ratio_table_is_checked_by_its_own_slope(tmp_path):
+    """The image reads /antenna's table, so the check against the data takes the table's slope: a table
+    of twice the slope is refused though its attribute is right, a right table with a wrong attribute
+    is taken (with a note)."""
+    from fwdlook_cli.forward.calibration import antenna_contradiction, calibration_from_antenna
+
+    scn = fw.load_scenario(ROOT / "scenarios" / "isolated_a50.yaml", ["antenna.pattern=sinc2"])
+    cube = fw.simulate_cube(scn)
+    bw = float(cube.radar["beamwidth_3db_deg"])
+    good = dict(cube.antenna)
+    assert "ratio" in good and calibration_from_antenna(good, bw).stats.get("note") is None
+    doubled = dict(good, ratio=2.0 * np.asarray(good["ratio"]))
+    cube.antenna = doubled
+    assert antenna_contradiction(cube) is not None
+    wrong_attr = dict(good, monopulse_slope_per_deg=2.0 * float(good["monopulse_slope_per_deg"]))
+    cube.antenna = wrong_attr
+    assert antenna_contradiction(cube) is None
+    cal = calibration_from_antenna(wrong_attr, bw)
+    assert "is not its ratio table's slope" in cal.stats["note"]
+    assert cal.slope_per_deg == pytest.approx(calibration_from_antenna(good, bw).slope_per_deg, rel=0.05)
+
+
+def test_out_of_core_scratch_on_a_full_disk_is_one_line(tmp_path, monkeypatch):
+    """The scratch file's blocks are reserved before it is mapped: a full file system is a BadInput (a page
+    written through the map of a sparse file there had been a SIGBUS: exit 135, no word)."""
+    import errno
+    import os
+
+    from fwdlook_cli.errors import BadInput
+    from fwdlook_cli.io import backing
+
+    with backing.file_backed(tmp_path, min_bytes=1):
+        reserved = []
+        real = os.posix_fallocate
+        monkeypatch.setattr(backing.os, "posix_fallocate", lambda fd, off, n: (reserved.append(n), real(fd, off, n)))
+        a = backing.empty((64, 64), np.complex64)
+        assert isinstance(a, np.memmap) and reserved == [64 * 64 * 8]
+
+        def no_space(fd, offset, length):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        monkeypatch.setattr(backing.os, "posix_fallocate", no_space)
+        with pytest.raises(BadInput, match="No space left on device"):
+            backing.empty((64, 64), np.complex64)
+
+
+@pytest.mark.parametrize("signal_exc, code, line", [("KeyboardInterrupt", 130, "fwdlook: aborted"),
+                                                    ("Terminated", 143, "fwdlook: terminated (SIGTERM)")])
+def test_a_signal_during_the_commands_set_up_is_one_line(monkeypatch, capsys, signal_exc, code, line):
+    """The set-up before a command (the painter's fork, scipy's import) runs inside the handlers: a Ctrl-C
+    or SIGTERM in a command's first half second had given a traceback or no word at all."""
+    from fwdlook_cli import cli
+    from fwdlook_cli.errors import Terminated
+
+    exc = {"KeyboardInterrupt": KeyboardInterrupt, "Terminated": Terminated}[signal_exc]
+
+    def interrupted(argv):
+        raise exc()
+
+    monkeypatch.setattr(cli, "_early", interrupted)
+    with pytest.raises(SystemExit) as info:
+        cli.main(["run", str(TINY), "-o", "unused"])
+    assert info.value.code == code and capsys.readouterr().err.strip() == line
