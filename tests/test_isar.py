@@ -490,3 +490,30 @@ def test_a_doppler_history_across_half_the_prf_is_said(tmp_path, capsys, prf_hz,
                               "--set", f"radar.prf_hz={prf_hz}", "--set", "radar.n_pulses=51"], capsys)
     assert code == 0, err
     assert ("across +-PRF/2 (ambiguity number 1 to 0" in err) is warned, err
+
+
+def test_scatterers_beyond_half_the_prf_are_said_to_be_folded(tmp_path, capsys):
+    """At a 30 Hz PRF scatterers 30 m and -21 m across the reference lie beyond +-15 Hz of it: imaged folded,
+    counted as not detected, flagged and said (they had been "not detected" without a word)."""
+    from cli_runner import run_cli
+
+    code, out, err = run_cli(["run", str(PAPER[0]), "-o", str(tmp_path / "r"), "--set", "radar.prf_hz=30",
+                              "--set", "radar.n_pulses=60", "--set", "noise.snr_db=null",
+                              "--set", "target.points_m=[[0,0,0],[0,30,0],[0,-21,0]]"], capsys)
+    assert code == 0, err
+    rows = json.loads((tmp_path / "r" / "metrics.json").read_text())["targets"]
+    assert [r["doppler_folded"] for r in rows] == [False, True, True]
+    assert not rows[1]["detected"] and not rows[2]["detected"] and rows[0]["detected"]
+    assert "truth scatterers 1, 2: Doppler beyond +-PRF/2" in err
+
+
+@pytest.mark.parametrize("n_pulses, warned", [(600, False), (100, True)])
+def test_a_keystone_resampling_mostly_outside_a_short_dwell_is_said(tmp_path, capsys, n_pulses, warned):
+    """keystone2_n0 at 3 deg about a minimum 4318 pulses away: |1 - alpha| (|n0| + N/2) pulses of resampling
+    outside the dwell, zero-extended: more than half a dwell of 100 pulses (-6.4 dB) is said, 600 (-0.9 dB) not."""
+    from cli_runner import run_cli
+
+    code, out, err = run_cli(["run", str(PAPER[0]), "-o", str(tmp_path / "r"), "--set", f"radar.n_pulses={n_pulses}"],
+                             capsys)
+    assert code == 0, err
+    assert ("pulses outside a dwell of" in err) is warned, err

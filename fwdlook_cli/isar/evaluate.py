@@ -1,6 +1,7 @@
 """ISAR metrics: migration span, integration gain, peak location, ISLR/PSLR of the range and Doppler cuts."""
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -212,7 +213,15 @@ def isar_outputs(final: StageData, cube, processing: dict):
                 at = gated_peak(0.5 * (lo_m + hi_m), 0.5 * (hi_m - lo_m), pred_f, wide_f)
                 peak = _measure_peak(img, at[0], at[1], dr, df)[2] if at is not None else None
                 row["integration_gain_db"] = _gain_db(peak, ideal)   # (None: the track off the image)
+            # a scatterer whose Doppler relative to the compensated reference lies beyond +-PRF/2 is imaged
+            # folded, at another cross-range: it is searched at its own Doppler and counted as not detected
+            row["doppler_folded"] = bool(m is not None and abs(pred_f) > prf / 2.0)
             rows.append(row)
+        folded = [r["id"] for r in rows if r["doppler_folded"]]
+        if folded:
+            logging.getLogger(__name__).warning(
+                f"truth scatterers {', '.join(map(str, folded))}: Doppler beyond +-PRF/2 = +-{prf / 2:g} Hz from the "
+                f"reference's: imaged folded, at another cross-range, and counted as not detected (a higher PRF)")
         ref_row = rows[0]
     else:
         i, j = np.unravel_index(int(np.argmax(power)), power.shape)
