@@ -199,7 +199,7 @@ def test_a_rerun_refused_after_its_simulation_leaves_the_earlier_run_whole(tmp_p
                               "--set", "noise.snr_db=-10", "--set", "processing.correction=keystone2_n0_est"], capsys)
     assert code == 2 and "follows no curve" in err
     assert {n: (run_dir / n).read_bytes() for n in before} == before
-    assert not list(run_dir.glob("*.new.*")) and not list(run_dir.glob("*.partial*"))
+    assert not list(run_dir.glob(".fwdlook-new.*")) and not list(run_dir.glob("*.partial*"))
 
 
 def test_a_rerun_failing_at_its_last_output_leaves_the_earlier_run_whole(tmp_path, monkeypatch):
@@ -216,7 +216,7 @@ def test_a_rerun_failing_at_its_last_output_leaves_the_earlier_run_whole(tmp_pat
     real = forward_process.atomic_write_text
 
     def full_disk(path, text):
-        if Path(path).name.startswith("scenario"):
+        if Path(path).name.endswith("scenario.yaml"):
             raise BadInput(f"cannot write {path}: No space left on device")
         real(path, text)
 
@@ -225,7 +225,7 @@ def test_a_rerun_failing_at_its_last_output_leaves_the_earlier_run_whole(tmp_pat
     with pytest.raises(BadInput, match="No space left"):
         fw.process_cube(fw.simulate_cube(scn2), scn2, tmp_path)
     assert {n: (tmp_path / n).read_bytes() for n in names} == before
-    assert not list(tmp_path.glob("*.new.*")) and not list(tmp_path.glob("*.partial*"))
+    assert not list(tmp_path.glob(".fwdlook-new.*")) and not list(tmp_path.glob("*.partial*"))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -32,6 +32,7 @@ from ..errors import BadInput
 from ..limits import shown
 from . import signals
 from .partial import claim_partial
+from .pending import STAGED_PREFIX
 
 RAW_FORMAT = "fwdlook-raw"
 RUN_FILES = ("scenario.yaml", "metrics.json", "image.h5", "image.png")
@@ -387,7 +388,7 @@ def check_run_dir(path, *, inputs=(), overwrite: bool = False, writes_raw: bool 
         raise BadInput(f"cannot write {d}: exists and is not a directory; expected a run directory")
     names = RUN_FILES + (("raw.h5",) if writes_raw else ())
     if d.is_dir():
-        for name in names:
+        for name in names + tuple(STAGED_PREFIX + n for n in names):      # (io/pending.py: staged first)
             _refuse_inputs(d / name, inputs, f"run directory file {name}")
         stages = d / "stages"
         if stages.is_dir():

@@ -3,9 +3,8 @@
 The run directory's outputs of an earlier run stay whole until the new ones are all written: a rerun
 refused or failing on the way (a refusal after the simulation, a full disk at image.png or scenario.yaml)
 leaves them as they were, and never new outputs beside old ones.  Each output is written as
-``<stem>.new<suffix>`` (``image.new.h5``, ``metrics.new.json``, ``image.new.png``, ``scenario.new.yaml``;
-``run``'s simulated cube as ``raw.new.h5``, before the chain, which releases the cube's echoes after its
-first stage), and :func:`commit` removes the earlier ``scenario.yaml`` (the folder then reads as
+``.fwdlook-new.<name>`` (``run``'s simulated cube too, before the chain, which releases the cube's
+echoes after its first stage), and :func:`commit` removes the earlier ``scenario.yaml`` (the folder then reads as
 unfinished), renames each staged file over its name in the order image.h5, metrics.json, image.png
 (a PNG is taken for fwdlook's only with a metrics.json beside it), removes an earlier output this run
 did not write, and puts ``scenario.yaml`` last: the run is complete.  A failure removes the staged files
@@ -23,11 +22,13 @@ from pathlib import Path
 OUTPUTS = ("raw.h5", "image.h5", "metrics.json", "image.png", "scenario.yaml")   # the order of commit
 
 
+STAGED_PREFIX = ".fwdlook-new."      # fwdlook's own names, hidden, as its ``.fwdlook.lock``
+
+
 def staged(run_dir, name: str) -> Path:
-    """Where output ``name`` is written before :func:`commit`: ``<stem>.new<suffix>`` (the suffix kept:
-    matplotlib and h5py read the format from it)."""
-    p = Path(name)
-    return Path(run_dir) / f"{p.stem}.new{p.suffix}"
+    """Where output ``name`` is written before :func:`commit`: ``.fwdlook-new.<name>`` (hidden and
+    fwdlook's own, so never a user's file; the suffix kept: matplotlib and h5py read the format from it)."""
+    return Path(run_dir) / f"{STAGED_PREFIX}{name}"
 
 
 def discard(run_dir, *, raw: bool) -> None:

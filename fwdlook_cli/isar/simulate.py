@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dsp.geometry import C_MPS
-from ..scenario.isar import auto_range_extent_m, isar_geometry, scatterer_ranges_m
+from ..scenario.isar import isar_auto_range_axis, isar_geometry, scatterer_ranges_m
 
 BEAMWIDTH_NOT_USED_DEG = 10.0  # /radar beamwidth_3db_deg of ISAR cubes: a wide beam, not simulated
 
@@ -42,7 +42,7 @@ def simulate_isar_scenario(scn: dict):
     from ..scenario.loader import dump_scenario, scenario_hash
     from ..io.cube import RawCube
     from ..dsp.pulse import CompressedPulse
-    from ..dsp.pulse import auto_range_axis_m, noise_sigma_for
+    from ..dsp.pulse import noise_sigma_for
 
     radar = scn["radar"]
     fc, fs = radar["fc_hz"], radar["fs_hz"]
@@ -52,7 +52,7 @@ def simulate_isar_scenario(scn: dict):
     r_kn = scatterer_ranges_m(pos0, vel, slow_time_s)                  # eq. (7), exact
     dr = C_MPS / (2.0 * fs)
     if radar["range_window_m"] == "auto":
-        range_m = auto_range_axis_m(*auto_range_extent_m(pos0, vel, r_kn), fs, pulse)
+        range_m = isar_auto_range_axis(pos0, vel, r_kn, fs, pulse)[0]
     else:
         near, far = radar["range_window_m"]
         range_m = near + dr * np.arange(int(np.floor((far - near) / dr)) + 1)

@@ -24,6 +24,7 @@ Plotting stays at this edge (``plots.py``); this module only reads files and arr
 """
 from __future__ import annotations
 
+import logging
 import math
 import os
 import shutil
@@ -152,6 +153,10 @@ def load_runs(run_dirs) -> list[Run]:
     runs = []
     for path, label in zip(paths, run_labels(paths)):
         metrics = read_metrics(path)
+        if not (path / "scenario.yaml").exists():     # written last (io/pending.py): a run that did not finish
+            logging.getLogger(__name__).warning(
+                f"{path}: no scenario.yaml: the run did not finish (stopped while its outputs were put in place, "
+                f"or older than that file): its metrics.json and image.h5 may be from two runs; run it again")
         image, note = read_image(path)
         runs.append(Run(path, label, metrics, image, note))
     return runs

@@ -133,18 +133,17 @@ def isar_checks(scn: dict, source: str) -> None:
         raise BadInput(f"{source}: radar.fc_hz = {radar['fc_hz']:g}: {why.replace('fs_hz', 'radar.fs_hz')}")
     n_cols = None
     if radar["range_window_m"] == "auto":          # the simulator's axis (bounded: the size is checked)
-        from ..dsp.pulse import CompressedPulse, auto_range_axis_m
+        from ..dsp.pulse import CompressedPulse
 
         pulse = CompressedPulse(radar["bandwidth_hz"], radar["pulse_width_s"], radar["fs_hz"], radar["range_weighting"])
-        axis = auto_range_axis_m(*auto_range_extent_m(pos0, vel, r), radar["fs_hz"], pulse)
-        if axis[0] <= 0:
+        axis, holds_closest = isar_auto_range_axis(pos0, vel, r, radar["fs_hz"], pulse)
+        if not holds_closest and scn["processing"]["correction"] in ("keystone2_n0", "keystone2_n0_est"):
             closest = auto_range_extent_m(pos0, vel, r)[0]
-            raise BadInput(f"{source}: target.velocity_mps = {list(tg['velocity_mps'])}: the object's straight track "
-                           f"passes {closest:.1f} m from the radar (its closest approach, where the range-minimum "
-                           f"shift refers to), and the auto range window holding it would begin at {axis[0]:.1f} m; "
-                           f"allowed: a track whose closest approach is farther than the compressed pulse's reach "
-                           f"(a larger target.theta0_deg or target.range_m), or a radar.range_window_m with keystone1 "
-                           f"or keystone2")
+            raise BadInput(f"{source}: processing.correction = {scn['processing']['correction']}: the object's "
+                           f"straight track passes {closest:.1f} m from the radar (its closest approach, where the "
+                           f"range-minimum shift images it), within the compressed pulse's reach: no range window "
+                           f"holds it; allowed: keystone1 or keystone2, or a track passing farther (a larger "
+                           f"target.theta0_deg or target.range_m)")
         n_cols = len(axis)
     _check_n0_padding(scn, source, len(t), vel, n_cols)
 
@@ -209,6 +208,20 @@ def auto_range_extent_m(pos0_m, velocity_mps, ranges_m):
     vhat = vel / np.linalg.norm(vel)
     closest_m = np.linalg.norm(pos0 - (pos0 @ vhat)[:, None] * vhat[None, :], axis=1)
     return float(min(ranges_m.min(), closest_m.min())), float(ranges_m.max())
+
+
+def isar_auto_range_axis(pos0_m, velocity_mps, ranges_m, fs_hz, pulse):
+    """(the auto range axis, whether it holds the closest approach): every scatterer's range over the dwell
+    and its closest approach (:func:`auto_range_extent_m`), or, where a window holding that approach
+    would begin at or below 0 m (a track passing within the pulse's reach of the radar), the dwell's
+    ranges alone: only the range-minimum shift images the object there, and it is refused for such a
+    track (a cube with a negative first range had been written, and refused by its own reader)."""
+    from ..dsp.pulse import auto_range_axis_m
+
+    axis = auto_range_axis_m(*auto_range_extent_m(pos0_m, velocity_mps, ranges_m), fs_hz, pulse)
+    if axis[0] > 0:
+        return axis, True
+    return auto_range_axis_m(float(np.min(ranges_m)), float(np.max(ranges_m)), fs_hz, pulse), False
 
 
 def scatterer_ranges_m(pos0_m, velocity_mps, slow_time_s):
