@@ -292,14 +292,18 @@ def run(scenario, output, config, raw, overrides, force, overwrite, keep_stages,
 @set_option
 @json_option
 def plan(scenario, overrides, as_json):
-    """The migration budget of a scene: which corrections it needs and why."""
+    """The migration budget of a scene (SCENARIO.yaml, or RAW.h5: its INS track): which corrections it needs and why."""
     from .scenario.loader import load_scenario
-    from .forward.plan import format_plan, plan_for_scenario, plan_json
+    from .forward.plan import format_plan, plan_for_cube, plan_for_scenario, plan_json
 
-    scn = load_scenario(scenario, overrides)
+    cube = None
+    if is_cube_path(scenario):    # a recorded cube's own track and radar (it had been refused as a scenario)
+        scn, cube = _scenario_and_cube(scenario, None, None, overrides, quiet=True)
+    else:
+        scn = load_scenario(scenario, overrides)
     if scn["kind"] != "forward":
         raise BadInput(f"{scenario}: kind = {scn['kind']}: plan covers forward-looking scenes; allowed: forward")
-    result = plan_for_scenario(scn)
+    result = plan_for_cube(cube, scn["processing"]) if cube is not None else plan_for_scenario(scn)
     click.echo(plan_json(result) if as_json else format_plan(result, scn["name"]))
 
 

@@ -84,7 +84,8 @@ def summary_table(metrics: dict, run_dir) -> str:
             value = " / ".join(_num(s.get(k), nd) for k in key) if isinstance(key, tuple) else _num(s.get(key), nd)
             lines.append(f"  {label:<30s} {value:>10s}")
     else:
-        has_res = s.get("detected_resolved") is not None
+        # (a resolved column only where some targets are not: with every one resolved it is the same)
+        has_res = s.get("detected_resolved") is not None and s.get("n_resolved") != s.get("n_targets")
         lines.append(f"  {'':<30s} {'all':>10s}" + (f" {'resolved':>10s}" if has_res else ""))
         det = f"{s.get('detected', 0)}/{s.get('n_targets', 0)}"
         lines.append(f"  {'detected':<30s} {det:>10s}"

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -182,9 +183,10 @@ def test_a_scheduler_that_is_not_an_address_is_refused_on_a_finished_sweep_too(t
 
 
 def test_a_corrupt_cube_fails_its_points_through_the_pool_and_spares_the_others(tmp_path, capsys):
-    """A real fault through the process pool: one scenario's shared cube is truncated on disk before
-    the sweep (as by a full disk), so its points fail with the reader's one-line error, while the other
-    scenario's points complete in the other worker."""
+    """A real fault through the process pool: one scenario's shared cube holds a NaN on disk before the
+    sweep (a damaged recording; a truncated or unreadable one is simulated again since the fifty-second
+    round), so its points fail with the reader's one-line error, while the other scenario's points
+    complete in the other worker."""
     from fwdlook_cli.report.sweep_plan import load_sweep, plan_runs
 
     other = tmp_path / "tiny_seed2.yaml"
@@ -197,7 +199,14 @@ def test_a_corrupt_cube_fails_its_points_through_the_pool_and_spares_the_others(
     victim = next(r for r in plan_runs(load_sweep(str(path)), out) if r["scenario"] == "tiny_seed2")
     raw = out / "raw" / f"{victim['sim_key'][:16]}.h5"
     raw.parent.mkdir(parents=True)
-    raw.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 64)          # an HDF5 signature, then nothing
+    import h5py
+
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.io.raw import write_raw
+
+    write_raw(raw, simulate_scenario(victim["resolved"])[0])       # this version's cube, then damaged
+    with h5py.File(raw, "a") as f:
+        f["echo/sum"][3, 5] = complex(np.nan, 0.0)
     code, _, err = run_cli(["sweep", path, "-o", out, "--workers", "2"], capsys)
     assert code == 1 and "2 of 4 points failed" in err
     rows = rows_of(out)

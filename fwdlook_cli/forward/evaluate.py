@@ -311,15 +311,13 @@ def _best_ratio_rows(ratio, starts):
 def summarize(rows) -> dict:
     out = _summary_of(rows)
     resolved = [r for r in rows if r.get("resolved")]
-    if resolved and len(resolved) < len(rows):
-        sub = _summary_of(resolved)
+    if resolved:       # (every target resolved too: then the same as the whole's, but there, so that a sweep's
+        sub = _summary_of(resolved)     # chart of the resolved errors had not dropped such points)
         out.update({"n_resolved": len(resolved), "detected_resolved": sub["detected"],
                     "max_abs_range_error_resolved_m": sub["max_abs_range_error_m"],
                     "median_abs_range_error_resolved_m": sub["median_abs_range_error_m"],
                     "rms_azimuth_error_resolved_deg": sub["rms_azimuth_error_deg"],
                     "max_abs_azimuth_error_resolved_deg": sub["max_abs_azimuth_error_deg"]})
-    elif resolved:
-        out["n_resolved"] = len(resolved)
     return out
 
 

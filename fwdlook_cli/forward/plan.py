@@ -60,7 +60,8 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
     boresight = np.array([0.0, np.cos(phi), -np.sin(phi)])
     f_dc0 = 2.0 * float(vel[m_ref] @ boresight) * fc_hz / C_MPS            # boresight at t_ref
     n = len(t)
-    q_candidates = q_candidates or [q for q in range(1, n + 1) if n % q == 0 and n // q >= 8][:40]
+    # (Q = 1 always: a cube of under 8 pulses had no candidate and the plan stopped with an IndexError)
+    q_candidates = q_candidates or ([1] + [q for q in range(2, n + 1) if n % q == 0 and n // q >= 8])[:40]
     rows = []
     for q in q_candidates:
         prf_q = prf_hz / q

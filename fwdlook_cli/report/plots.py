@@ -35,6 +35,10 @@ def speed_accuracy_chart(path, rows, grid_keys, *, error_key=None):
             missed = f" ({missed_targets(r)} missed)" if missed_targets(r) else ""
             ax.annotate(",".join(str(r[k]) for k in grid_keys) + missed, (r["total_s"], r[error_key]), fontsize=6,
                         xytext=(3, 2), textcoords="offset points")
+    lost = [",".join(str(r[k]) for k in grid_keys) for r in rows if r.get(error_key) is None and missed_targets(r)]
+    if lost:          # no error to place on the axis: named under the chart, not dropped without a word
+        ax.text(0.0, -0.16, f"not drawn, no target found: {'; '.join(lost)}", transform=ax.transAxes, fontsize=7,
+                va="top", color="tab:blue")
     ax.set_xlabel("whole chain time (s), both channels, intermediates written")
     ax.set_ylabel(error_key.replace("max_abs_range_error", "max |range error|").replace("_resolved", ", resolved targets")
                   .replace("_m", " (m)").replace("_", " "))
@@ -97,6 +101,10 @@ def error_map(ax, grid, x_labels, y_labels, *, xlabel, ylabel, title, threshold=
                   ha="right" if max(map(len, x_labels), default=0) > 4 else "center", fontsize=8)
     ax.set_yticks(range(len(y_labels)), y_labels, fontsize=8)
     for (i, j), val in np.ndenumerate(v):
+        lost = 0 if missed is None else int(missed[i][j])
+        if not np.isfinite(val) and lost:      # a point that found none of its targets: no error to colour
+            ax.text(j, i, f"none found\n{lost} missed", ha="center", va="center", fontsize=7, color="k")
+            ax.add_patch(plt.Rectangle((j - 0.45, i - 0.45), 0.9, 0.9, fill=False, ec="tab:blue", lw=1.2, ls="--"))
         if np.isfinite(val):
             dark = norm(min(max(val, ERROR_NORM_M[0]), ERROR_NORM_M[1])) > 0.55
             lost = 0 if missed is None else int(missed[i][j])
@@ -141,7 +149,7 @@ def stability_map(path, rows, grid_keys, *, error_key="max_abs_range_error_m"):
         for r in sel:
             if r.get(error_key) is not None:
                 grid[v2.index(key(r[k2])), v1.index(key(r[k1]))] = r[error_key]
-                missed[v2.index(key(r[k2])), v1.index(key(r[k1]))] = missed_targets(r)
+            missed[v2.index(key(r[k2])), v1.index(key(r[k1]))] = missed_targets(r)     # (none found too)
         mesh = error_map(ax, grid, [value_label(v) for v in v1], [value_label(v) for v in v2],
                          xlabel=axis_label(k1), ylabel=axis_label(k2), title=scen, missed=missed)
         error_colorbar(fig, mesh, ax, error_key.replace("max_abs_range_error", "max |range error|")

@@ -254,6 +254,25 @@ def _eta(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
 
 
+
+def _reusable_cube(path) -> bool:
+    """A sweep's cached cube is reused where it is a readable fwdlook raw cube of this fwdlook version;
+    else simulated again (a damaged one had failed its points on every rerun, and one of an older
+    version had served after an upgrade)."""
+    from .. import __version__
+    from ..io.outputs import RAW_FORMAT, h5_identity
+
+    if h5_identity(path) != (RAW_FORMAT, "fwdlook"):
+        return False
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            version = f.attrs.get("software_version")
+    except Exception:  # noqa: BLE001  (unreadable: simulated again)
+        return False
+    return (version.decode() if isinstance(version, bytes) else version) == __version__
+
 def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, scheduler: str = "local") -> list[dict]:
     """Every point of ``sweep`` as a summary row, in plan order (see the module docstring); the points'
     folders were checked by the caller (``sweep.run_sweep``: ``sweep_plan.check_point_folders``)."""
@@ -283,7 +302,7 @@ def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, sc
     sims = {}
     for i in todo:
         sims.setdefault(runs[i]["raw"], runs[i]["resolved"])
-    sim_jobs = [(scn, p) for p, scn in sims.items() if not Path(p).exists()]
+    sim_jobs = [(scn, p) for p, scn in sims.items() if not _reusable_cube(p)]
     ex = executor(workers, scheduler)
     sim_errors = {}
     t0 = time.perf_counter()

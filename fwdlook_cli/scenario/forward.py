@@ -290,7 +290,7 @@ def forward_checks(scn: dict, source: str, *, check_pulses: bool = True) -> None
         if m > needed + 1.0 + 1e-9:
             raise BadInput(f"{source}: radar.n_pulses = {m}: the scan lasts {scan_duration_s(scn):g} s, "
                            f"at most {int(needed) + 1} pulses fit it at prf_hz = {radar['prf_hz']:g}")
-    if check_pulses and m % proc["q"]:
+    if check_pulses and proc["method"] == "decimation" and m % proc["q"]:     # (no other method reads Q)
         raise BadInput(f"{source}: processing.q = {proc['q']}: must divide the pulse count {m}")
     if check_pulses and proc["cpi"] > m:
         raise BadInput(f"{source}: processing.cpi = {proc['cpi']}: longer than the {m} pulses")
