@@ -303,6 +303,9 @@ def plan(scenario, overrides, as_json):
         scn = load_scenario(scenario, overrides)
     if scn["kind"] != "forward":
         raise BadInput(f"{scenario}: kind = {scn['kind']}: plan covers forward-looking scenes; allowed: forward")
+    if cube is not None and scn["processing"]["cpi"] > cube.n_pulses:     # as process refuses it
+        raise BadInput(f"{scenario}: processing.cpi = {scn['processing']['cpi']}: longer than the cube's "
+                       f"{cube.n_pulses} pulses")
     result = plan_for_cube(cube, scn["processing"]) if cube is not None else plan_for_scenario(scn)
     click.echo(plan_json(result) if as_json else format_plan(result, scn["name"]))
 

@@ -459,6 +459,10 @@ def test_another_recorders_range_taper_is_kept_and_named():
     # after the simulation, naming a key not set and one an ISAR scenario does not have)
     (["target.velocity_mps=[0,0.001,0]"], "processing.n0_pulses = auto (eq. 13, from the geometry)"),
     (["processing.n0_pulses=-1e9"], "over the default limit"),
+    # an object 17 m from the radar: the window holding its echo would begin at -1.7 m, whatever the
+    # correction (keystone1 had written a raw.h5 its own reader refused)
+    (["processing.correction=keystone1", "target.range_m=20", "target.theta0_deg=60", "radar.n_pulses=600"],
+     "the range window holding its echo would begin at"),
 ])
 def test_isar_scenarios_refused_at_validate(capsys, sets, fragment):
     from cli_runner import run_cli

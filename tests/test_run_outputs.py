@@ -346,6 +346,8 @@ def test_plan_of_a_short_cube_and_of_a_raw_cube(tmp_path, capsys):
     assert a["ambiguity_number_boresight"] == b["ambiguity_number_boresight"]
     assert a["processing"]["method"] == b["processing"]["method"]
     assert a["range_walk_m"] == pytest.approx(b["range_walk_m"], rel=0.05)    # (its reference range: the window's)
+    code, out, err = run_cli(["plan", str(raw), "--set", "processing.cpi=100000"], capsys)
+    assert code == 2 and "longer than the cube's 400 pulses" in err            # as process refuses it
 
 
 def test_the_resolved_summary_is_there_when_every_target_is_resolved():
@@ -424,3 +426,26 @@ def test_q_must_divide_the_pulses_only_where_decimation_reads_it(capsys):
     for method, code_wanted in (("decimation", 2), ("tracking", 0), ("beam", 0)):
         code, out, err = run_cli(["validate", scen, *sets, "--set", f"processing.method={method}"], capsys)
         assert code == code_wanted, (method, err)
+
+
+def test_the_speed_accuracy_chart_names_every_point_it_cannot_draw(tmp_path):
+    """On the resolved targets' error a point with none resolved has no value: it is named under the chart
+    with why (such points had vanished without a word once another point had every target resolved)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from fwdlook_cli.report import plots
+
+    rows = [{"scenario": "s", "cpi": 16, "total_s": 0.1, "n_targets": 2, "detected": 2, "max_abs_range_error_m": 0.4},
+            {"scenario": "s", "cpi": 128, "total_s": 0.2, "n_targets": 2, "detected": 2, "max_abs_range_error_m": 0.1,
+             "max_abs_range_error_resolved_m": 0.1, "n_resolved": 2},
+            {"scenario": "s", "cpi": 8, "total_s": 0.3, "n_targets": 2, "detected": 0}]
+    texts = []
+    real_save = plots._save
+    plots._save = lambda fig, path: (texts.extend(t.get_text() for ax in fig.axes for t in ax.texts), real_save(fig, path))
+    try:
+        plots.speed_accuracy_chart(tmp_path / "c.png", rows, ["cpi"])
+    finally:
+        plots._save = real_save
+    note = [t for t in texts if t.startswith("not drawn")]
+    assert note == ["not drawn: 16 (no resolved target found); 8 (no target found)"], texts

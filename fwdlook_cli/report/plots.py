@@ -35,10 +35,14 @@ def speed_accuracy_chart(path, rows, grid_keys, *, error_key=None):
             missed = f" ({missed_targets(r)} missed)" if missed_targets(r) else ""
             ax.annotate(",".join(str(r[k]) for k in grid_keys) + missed, (r["total_s"], r[error_key]), fontsize=6,
                         xytext=(3, 2), textcoords="offset points")
-    lost = [",".join(str(r[k]) for k in grid_keys) for r in rows if r.get(error_key) is None and missed_targets(r)]
+    def why(r):
+        return ("no target found" if not r.get("detected") else
+                "no resolved target found" if error_key.endswith("_resolved_m") else "no error")
+
+    lost = [",".join(str(r[k]) for k in grid_keys) + f" ({why(r)})" for r in rows if r.get(error_key) is None]
     if lost:          # no error to place on the axis: named under the chart, not dropped without a word
-        ax.text(0.0, -0.16, f"not drawn, no target found: {'; '.join(lost)}", transform=ax.transAxes, fontsize=7,
-                va="top", color="tab:blue")
+        ax.text(0.0, -0.16, f"not drawn: {'; '.join(lost)}", transform=ax.transAxes, fontsize=7, va="top",
+                color="tab:blue")
     ax.set_xlabel("whole chain time (s), both channels, intermediates written")
     ax.set_ylabel(error_key.replace("max_abs_range_error", "max |range error|").replace("_resolved", ", resolved targets")
                   .replace("_m", " (m)").replace("_", " "))

@@ -211,7 +211,7 @@ def breakdown(summary_path: Path, png: Path, *, row_key: str, col_key: str, row_
         i, j = rvals.index(json.dumps(r[row_key])), cvals.index(json.dumps(r[col_key]))
         if r.get(key) is not None:
             grid[i, j] = r[key]
-        det[i][j] = f"{r.get(det_key)}/{r.get(n_key)}"
+        det[i][j] = f"{r.get(det_key) or 0}/{r.get(n_key) or 0}"     # (a point with no resolved target: 0/0)
         run_dir = member_run_dir(r)
         if run_dir is not None:
             half = half_range_cell_m(run_dir)

@@ -137,6 +137,11 @@ def isar_checks(scn: dict, source: str) -> None:
 
         pulse = CompressedPulse(radar["bandwidth_hz"], radar["pulse_width_s"], radar["fs_hz"], radar["range_weighting"])
         axis, holds_closest = isar_auto_range_axis(pos0, vel, r, radar["fs_hz"], pulse)
+        if axis[0] <= 0:            # the dwell itself within the pulse's reach and the window's guard
+            raise BadInput(f"{source}: target.range_m = {tg['range_m']:g}: the object comes within {r.min():.1f} m "
+                           f"of the radar, and the range window holding its echo would begin at {axis[0]:.1f} m; "
+                           f"allowed: an object farther than the compressed pulse's reach and the window's guard "
+                           f"({-axis[0] + r.min():.1f} m here)")
         if not holds_closest and scn["processing"]["correction"] in ("keystone2_n0", "keystone2_n0_est"):
             closest = auto_range_extent_m(pos0, vel, r)[0]
             raise BadInput(f"{source}: processing.correction = {scn['processing']['correction']}: the object's "
