@@ -174,6 +174,13 @@ KEYSTONE_WORK_FACTOR = 8   # the CZT keystone's peak memory over its complex64 i
                            # peak RSS for 0.5 GB of padded rows, isar_theta3 at n0 = 1e7 pulses)
 
 
+def keystone_padding(n: int, t0_index: float, worst_stretch: float) -> tuple[float, int]:
+    """(excursion, pad) of an ISAR keystone about ``t0_index`` over ``n`` pulses: its resampling leaves
+    the dwell by up to ``|1 - alpha| max|m - t0|`` pulses, and the rows are padded by that + 16."""
+    excursion = float(worst_stretch) * max(abs(t0_index), abs(n - 1 - t0_index))
+    return excursion, int(math.ceil(excursion)) + 16
+
+
 def check_keystone_padding(n, pad, n_cols, t0_index, worst_stretch, n0_auto: bool = False):
     """(ISAR, ``isar/stages.py``) Refuse, before allocating it, a zero-padded keystone input over the cube size limit: a range
     minimum far outside the dwell (``processing.n0_pulses``, given or from eq. 13) moves the resampling

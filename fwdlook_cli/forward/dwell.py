@@ -498,7 +498,7 @@ def dwell_stages(cube, proc: dict, geo: dict):
 
     geo["doppler_resolution_hz"] = 1.0 / dwell_duration_s(cube)
     if proc["range_oversample"] == "auto":     # at least x 4 where the dwell must be focused on the fine grid
-        geo["range_oversample"] = auto_focus_range_oversample(cube, geo["p_ref"], geo["range_oversample"])
+        geo["range_oversample"] = auto_focus_range_oversample(cube, geo["p_ref"], geo["range_oversample"], geo)
     cal = geo["calibration"]                     # the chain's monopulse calibration (slope, imbalance, offset)
     check_slope_forms_a_beam(cal, cube)
     two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)

@@ -133,7 +133,7 @@ def focus_range_oversample(range_m, position_m, position_ref_m, fc_hz: float, ra
 STEEP_FOCUS_OVERSAMPLE = 4    # the fine focus grid of range_oversample: auto (auto_focus_range_oversample)
 
 
-def auto_focus_range_oversample(cube, position_ref_m, image_factor: int) -> int:
+def auto_focus_range_oversample(cube, position_ref_m, image_factor: int, geo: dict | None = None) -> int:
     """``processing.range_oversample: auto`` for the dwell image: the image's own factor (the power
     image's Nyquist rate, ``dsp.imaging.auto_range_oversample``), or, where the dwell must be focused on
     the fine grid (:func:`focus_range_oversample`), at least ``STEEP_FOCUS_OVERSAMPLE`` (4).
@@ -145,17 +145,24 @@ def auto_focus_range_oversample(cube, position_ref_m, image_factor: int) -> int:
     the band's): range errors -0.151 / -0.155, 0.038 / 0.012, 0.063 / 0.048 and -0.129 / -0.184 m,
     3 dB widths within 0.2 m, azimuths equal to 1e-4 deg, at twice the dwell stage's time (162-201
     against 312-416 ms)."""
-    fine = focus_range_oversample(cube.range_m, cube.position_m, position_ref_m, cube.radar["fc_hz"],
-                                  STEEP_FOCUS_OVERSAMPLE,
-                                  resolution_m=C_MPS / (2.0 * float(cube.radar["bandwidth_hz"])),
-                                  **_lit_directions(cube))
+    fine = STEEP_FOCUS_OVERSAMPLE if needs_fine_focus(cube, position_ref_m, geo) else 1
     return max(int(image_factor), fine)          # (fine is 1 where the native grid holds the band)
 
 
-def _lit_directions(cube) -> dict:
-    """The scan and the two-way beam's width: the directions :func:`focus_range_rate` checks off the axis."""
-    return {"scan_angle_deg": cube.scan_angle_deg,
-            "half_width_deg": 0.5 * two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)}
+def needs_fine_focus(cube, position_ref_m, geo: dict | None = None) -> bool:
+    """Whether the dwell image must be focused on the oversampled range grid (:func:`focus_range_oversample`
+    over the scan's lit directions); kept in ``geo["fine_focus"]`` where ``geo`` is given, as both
+    ``range_oversample: auto`` and the stage's parameters ask."""
+    if geo is not None and "fine_focus" in geo:
+        return geo["fine_focus"]
+    fine = focus_range_oversample(cube.range_m, cube.position_m, position_ref_m, cube.radar["fc_hz"], 2,
+                                  resolution_m=C_MPS / (2.0 * float(cube.radar["bandwidth_hz"])),
+                                  scan_angle_deg=cube.scan_angle_deg,
+                                  half_width_deg=0.5 * two_way_width_for(cube.radar["beamwidth_3db_deg"],
+                                                                         cube.antenna)) > 1
+    if geo is not None:
+        geo["fine_focus"] = fine
+    return fine
 
 
 def dwell_duration_s(cube) -> float:
@@ -185,8 +192,5 @@ def _iso_doppler_params(cube, proc: dict) -> dict:
 def _focus_params(cube, proc: dict, geo: dict) -> dict:
     """``focus_oversample`` where the geometry needs the dwell focused on the fine range grid (none
     where it does not: the stage's key, and so its reuse, as before)."""
-    factor = focus_range_oversample(cube.range_m, cube.position_m, geo["p_ref"], cube.radar["fc_hz"],
-                                    int(geo["range_oversample"]),
-                                    resolution_m=C_MPS / (2.0 * float(cube.radar["bandwidth_hz"])),
-                                    **_lit_directions(cube))
+    factor = int(geo["range_oversample"]) if needs_fine_focus(cube, geo["p_ref"], geo) else 1
     return {"focus_oversample": factor} if factor > 1 else {}

@@ -248,7 +248,8 @@ def _start_quicklook(run_dir, final, truth, scn, proc, geo):
     sel = np.any(final["image"] > 0, axis=1)
     rows_idx = np.nonzero(sel)[0]
     lo, hi = (rows_idx[0], rows_idx[-1] + 1) if len(rows_idx) else (0, len(final["range_m"]))
-    return start_image_png(pending.staged(run_dir, "image.png"), final["image"][lo:hi], final["angle_deg"], final["range_m"][lo:hi],
+    return start_image_png(pending.staged(run_dir, "image.png"), final["image"][lo:hi], final["angle_deg"],
+                           final["range_m"][lo:hi],
                            xlabel="azimuth at t_ref (deg)", ylabel="slant range at t_ref (m)",
                            title=f"{scn['name']}: {proc['method']} (q={geo['q']}, "
                                  f"{proc['keystone']}), t_ref = {proc['t_ref']}", markers=markers)

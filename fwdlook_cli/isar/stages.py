@@ -12,7 +12,7 @@ from ..dsp.keystone_common import _cis  # exp(j 2 pi cycles), reduced modulo one
 from ..io.stagefile import StageData
 from .geometry import LineModel
 from ..errors import BadInput
-from ..limits import check_keystone_padding
+from ..limits import check_keystone_padding, keystone_padding
 
 
 def _alpha(order, fr_hz, fc_hz):
@@ -44,8 +44,7 @@ def _keystone(echo_f, fr_hz, fc_hz, *, order, t0_index, ambiguity_rows, method):
 
     alpha = _alpha(order, np.asarray(fr_hz, dtype=np.float64), fc_hz)
     n = echo_f.shape[0]
-    excursion = float(np.max(np.abs(1.0 - alpha))) * max(abs(t0_index), abs(n - 1 - t0_index))
-    pad = int(np.ceil(excursion)) + 16
+    excursion, pad = keystone_padding(n, t0_index, float(np.max(np.abs(1.0 - alpha))))
     if excursion > 0.5 * n:
         # most of the band's rows resampled from outside the dwell: zeros (32 pulses at 3 deg: -16 dB, where
         # keystone1 about the middle loses 0.1 dB; an independent review, fifty-second round)

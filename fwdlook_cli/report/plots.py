@@ -35,6 +35,7 @@ def speed_accuracy_chart(path, rows, grid_keys, *, error_key=None):
             missed = f" ({missed_targets(r)} missed)" if missed_targets(r) else ""
             ax.annotate(",".join(str(r[k]) for k in grid_keys) + missed, (r["total_s"], r[error_key]), fontsize=6,
                         xytext=(3, 2), textcoords="offset points")
+
     def why(r):
         return ("no target found" if not r.get("detected") else
                 "no resolved target found" if error_key.endswith("_resolved_m") else "no error")
@@ -111,7 +112,6 @@ def error_map(ax, grid, x_labels, y_labels, *, xlabel, ylabel, title, threshold=
             ax.add_patch(plt.Rectangle((j - 0.45, i - 0.45), 0.9, 0.9, fill=False, ec="tab:blue", lw=1.2, ls="--"))
         if np.isfinite(val):
             dark = norm(min(max(val, ERROR_NORM_M[0]), ERROR_NORM_M[1])) > 0.55
-            lost = 0 if missed is None else int(missed[i][j])
             ax.text(j, i, fmt.format(val) + (f"\n{lost} missed" if lost else ""), ha="center", va="center",
                     fontsize=7, color="w" if dark else "k")
             if lost:

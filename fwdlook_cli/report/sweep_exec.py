@@ -254,7 +254,6 @@ def _eta(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
 
 
-
 def _reusable_cube(path) -> bool:
     """A sweep's cached cube is reused where it is a readable fwdlook raw cube of this fwdlook version;
     else simulated again (a damaged one had failed its points on every rerun, and one of an older
@@ -272,6 +271,7 @@ def _reusable_cube(path) -> bool:
     except Exception:  # noqa: BLE001  (unreadable: simulated again)
         return False
     return (version.decode() if isinstance(version, bytes) else version) == __version__
+
 
 def execute(sweep: dict, out: Path, *, workers: int = 1, quiet: bool = False, scheduler: str = "local") -> list[dict]:
     """Every point of ``sweep`` as a summary row, in plan order (see the module docstring); the points'

@@ -160,7 +160,7 @@ def _check_n0_padding(scn: dict, source: str, n: int, vel, n_cols) -> None:
     radar, tg, proc = scn["radar"], scn["target"], scn["processing"]
     if proc["correction"] != "keystone2_n0":       # (the estimator's n0 comes from the data)
         return
-    from ..limits import check_keystone_padding
+    from ..limits import check_keystone_padding, keystone_padding
 
     fc, fs = radar["fc_hz"], radar["fs_hz"]
     if proc["n0_pulses"] != "auto":
@@ -174,7 +174,7 @@ def _check_n0_padding(scn: dict, source: str, n: int, vel, n_cols) -> None:
         n_cols = int(np.floor((far - near) * 2.0 * fs / C_MPS)) + 1
     t0 = (n - 1) / 2.0 + n0
     worst = math.sqrt(fc / (fc - fs / 2.0)) - 1.0                 # |1 - alpha| at the band's lower edge, eq. (12)
-    pad = int(math.ceil(worst * max(abs(t0), abs(n - 1 - t0)))) + 16
+    pad = keystone_padding(n, t0, worst)[1]
     try:
         check_keystone_padding(n, pad, n_cols, t0, worst, n0_auto=proc["n0_pulses"] == "auto")
     except BadInput as exc:

@@ -240,17 +240,24 @@ def reference_amplitude(scn: dict) -> np.ndarray:
     return arr
 
 
+def _kept_pixels(scn: dict):
+    """(the normalised map, the mask of its scatterers: non-zero pixels at or above ``threshold``)."""
+    im = scn["scene"]["image"]
+    amp = reference_amplitude(scn)
+    keep = (amp > 0) & (amp >= im["threshold"])
+    if not keep.any():
+        raise BadInput(f"scene.image.threshold = {im['threshold']:g}: drops every pixel of {im['file']}; "
+                       f"allowed: below the brightest normalised amplitude (1)")
+    return amp, keep
+
+
 def image_scene_extent(scn: dict):
     """(number of scatterers, (x0, x1, y0, y1) their ground bounding box) of an image scene, from the map
     alone (no per-pixel coordinates: the size check's arithmetic): the kept pixels' index box, whose
     four corners bound them on the ground (the pixel grid is an affine image of its indices)."""
     sc, im = scn["scene"], scn["scene"]["image"]
-    amp = reference_amplitude(scn)
-    keep = (amp > 0) & (amp >= im["threshold"])
+    amp, keep = _kept_pixels(scn)
     rows, cols = np.flatnonzero(keep.any(axis=1)), np.flatnonzero(keep.any(axis=0))
-    if not len(rows):
-        raise BadInput(f"scene.image.threshold = {im['threshold']:g}: drops every pixel of {im['file']}; "
-                       f"allowed: below the brightest normalised amplitude (1)")
     ny, nx = amp.shape
     u = (np.array([cols[0], cols[-1]]) - (nx - 1) / 2.0) * im["pixel_spacing_m"]
     v = ((ny - 1) / 2.0 - np.array([rows[0], rows[-1]])) * im["pixel_spacing_m"]
@@ -262,12 +269,8 @@ def image_scene_points(scn: dict):
     """(points [n, 2] ground x, y; complex amplitudes [n]) of an image scene (module docstring)."""
     sc = scn["scene"]
     im = sc["image"]
-    amp = reference_amplitude(scn)
+    amp, keep = _kept_pixels(scn)
     x, y = pixel_ground_xy_m(amp.shape, im["pixel_spacing_m"], sc["center_m"], im["orientation_deg"])
-    keep = (amp > 0) & (amp >= im["threshold"])
-    if not np.any(keep):
-        raise BadInput(f"scene.image.threshold = {im['threshold']:g}: drops every pixel of {im['file']}; "
-                       f"allowed: below the brightest normalised amplitude (1)")
     a = float(sc["amplitude"]) * amp[keep]
     if im["speckle"]:
         rng = np.random.default_rng([int(scn["noise"]["seed"]), SPECKLE_STREAM])
