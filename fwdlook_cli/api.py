@@ -81,10 +81,11 @@ def run_chain(cube, processing: dict):
 def measure(cube, final, processing: dict, spectra=None) -> dict:
     """``{"targets": [...], "summary": {...}}`` of a forward-looking image against the cube's truth: the
     rows and summary metrics.json holds for the same image (``forward.run_metrics.target_rows``: the
-    peak refined on its cuts, detection 10 dB over the median, the resolved flags, and for CPI imaging
-    ISLR/PSLR/width/peak loss from each target's range profile over its dwell).  Those need the chain's
-    Doppler spectra: ``spectra`` (the ``doppler_spectra`` stage's output), else computed here by running
-    the chain up to that stage once more."""
+    peak refined on its cuts, detection 10 dB over the median, the resolved flags, and ISLR/PSLR/width/
+    peak loss from each target's range profile over its dwell).  Those need the chain's Doppler
+    spectra: ``spectra`` (the ``doppler_spectra`` stage's output; under ``imaging: dwell`` the
+    ``range_curvature`` stage's, whose spectra are computed on the targets' windows), else computed
+    here by running the chain up to that stage once more."""
     from .forward.chain import build_forward_stages
     from .forward.evaluate import summarize
     from .forward.run_metrics import target_rows
@@ -93,14 +94,15 @@ def measure(cube, final, processing: dict, spectra=None) -> dict:
         return {"targets": [], "summary": {"n_targets": 0, "detected": 0}}
     proc = _forward_processing(cube, processing)
     data, stages, geo = build_forward_stages(cube, proc)
-    spectra_of = None
-    if any(st.name == "doppler_spectra" for st in stages):
-        if spectra is None:
-            for st in stages:
-                data = st.fn(data, **st.params)
-                if st.name == "doppler_spectra":
-                    spectra = data
-                    break
-        spectra_of = lambda: spectra  # noqa: E731
-    rows, islr_from = target_rows(cube, final, proc, geo, spectra_of=spectra_of)
+    names = [st.name for st in stages]
+    source = "doppler_spectra" if "doppler_spectra" in names else "range_curvature"
+    if spectra is None:
+        for st in stages:
+            data = st.fn(data, **st.params)
+            if st.name == source:
+                spectra = data
+                break
+    given = lambda: spectra  # noqa: E731
+    rows, islr_from = target_rows(cube, final, proc, geo, **{
+        "spectra_of" if source == "doppler_spectra" else "compensated_of": given})
     return {"targets": rows, "summary": {**summarize(rows), "islr_from": islr_from}}

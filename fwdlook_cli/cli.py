@@ -211,7 +211,10 @@ def _out_of_core(enabled: bool, output):
 @config_option
 @raw_option
 @set_option
-@click.option("--from-stage", "from_stage", default=None, help="Recompute from this stage on.")
+@click.option("--from-stage", "from_stage", default=None, metavar="STAGE",
+              help="Recompute from this stage on (forward: range_fft, decimate, keystone, regroup, range_curvature, "
+                   "doppler_spectra, monopulse_image or dwell_image; ISAR: range_fft, rcmc, range_ifft, "
+                   "azimuth_compress).")
 @click.option("--force", is_flag=True, help="Recompute every stage.")
 @overwrite_option
 @keep_stages_option

@@ -80,6 +80,7 @@ def summary_table(metrics: dict, run_dir) -> str:
         head += f", t_ref = {p['t_ref']}"
     lines = [head]
     if "migration_span_cells" in s:        # ISAR
+        lines.append(f"  {'detected':<30s} {str(s.get('detected', 0)) + '/' + str(s.get('n_targets', 0)):>10s}")
         for label, key, nd in ISAR_ROWS:
             value = " / ".join(_num(s.get(k), nd) for k in key) if isinstance(key, tuple) else _num(s.get(key), nd)
             lines.append(f"  {label:<30s} {value:>10s}")

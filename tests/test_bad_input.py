@@ -759,3 +759,19 @@ def test_info_on_a_run_folder_points_to_its_files(tmp_path, capsys):
     assert_bad_input(code, out, err, tmp_path / "run", ["is a directory", str(tmp_path / "run" / "image.h5")])
     code, out, err = run_cli(["info", tmp_path], capsys)               # a folder of nothing of ours: no hint
     assert code == 2 and "is a directory" in err and "allowed" not in err
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("", "holds nothing"),                                # empty: had run with no preset, exit 0
+    ("# only a comment\n", "holds nothing"),
+    ("processing: null\n", "processing = None: expected a mapping"),
+    ("[1, 2]\n", "holds a list"),
+    ("processing: {metod: beam}\n", "processing.metod: unknown key"),   # had named the scenario file
+])
+def test_a_bad_processing_preset_is_one_line_naming_the_preset(tmp_path, capsys, text, fragment):
+    preset = tmp_path / "preset.yaml"
+    preset.write_text(text)
+    code, out, err = run_cli(["run", str(TINY), "-c", str(preset), "-o", str(tmp_path / "out")], capsys)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith(f"fwdlook: error: {preset}:"), err
+    assert fragment in lines[0] and not (tmp_path / "out" / "metrics.json").exists()

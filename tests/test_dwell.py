@@ -502,9 +502,9 @@ def test_every_antenna_fwdlook_designs_is_within_the_dwell_slope_bound(pattern):
 
 def test_dwell_imaging_says_when_the_ratio_curve_is_not_the_gaussian_pair(tmp_path, caplog):
     """The dwell image's angle is the two-Gaussian-beam rotation; a cube whose ratio curve is calibrated
-    as a table (sinc2 beams here) is imaged with it anyway, and an imbalance folded into the table is
-    not divided out (an independent review: up to 0.2 deg): one warning says so, naming imaging: cpi.
-    Not for the Gaussian pair."""
+    as a table (sinc2 beams here) is imaged with the pair nearest the table (its null and imbalance
+    followed since the fifty-third round: test_calibration.py), not with its shape: one warning says so,
+    naming imaging: cpi. Not for the Gaussian pair."""
     import logging
 
     for pattern, warned in (("sinc2", True), ("gaussian2", False)):

@@ -535,3 +535,27 @@ def test_a_track_passing_the_radar_runs_with_keystone1_in_a_window_of_its_dwell(
     rows = json.loads((tmp_path / "r" / "metrics.json").read_text())["targets"]
     assert rows[0]["detected"] and abs(rows[0]["range_error_m"]) < 0.05
     assert read_raw(tmp_path / "r" / "raw.h5").range_m[0] > 0
+
+
+@pytest.mark.parametrize("sets, said", [
+    ([], False),                                          # keystone2_n0 at 3 deg: 0.08 cells
+    (["target.theta0_deg=30"], True),                     # beyond its small-angle model
+    (["processing.n0_pulses=-4318"], True),               # n0 of the wrong sign
+])
+def test_a_correction_that_does_not_hold_is_said(tmp_path, capsys, sets, said):
+    """A corrected echo that still migrates over more than a range resolution cell had ended with exit 0
+    and nothing said (an independent review: -17 dB and the target lost at 30 deg; -16.7 dB with n0 of
+    the wrong sign): one warning, the span and, for a wrong n0, both n0s; the closing table counts it."""
+    from cli_runner import run_cli
+
+    argv = ["run", str(ROOT / "scenarios" / "isar_theta3.yaml"), "-o", str(tmp_path / "r")]
+    for s in sets:
+        argv += ["--set", s]
+    code, out, err = run_cli(argv, capsys)
+    assert code == 0, err
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    warned = [line for line in err.splitlines() if "still migrates over" in line]
+    assert len(warned) == int(said) and (m["summary"]["migration_span_cells"] > 1.0) == said
+    assert f"detected {'0/1' if said else '1/1'}".replace(" ", "") in err.replace(" ", "")
+    if "n0_pulses" in " ".join(sets):
+        assert "n0 used -4318 pulses, the truth's 4318" in warned[0]

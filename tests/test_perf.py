@@ -419,6 +419,24 @@ def test_keep_stages_writes_less_and_gives_the_same_metrics(tiny_raw, tmp_path, 
         assert "[1/7] range_fft" in err
 
 
+def test_keep_stages_last_under_dwell_imaging_keeps_what_its_profile_metrics_read(tiny_raw, tmp_path, capsys):
+    """Dwell imaging: the profile metrics compute CPI spectra from stage 5's output, so `last` keeps that
+    file beside the image's; the same metrics as `all`, and a new threshold reruns the image stage only."""
+    dwell = ["--set", "processing.method=tracking", "--set", "processing.imaging=dwell"]
+    full, lean = tmp_path / "all", tmp_path / "last"
+    _run(["process", tiny_raw, "-o", full, "-q", *dwell])
+    _run(["process", tiny_raw, "-o", lean, "-q", "--keep-stages", "last", *dwell])
+    assert sorted(p.name for p in (lean / "stages").glob("*.h5")) == ["05_range_curvature.h5", "06_dwell_image.h5"]
+    a, b = (json.loads((d / "metrics.json").read_text()) for d in (full, lean))
+    assert a["targets"] == b["targets"] and a["summary"]["islr_from"] == "dwell_profile"
+    capsys.readouterr()
+    _run(["process", tiny_raw, "-o", lean, "--keep-stages", "last", *dwell, "--set", "processing.threshold_db=14"])
+    err = capsys.readouterr().err
+    assert "[6/6] dwell_image" in err and "[5/6]" not in err
+    c = json.loads((lean / "metrics.json").read_text())
+    assert [t["islr_db"] for t in c["targets"]] == [t["islr_db"] for t in a["targets"]]
+
+
 @pytest.mark.parametrize("before", ["all", "last"])
 def test_keep_stages_none_over_an_earlier_runs_stage_files(tiny_raw, tmp_path, capsys, before):
     """A folder whose earlier run kept its stage files, rerun with `--keep-stages none` (an independent

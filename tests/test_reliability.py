@@ -621,7 +621,8 @@ def test_real_full_tmpfs(mount_tmpfs, tiny_raw, command):
         r = _fwdlook("run", TINY, *bigger, "-o", mnt / "run", "-q")
     assert r.returncode == 2, (r.returncode, r.stderr[-1500:])
     assert "Traceback" not in r.stderr
-    lines = r.stderr.splitlines()
+    # (-q: warnings stay; at 20 deg/s the tiny scene's decimation misses its plan budget and says so first)
+    lines = [line for line in r.stderr.splitlines() if not line.startswith("processing.method ")]
     assert len(lines) == 1 and "No space left on device" in lines[0] and str(mnt) in lines[0], lines
     assert list(mnt.rglob("*.partial*")) == []
     names = ["raw.h5"] if command == "simulate" else ["run/metrics.json", "run/scenario.yaml", "run/image.h5"]
@@ -1146,6 +1147,12 @@ def test_a_cube_sources_scenario_yaml_says_what_the_chain_used(tiny_raw, tmp_pat
     assert text.startswith(f"# processed from the cube {tiny_raw}:") and "were not used" in text
     scn = yaml.safe_load(text)
     assert scn["processing"]["q"] == 8 and scn["name"] == "mine"
+    # image.h5 carries the same text, the note with it (its default radar had read as the cube's own:
+    # an independent review, fifty-third round)
+    import h5py
+
+    with h5py.File(tmp_path / "r" / "image.h5") as f:
+        assert f.attrs["scenario"] == text
 
 
 def test_a_fifo_where_an_output_goes_is_refused_not_waited_on(tmp_path, capsys):

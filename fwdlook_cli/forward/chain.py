@@ -20,6 +20,7 @@ resample with F = 0, remodulate).  Every corrected output refers to t_ref (NOTES
 """
 from __future__ import annotations
 
+import logging
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -30,6 +31,7 @@ from .keystone_fast import keystone_both, keystone_both_blocked
 from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
 from ..dsp.imaging import auto_range_oversample, image_angle_grid
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
+from .motion import t_ref_seconds  # noqa: F401 (chain.t_ref_seconds, as before; motion.py is below plan.py)
 from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history_m, boresight_doppler_spread_hz,
                      bulk_range_history_m, cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion,
                      keystone_residual_envelope_m, reference_depression_deg, unit_vector, widest_cpi_band_hz)
@@ -38,6 +40,8 @@ from ..io import backing
 from ..io.stagefile import StageData
 from ..limits import check_processing_sizes
 from .monopulse import monopulse_image   # noqa: F401 (stage 7, forward/monopulse.py; chain.monopulse_image)
+
+log = logging.getLogger(__name__)
 
 
 CONTEXT = ("slow_time_s", "scan_angle_deg", "position_m", "velocity_mps", "xyz")
@@ -343,10 +347,6 @@ def _zoom(e, *xs):
 # ----------------------------------------------------------------------------------------------
 # Building the chain from a cube and the processing settings
 # ----------------------------------------------------------------------------------------------
-def t_ref_seconds(slow_time_s, t_ref: str) -> float:
-    return float(slow_time_s[0]) if t_ref == "start" else float(0.5 * (slow_time_s[0] + slow_time_s[-1]))
-
-
 def chain_geometry(cube, proc: dict) -> dict:
     """Everything the stages need that is derived from the cube (never from the scenario)."""
     fit = fit_motion(cube.slow_time_s, cube.position_m)
@@ -380,7 +380,11 @@ def build_forward_stages(cube, proc: dict):
     """(source StageData, [Stage]) for a raw cube and resolved ``processing`` settings."""
     from .calibration import calibration_for_cube
 
+    from .plan import method_budget_warnings
+
     geo = chain_geometry(cube, proc)
+    for line in method_budget_warnings(cube, proc):      # where the method cannot hold (README, "Methods")
+        log.warning(line)
     m_ref = int(round((geo["t_ref_s"] - cube.slow_time_s[0]) * cube.radar["prf_hz"]))
     geo["calibration"] = calibration_for_cube(cube, proc.get("monopulse_calibration", "auto"),
                                               t_ref_index=min(max(m_ref, 0), cube.n_pulses - 1),
@@ -427,6 +431,12 @@ def build_forward_stages(cube, proc: dict):
     if not proc["range_curvature"] or method not in KEYSTONE_METHODS:
         curvature = "off"       # bulk and beam already shift by the whole predicted range history
     geo["curvature_model"] = curvature                  # what stage 5 runs (metrics.json's params)
+    # stage 6's settings; under imaging: dwell the dwell-profile metrics run it on their range windows
+    # (run_metrics.profile_spectra), so that ISLR is eq. (27)'s whichever image the chain forms
+    geo["doppler_params"] = {
+        "cpi": proc["cpi"], "n_doppler": geo["n_doppler"], "window": proc["doppler_window"], "fc_hz": fc,
+        "beamwidth_deg": cube.radar["beamwidth_3db_deg"], "depression_deg": band_depressions,
+        "prf_hz": prf, "follow_speed": bool(proc["doppler_centroid"])}
     stages = [
         Stage("range_fft", range_fft, {"fs_hz": cube.radar["fs_hz"]}),
         Stage("decimate", decimate, {"q": q}, view=True),
@@ -440,9 +450,7 @@ def build_forward_stages(cube, proc: dict):
             "prf_hz": prf, "depression_deg": geo["depression_deg"],
             "reference_range_m": geo["reference_range_m"]}),
         Stage("doppler_spectra", doppler_spectra, {
-            "cpi": proc["cpi"], "n_doppler": geo["n_doppler"], "window": proc["doppler_window"], "fc_hz": fc,
-            "beamwidth_deg": cube.radar["beamwidth_3db_deg"], "depression_deg": band_depressions,
-            "prf_hz": prf, "follow_speed": bool(proc["doppler_centroid"]),
+            **geo["doppler_params"],
             **({"estimator": "iaa"} if proc.get("doppler_estimator", "fft") == "iaa" else {})}),
         Stage("monopulse_image", monopulse_image, {
             "beamwidth_deg": cube.radar["beamwidth_3db_deg"],

@@ -80,7 +80,7 @@ from .monopulse import subaperture_real_beam
 from ..dsp.peaks import oversample_range
 from ..dsp.keystone_common import _cis as _cis_cycles, cis_rad as _cis
 from ..io.stagefile import StageData
-from .calibration import check_slope_forms_a_beam, pattern_beta_per_deg2
+from .calibration import Calibration, check_slope_forms_a_beam, pattern_beta_per_deg2
 from .dwell_fit import start_fit_region
 from .dwell_fit_plan import fit_cell_model_holds, fit_models_antenna
 from .dwell_grid import check_focus_sizes, focus_directions, focus_per_bin, pattern_weight, subaperture_windows
@@ -500,17 +500,23 @@ def dwell_stages(cube, proc: dict, geo: dict):
     if proc["range_oversample"] == "auto":     # at least x 4 where the dwell must be focused on the fine grid
         geo["range_oversample"] = auto_focus_range_oversample(cube, geo["p_ref"], geo["range_oversample"], geo)
     cal = geo["calibration"]                     # the chain's monopulse calibration (slope, imbalance, offset)
-    check_slope_forms_a_beam(cal, cube)
     two_way_deg = two_way_width_for(cube.radar["beamwidth_3db_deg"], cube.antenna)
     half_width_deg = DWELL_HALF_WIDTH_BEAMS * two_way_deg
+    if cal.model != "tanh":                      # README, "An antenna fwdlook does not model"
+        # the rotation is the two-Gaussian-beam one: the pair nearest the table over the dwell's offsets,
+        # its imbalance and null offset included (they had been dropped: 0.14-0.4 deg on reviews' cubes)
+        k, gain_db, offset_deg = cal.tanh_equivalent(half_width_deg)
+        cal = Calibration(cal.source, "tanh", k, boresight_offset_deg=offset_deg,
+                          diff_gain_db=cal.diff_gain_db + gain_db, diff_phase_deg=cal.diff_phase_deg,
+                          pattern=cal.pattern)
+        log.warning(f"processing.imaging: dwell measures angles with the two-Gaussian-beam rotation; this cube's "
+                    f"ratio curve is a {geo['calibration'].model} ({cal.source}), taken as the nearest such pair "
+                    f"(null {offset_deg:+.3f} deg, boresight slope {k * 10 ** (gain_db / 20):.4g} per deg): its shape "
+                    "beyond that is not followed (0.01-0.06 deg on reviews' sinc and cosine-taper beams); imaging: cpi "
+                    "reads the curve itself")
+    check_slope_forms_a_beam(cal, cube)
     check_focus_sizes(cube, geo, proc, slope_per_deg=float(cal.slope_per_deg),
                       beta_per_deg2=pattern_beta_per_deg2(cube), dwell_half_width_deg=half_width_deg)
-    if cal.model != "tanh":                      # README, "An antenna fwdlook does not model"
-        log.warning("processing.imaging: dwell measures angles with the two-Gaussian-beam rotation and the "
-                    f"calibrated slope; this cube's ratio curve is a {cal.model} ({cal.source}), so neither its "
-                    "shape (0.05 deg for sinc2 beams, 0.25 deg for a measured table, noise off) nor a channel "
-                    "imbalance folded into it (0.2-0.5 deg on independent reviews' cubes) is followed; imaging: cpi "
-                    "reads the curve itself")
     step_deg = float(np.median(np.abs(np.diff(cube.scan_angle_deg))))          # scan per pulse
     # sub-aperture: the beam moves SUB_APERTURE_DEG (40 pulses for the paper's 30 deg/s at 2.5 kHz)
     sub_pulses = int(np.clip(round(SUB_APERTURE_DEG / max(step_deg, 1e-9)), 4, max(4, cube.n_pulses // 4)))

@@ -42,6 +42,11 @@ def fit_motion(slow_time_s, position_m) -> MotionFit:
     return MotionFit(coef[0], coef[1], coef[2], float(np.sqrt(np.mean(resid**2))))
 
 
+def t_ref_seconds(slow_time_s, t_ref: str) -> float:
+    """The reference time t_ref (NOTES.md): the first pulse's time (``start``) or the scan's centre."""
+    return float(slow_time_s[0]) if t_ref == "start" else float(0.5 * (slow_time_s[0] + slow_time_s[-1]))
+
+
 def unit_vector(azimuth_deg, depression_deg):
     """Unit line-of-sight vector from the antenna towards (azimuth, depression): [..., 3]."""
     az, de = np.radians(azimuth_deg), np.radians(depression_deg)
@@ -62,6 +67,25 @@ def boresight_doppler_spread_hz(height_m: float, near_m: float, far_m: float, ve
     f = [2.0 * float(np.dot(velocity_mps, unit_vector(0.0, reference_depression_deg(height_m, r)))) / lam
          for r in (near_m, far_m)]
     return abs(f[1] - f[0])
+
+
+def depression_reference_error_m(height_m: float, ranges_m, reference_range_m: float, velocity_mps, fc_hz: float,
+                                 lever_s: float, rate_hz: float | None = None):
+    """The range error one reference depression phi_0 leaves at slant ranges ``ranges_m`` (flat ground),
+    for a point seen ``lever_s`` from t_ref.  There the boresight Doppler 2 v . u(phi(r)) / lambda
+    differs from the reference range's by df(r).  A shift by the reference's range history (``bulk``,
+    ``beam``: ``rate_hz`` None) leaves the walk lambda / 2 |df| lever_s; a keystone about the reference
+    Doppler at the rate ``rate_hz`` (PRF, or PRF / Q for ``decimation``; ``tracking`` follows the
+    reference's history) resolves df within +-rate / 2 and leaves the folded part, lambda / 2
+    |round(df / rate)| rate lever_s: one ambiguity is lambda PRF / 2 metres per second from t_ref."""
+    lam = C_MPS / fc_hz
+    r = np.asarray(ranges_m, dtype=np.float64)
+    v = np.asarray(velocity_mps, dtype=np.float64)
+    f = 2.0 * (unit_vector(0.0, np.degrees(np.arcsin(np.clip(height_m / r, -1.0, 1.0)))) @ v) / lam
+    f0 = 2.0 * float(unit_vector(0.0, reference_depression_deg(height_m, reference_range_m)) @ v) / lam
+    df = f - f0
+    walk_hz = np.abs(df) if rate_hz is None else np.abs(np.rint(df / rate_hz)) * rate_hz
+    return 0.5 * lam * walk_hz * lever_s
 
 
 def beam_points_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m):

@@ -34,7 +34,26 @@ import numpy as np
 
 from ..dsp.geometry import C_MPS, ambiguity_number
 from ..dsp.imaging import auto_range_oversample
-from .motion import auto_doppler_cells, boresight_doppler_spread_hz, doppler_band_depressions, widest_cpi_band_hz
+from .motion import (auto_doppler_cells, boresight_doppler_spread_hz, depression_reference_error_m,
+                     doppler_band_depressions, t_ref_seconds, widest_cpi_band_hz)
+
+DEPRESSION_SAMPLES = 257      # slant ranges across the window at which one reference depression is judged
+
+
+def one_depression_budget(height_m: float, near_m: float, far_m: float, reference_range_m: float, velocity_mps,
+                          fc_hz: float, lever_s: float, rate_hz: float | None, half_cell_m: float) -> dict:
+    """What one reference depression (at ``reference_range_m``) leaves across the range window near..far
+    (``motion.depression_reference_error_m``; ``rate_hz`` None for a shift by the reference's range
+    history, else the keystone's rate): the largest range error, and the span of slant ranges about the
+    reference range where it stays within ``half_cell_m``."""
+    r = np.linspace(float(near_m), float(far_m), DEPRESSION_SAMPLES)
+    err = depression_reference_error_m(height_m, r, reference_range_m, velocity_mps, fc_hz, lever_s, rate_hz)
+    i = int(np.argmin(np.abs(r - reference_range_m)))
+    bad = err > half_cell_m
+    below, above = np.flatnonzero(bad[:i]), np.flatnonzero(bad[i:])
+    lo = float(r[below[-1] + 1]) if len(below) else float(r[0])
+    hi = float(r[i + above[0] - 1]) if len(above) else float(r[-1])
+    return {"error_m": float(err.max()), "span_m": [lo, hi]}
 
 
 def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf_hz, fs_hz,
@@ -62,15 +81,23 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
     n = len(t)
     # (Q = 1 always: a cube of under 8 pulses had no candidate and the plan stopped with an IndexError)
     q_candidates = q_candidates or ([1] + [q for q in range(2, n + 1) if n % q == 0 and n // q >= 8])[:40]
+    near, far = range_extent_m if range_extent_m is not None else (reference_range_m, reference_range_m)
+    # one reference depression across the window (steep depression: motion.depression_reference_error_m)
+    lever_max = float(np.max(lever_s))
+
+    def one_depression(rate_hz):
+        return one_depression_budget(height, near, far, reference_range_m, vel[m_ref], fc_hz, lever_max, rate_hz,
+                                     half_cell_m)
+
     rows = []
     for q in q_candidates:
         prf_q = prf_hz / q
         err = np.abs(ambiguity_number(f_dc, prf_q) - ambiguity_number(f_dc0, prf_q))
         resid = float(np.max(err * C_MPS * prf_q / (2.0 * fc_hz) * lever_s))       # eq. (19)-(20)
-        rows.append({"q": q, "ambiguity_spread": int(err.max()), "residual_walk_m": resid})
+        rows.append({"q": q, "ambiguity_spread": int(err.max()), "residual_walk_m": resid,
+                     "one_depression": one_depression(prf_q)})
     drift_hz = float(np.ptp(f_dc - 2.0 * (los @ vel[0]) * fc_hz / C_MPS))     # what the speed change adds
     doppler_cell_hz = prf_hz / cpi
-    near, far = range_extent_m if range_extent_m is not None else (reference_range_m, reference_range_m)
     range_spread_hz = boresight_doppler_spread_hz(height, float(near), float(far), velocity_mps[m_ref], fc_hz)
     # the widest CPI Doppler band of the scan, as the Doppler stage computes it (eq. 25-26; over the
     # window's depressions where they differ by more than a cell), and processing.n_doppler: auto for it
@@ -81,10 +108,11 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
                                    cpi=cpi, follow_speed=True, depression_deg=band_depressions, fc_hz=fc_hz,
                                    beamwidth_deg=beamwidth_deg, prf_hz=prf_hz)
     traditional = rows[0]
-    deci_ok = [r for r in rows[1:] if r["residual_walk_m"] < half_cell_m]
+    deci_ok = [r for r in rows[1:] if r["residual_walk_m"] < half_cell_m
+               and r["one_depression"]["error_m"] < half_cell_m]
     if walk_m < half_cell_m:
         method, q_best = "none", 1
-    elif traditional["residual_walk_m"] < half_cell_m:
+    elif traditional["residual_walk_m"] < half_cell_m and traditional["one_depression"]["error_m"] < half_cell_m:
         method, q_best = "traditional", 1
     elif deci_ok:
         method, q_best = "decimation", deci_ok[0]["q"]
@@ -106,6 +134,9 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         "needs_doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2,
         "doppler_range_spread_hz": range_spread_hz, "range_extent_m": [float(near), float(far)],
         "band_over_depressions": range_spread_hz > doppler_cell_hz,
+        # what one reference depression leaves: a keystone at the PRF (traditional, tracking), a shift by
+        # the reference's range history (bulk, beam); decimation's at PRF / Q in its rows
+        "one_depression": {"keystone": traditional["one_depression"], "shift": one_depression(None)},
         "doppler_band_widest_hz": widest_hz, "n_doppler_auto": auto_doppler_cells(widest_hz, cpi=cpi, prf_hz=prf_hz),
         # processing.range_oversample: auto, the power image's Nyquist rate (dsp/imaging.py)
         "range_oversample_auto": (None if bandwidth_hz is None
@@ -116,8 +147,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
     }
 
 
-def plan_for_cube(cube, proc: dict) -> dict:
-    from .chain import t_ref_seconds
+def plan_for_cube(cube, proc: dict, q_candidates=None) -> dict:
 
     t_ref_s = t_ref_seconds(cube.slow_time_s, proc["t_ref"])
     out = plan_geometry(cube.slow_time_s, cube.position_m, cube.velocity_mps, cube.scan_angle_deg,
@@ -125,13 +155,43 @@ def plan_for_cube(cube, proc: dict) -> dict:
                         bandwidth_hz=cube.radar["bandwidth_hz"],
                         beamwidth_deg=cube.radar["beamwidth_3db_deg"],
                         reference_range_m=float(0.5 * (cube.range_m[0] + cube.range_m[-1])), t_ref_s=t_ref_s,
-                        cpi=proc["cpi"], range_extent_m=(float(cube.range_m[0]), float(cube.range_m[-1])))
+                        cpi=proc["cpi"], range_extent_m=(float(cube.range_m[0]), float(cube.range_m[-1])),
+                        q_candidates=q_candidates)
+    return out
+
+
+def method_budget_warnings(cube, proc: dict) -> list[str]:
+    """What the plan's budget says of the method that runs, where it misses half a range sample: the
+    residual walk of ``none``, ``traditional`` and ``decimation`` at its Q (eq. 19-20), and what one
+    reference depression leaves across the range window (steep depression, any method but ``none``).
+    One line each, for the log; an empty list where the method holds."""
+    method = proc["method"]
+    q = int(proc.get("q", 1)) if method == "decimation" else 1
+    plan = plan_for_cube(cube, proc, q_candidates=sorted({1, q}))
+    half = plan["half_range_cell_m"]
+    row = next(r for r in plan["decimation"] if r["q"] == q)
+    out = []
+    residual = {"none": plan["range_walk_m"], "traditional": row["residual_walk_m"],
+                "decimation": row["residual_walk_m"]}.get(method)
+    if residual is not None and residual > half:
+        what = "range walk" if method == "none" else "residual range walk (eq. 19-20: one ambiguity number)"
+        out.append(f"processing.method {method}" + (f" (Q = {q})" if method == "decimation" else "")
+                   + f": the plan's budget leaves up to {residual:.2f} m of {what} against half a range sample "
+                   f"{half:.2f} m (`fwdlook plan` gives each method's)")
+    if method != "none":
+        dep = plan["one_depression"]["shift"] if method in ("bulk", "beam") else row["one_depression"]
+        if dep["error_m"] > half:
+            out.append(f"processing.method {method}: the boresight Doppler changes by "
+                       f"{plan['doppler_range_spread_hz']:.0f} Hz across the range window, and one reference "
+                       f"depression ({plan['depression_deg']:.1f} deg at {plan['reference_range_m']:.0f} m) leaves "
+                       f"targets outside {dep['span_m'][0]:.0f}-{dep['span_m'][1]:.0f} m (slant) up to "
+                       f"{dep['error_m']:.2f} m off in range against half a range sample {half:.2f} m; process "
+                       "range gates within that span separately (README, steep depression)")
     return out
 
 
 def plan_for_scenario(scn: dict) -> dict:
     """The plan from the scenario's geometry alone (nothing is simulated)."""
-    from .chain import t_ref_seconds
     from ..dsp.geometry import scan_angle_deg, slant_range_m
     from ..scenario.forward import scene_geometry
 
@@ -174,6 +234,17 @@ def format_plan(plan: dict, name: str) -> str:
         f"{plan['doppler_band_widest_hz'] / plan['doppler_cell_hz']:.1f} CPI Doppler cells: processing.n_doppler "
         f"auto gives {plan['n_doppler_auto']} (4 per cell)",
     ]
+    dep = plan.get("one_depression")
+    if dep is not None:
+        worst = max(dep["keystone"]["error_m"], dep["shift"]["error_m"])
+        lines.append(
+            f"  one depression       {worst:9.2f} m   vs {h:.2f} m   " + (
+                "ok" if worst <= h else
+                f"NOT HELD: tracking/traditional up to {dep['keystone']['error_m']:.2f} m outside "
+                f"{dep['keystone']['span_m'][0]:.0f}-{dep['keystone']['span_m'][1]:.0f} m, beam/bulk up to "
+                f"{dep['shift']['error_m']:.2f} m outside {dep['shift']['span_m'][0]:.0f}-"
+                f"{dep['shift']['span_m'][1]:.0f} m: process range gates within those spans separately")
+            + " (the window's Doppler across range at one depression)")
     if plan.get("range_oversample_auto") is not None:
         lines.append(f"  range oversampling   x {plan['range_oversample_auto']} (processing.range_oversample auto: "
                      f"the power image's Nyquist rate, ceil(2 bandwidth / fs))")

@@ -202,7 +202,10 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         start_fit_spawner(proc)
     if from_stage is not None and from_stage not in names:
         raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
-    captured = {"doppler_spectra": None} if "doppler_spectra" in names else {}  # the dwell metrics read them
+    # the dwell-profile metrics read the CPI Doppler spectra, or under imaging: dwell the compensated data
+    # (stage 5), whose spectra they compute on the targets' range windows (run_metrics.profile_spectra)
+    captured = ({"doppler_spectra": None} if "doppler_spectra" in names else
+                {"range_curvature": None} if cube.truth_xyz_m() is not None and "range_curvature" in names else {})
     src_key, holder = cube_hash(cube), [src]
     del src
     if release_cube:         # the CLI's cube: its echoes are needed by stage 1 only (memory: README, Speed);
@@ -220,7 +223,7 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     with pending.discarded_on_failure(run_dir, raw=raw_staged):     # every output staged (io/pending.py)
         try:
             metrics, scenario_yaml = _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured,
-                                              writes, t_start, t_out, png, pending_png)
+                                              writes, t_start, t_out, png, pending_png, scenario_note)
             if cpu_out is not None:
                 cpu_end = cpu_split_s()
                 stage_cpu["outputs"] = (cpu_end[0] - cpu_out[0], cpu_end[1] - cpu_out[1])
@@ -256,7 +259,7 @@ def _start_quicklook(run_dir, final, truth, scn, proc, geo):
 
 
 def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured, writes, t_start, t_out, png,
-             pending_png):
+             pending_png, scenario_note=""):
     """image.h5, metrics.json, image.png of a finished chain; returns (metrics, scenario YAML).
     ``pending_png``: a list that holds image.png while it is drawn (the caller discards it on failure)."""
     from .chain import KEYSTONE_METHODS
@@ -271,15 +274,18 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                                   step_m=float(cube.range_spacing_m) / 2)
     packed = {name: GzipChunks(a) for name, a in (("image", final["image"]), ("real_beam", final["real_beam"]),
                                                   ("ground_image", ground)) if a.ndim == 2 and a.size}
-    # the Doppler spectra (2 x the cube, in memory when this run computed them): the only reference
-    # left is the one target_rows reads and drops (imaging: cpi), or unread (no truth, dwell imaging)
-    spectra_of = captured.pop("doppler_spectra", None)
+    # the Doppler spectra (2 x the cube, in memory when this run computed them), or under imaging: dwell
+    # the compensated data: the only reference left is the one target_rows reads and drops
+    spectra_of, compensated_of = captured.pop("doppler_spectra", None), captured.pop("range_curvature", None)
     rows, islr_from = target_rows(cube, final, proc, geo,
-                                  spectra_of=spectra_of if "doppler_spectra" in names else None)
-    spectra_of = None
+                                  spectra_of=spectra_of if "doppler_spectra" in names else None,
+                                  compensated_of=compensated_of)
+    spectra_of = compensated_of = None
     scenario_yaml = dump_scenario(scn)
     waited = sum(writes.pop()() for _ in range(len(writes)))       # every stage file written before these
-    write_image_h5(pending.staged(run_dir, "image.h5"), final, ground, gx, gy, scenario_yaml=scenario_yaml,
+    # (image.h5 carries scenario.yaml's note too: a recorded cube's unused default radar had read as its own)
+    write_image_h5(pending.staged(run_dir, "image.h5"), final, ground, gx, gy,
+                   scenario_yaml=scenario_note + scenario_yaml,
                    t_ref_s=geo["t_ref_s"], method=proc["method"], packed=packed)
     del packed
     timings["outputs"] = time.perf_counter() - t_out - waited      # (the wait counts to the last stage)

@@ -16,15 +16,48 @@ def two_way_beamwidth_deg(cube) -> float:
     return two_way_width_for(float(cube.radar["beamwidth_3db_deg"]), cube.antenna)
 
 
-def target_rows(cube, final, proc: dict, geo: dict, spectra_of=None) -> tuple[list, str | None]:
+PROFILE_MARGIN_SAMPLES = 2  # range samples beyond each window in profile_spectra (a window's last search index)
+
+
+def profile_spectra(compensated, doppler_params: dict, range_ref_m, range_window_m: float):
+    """The CPI Doppler spectra of the motion-compensated data (``compensated``: the ``range_curvature``
+    stage's output) on the range samples the dwell profiles read: every target's t_ref range
+    +-``range_window_m`` and ``PROFILE_MARGIN_SAMPLES`` more each side (``range_m`` then has gaps
+    between the targets' windows, never inside one).  ``chain.doppler_spectra`` with the CPI chain's
+    own settings (``geo["doppler_params"]``): a range column's spectrum is a product over that column
+    alone, so these are the CPI chain's spectra on those columns, and under ``imaging: dwell`` the
+    profile metrics are the same eq. (27) measures as under ``imaging: cpi``.  Only the sum channel is
+    read (it stands in for the difference channel, whose spectra nothing reads here)."""
+    from .chain import doppler_spectra
+
+    range_m = np.asarray(compensated["range_m"])
+    n_r = len(range_m)
+    ref = np.atleast_1d(np.asarray(range_ref_m, dtype=np.float64))
+    lo = np.clip(np.searchsorted(range_m, ref - range_window_m) - PROFILE_MARGIN_SAMPLES, 0, n_r)
+    hi = np.clip(np.searchsorted(range_m, ref + range_window_m) + PROFILE_MARGIN_SAMPLES + 1, 0, n_r)
+    edges = np.zeros(n_r + 1, np.int64)          # the windows' union: +1 at each start, -1 past each end
+    np.add.at(edges, lo, 1)
+    np.add.at(edges, hi, -1)
+    cols = np.flatnonzero(np.cumsum(edges[:-1]) > 0)
+    sub = compensated.copy_vars("slow_time_s", "xyz", "scan_angle_deg", "position_m", "velocity_mps")
+    sub.add("range_m", range_m[cols], ("range_m",), "m", "slant range")
+    echo = np.asarray(compensated["sum"])[:, cols]
+    sub.add("sum", echo, ("slow_time_s", "range_m"), "1", "sum channel")
+    sub.add("diff", echo, ("slow_time_s", "range_m"), "1", "the sum channel (not read)")
+    return doppler_spectra(sub, **doppler_params)
+
+
+def target_rows(cube, final, proc: dict, geo: dict, spectra_of=None, compensated_of=None) -> tuple[list, str | None]:
     """(rows, islr_from) of a forward-looking image against the cube's truth: ``evaluate.target_metrics``,
-    the ``resolved`` flags (the joint fit's own inside its region), and where the CPI Doppler spectra
-    are at hand (``spectra_of()`` returns them: imaging ``cpi``) ISLR, PSLR, the range width and the
-    peak loss from each target's range profile over its dwell (``evaluate.dwell_profile_metrics``),
-    the image cut's kept as ``image_*``.  ``islr_from`` says which ISLR the rows hold:
-    ``dwell_profile`` or ``image_cut`` (None without truth)."""
+    the ``resolved`` flags (the joint fit's own inside its region), and ISLR, PSLR, the range width and
+    the peak loss from each target's range profile over its dwell (``evaluate.dwell_profile_metrics``),
+    the image cut's kept as ``image_*``.  The profiles read the CPI Doppler spectra: ``spectra_of()``
+    returns them (imaging ``cpi``), or ``compensated_of()`` the ``range_curvature`` stage's output,
+    whose spectra :func:`profile_spectra` computes on the targets' windows (imaging ``dwell``).
+    ``islr_from`` says which ISLR the rows hold: ``dwell_profile``, or ``image_cut`` where neither is
+    given (None without truth)."""
     from ..dsp.antenna import sum_voltage_for
-    from .evaluate import dwell_profile_metrics, resolved_flags, target_metrics
+    from .evaluate import dwell_profile_metrics, resolved_flags, target_metrics, truth_at_t_ref
 
     truth = cube.truth_xyz_m()
     if truth is None:
@@ -51,13 +84,17 @@ def target_rows(cube, final, proc: dict, geo: dict, spectra_of=None) -> tuple[li
         flags = np.where(inside, fit_flags, flags)
     for row, flag in zip(rows, flags):
         row["resolved"] = bool(flag)
-    if spectra_of is None:                  # imaging: dwell (no CPI spectra): the image cut's measures
+    window_m = PROFILE_WINDOW_CELLS * C_MPS / (2.0 * bandwidth_hz)
+    if spectra_of is not None:
+        spectra = spectra_of()
+    elif compensated_of is not None:        # imaging: dwell: stage 6 on the profiles' windows only
+        spectra = profile_spectra(compensated_of(), geo["doppler_params"],
+                                  truth_at_t_ref(truth, np.asarray(geo["p_ref"]))[0], window_m)
+    else:                                   # no compensated data at hand: the image cut's measures
         return rows, "image_cut"
-    spectra = spectra_of()
     dwell = dwell_profile_metrics(spectra, truth, cube.truth["amplitude"],
                                   sum_voltage_for(float(cube.radar["beamwidth_3db_deg"]), cube.antenna),
-                                  geo["p_ref"], range_window_m=PROFILE_WINDOW_CELLS * C_MPS / (2.0 * bandwidth_hz),
-                                  two_way_width_deg=two_way_deg)
+                                  geo["p_ref"], range_window_m=window_m, two_way_width_deg=two_way_deg)
     del spectra                               # 2x the cube: not held longer than this
     for row, extra in zip(rows, dwell):
         row["image_islr_db"], row["image_pslr_db"] = row["islr_db"], row["pslr_db"]

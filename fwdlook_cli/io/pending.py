@@ -32,9 +32,17 @@ def staged(run_dir, name: str) -> Path:
 
 
 def discard(run_dir, *, raw: bool) -> None:
-    """Remove the staged outputs (``raw``: the staged cube too)."""
+    """Remove the staged outputs (``raw``: the staged cube too), and the partial files of their writes
+    that a killed command left (``.fwdlook-new.image.partial.png``: Ctrl-C while the quick look was
+    drawn, found by an independent review; the next run had written around it and left it for good).
+    Their names are fwdlook's own; regular files only, never a link."""
+    run_dir = Path(run_dir)
     for name in OUTPUTS if raw else OUTPUTS[1:]:
         staged(run_dir, name).unlink(missing_ok=True)
+        stem, suffix = os.path.splitext(staged(run_dir, name).name)
+        for leftover in run_dir.glob(f"{stem}.partial*{suffix}"):
+            if leftover.is_file() and not leftover.is_symlink():
+                leftover.unlink(missing_ok=True)
 
 
 def commit(run_dir, *, raw: bool) -> None:

@@ -62,6 +62,29 @@ class _Cut:
     islr_db: float
 
 
+RESIDUAL_GAIN_DB = -1.0    # with a span over a cell, the integration gain below which a correction is said not to hold
+
+
+def _say_residual_migration(correction: str, summary: dict) -> None:
+    """One warning where the corrected echo still migrates over more than a range resolution cell and its
+    integration gain is more than 1 dB under the ideal: the correction does not hold for this geometry (keystone2_n0 beyond about 15 deg of theta0, a wrong
+    n0_pulses, keystone1's curvature), which had ended with exit 0 and nothing said (an independent
+    review: -17.1 dB of integration gain at 30 deg, the target not detected)."""
+    span, gain = summary.get("migration_span_cells"), summary.get("integration_gain_db")
+    # both: the span alone reads over a cell from noise (1.7 cells at 10 dB per sample, the gain -0.2 dB)
+    if span is None or not span > 1.0 or (gain is not None and gain > RESIDUAL_GAIN_DB):
+        return
+    n0 = ""
+    true, used = summary.get("n0_true_pulses"), summary.get("n0_used_pulses")
+    if correction.startswith("keystone2_n0") and true is not None and used is not None and abs(used - true) > 1.0:
+        n0 = f"; n0 used {used:.0f} pulses, the truth's {true:.0f}"
+    logging.getLogger(__name__).warning(
+        f"processing.correction {correction}: the corrected echo still migrates over {span:.2f} range resolution "
+        f"cells" + (f" (integration gain {gain:+.1f} dB against the ideal)" if gain is not None else "") + n0
+        + ": this correction does not hold here (README, ISAR, 'Limits of the method'); compare the others "
+        "(a sweep over processing.correction)")
+
+
 def _cut_metrics(line, idx, spacing, factor=16):
     """Local peak of a band-limited line near sample ``idx``, with its width, PSLR and ISLR.
 
@@ -257,6 +280,7 @@ def isar_outputs(final: StageData, cube, processing: dict):
         "n0_used_pulses": float(final.attrs.get("n0_used_pulses", 0.0)),
         "n0_est_pulses": float(final.attrs["n0_est_pulses"]) if correction == "keystone2_n0_est" else None,
     }
+    _say_residual_migration(correction, summary)
     params = {k: processing.get(k) for k in ("correction", "keystone", "ambiguity", "n0_pulses",
                                              "azimuth_phase", "n0_search")}
     params.update({"ambiguity_numbers": sorted(set(int(a) for a in final["ambiguity_number"]))

@@ -205,6 +205,10 @@ class _Dask:
         except (OSError, TimeoutError) as exc:
             raise BadInput(f"--scheduler {address}: no Dask scheduler answers there ({_error_text(exc)}); "
                            f"allowed: local or the address of a running dask scheduler (tcp://HOST:PORT)") from None
+        except (ValueError, TypeError) as exc:   # a malformed address (http://x, tcp://, ucx:// without ucx):
+            # distributed's own parse errors, which had ended in a traceback (an independent review)
+            raise BadInput(f"--scheduler {address}: not a Dask scheduler address ({_error_text(exc)}); "
+                           f"allowed: local or the address of a running dask scheduler (tcp://HOST:PORT)") from None
         pids = set(self.client.run(os.getpid).values())
         if pids and os.getpid() not in pids:
             self.client.run(limit_threads)           # worker processes: one thread per task slot
