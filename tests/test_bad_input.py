@@ -775,3 +775,13 @@ def test_a_bad_processing_preset_is_one_line_naming_the_preset(tmp_path, capsys,
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and lines[0].startswith(f"fwdlook: error: {preset}:"), err
     assert fragment in lines[0] and not (tmp_path / "out" / "metrics.json").exists()
+
+
+def test_a_refused_set_value_names_the_setting_and_a_yaml_boolean_says_so(tmp_path, capsys):
+    """A value given by --set had read as the scenario file's own (`tiny.yaml: processing.q = 7: ...`); and
+    an unquoted off/no/yes arrives as a boolean, which the message now says (an independent review)."""
+    code, out, err = run_cli(["validate", str(TINY), "--set", "processing.q=7"], capsys)
+    assert code == 2 and err.strip().endswith("(set by --set processing.q=7)"), err
+    code, out, err = run_cli(["validate", str(TINY), "--set", "processing.keystone=off"], capsys)
+    assert code == 2 and "allowed: czt, dft, sinc (YAML reads off, on, no and yes as true/false" in err, err
+    assert len(err.strip().splitlines()) == 1

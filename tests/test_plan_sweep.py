@@ -283,13 +283,15 @@ def test_one_depression_error_closed_form():
     assert folded[2] == 0.0 and folded[0] > 0.0          # 3300 m folds (df = -1.3 kHz), the reference does not
 
 
-def test_one_reference_depression_at_steep_depression_is_measured_and_said(tmp_path, capsys):
+@pytest.mark.parametrize("method", ["tracking", "beam"])
+def test_one_reference_depression_at_steep_depression_is_measured_and_said(tmp_path, capsys, method):
     """3 km up, slant ranges 3.6-4.7 km: the boresight Doppler changes by 3.6 kHz across the window, more
-    than the PRF (2 kHz). `tracking` follows the Doppler at the reference depression and resolves
-    +-PRF / 2 about it, so the near point (df -1.4 kHz) folds by one ambiguity and lands lambda PRF / 2
-    metres per second of its lever from t_ref off in range (an independent review: 13.6 m, exit 0, no
-    warning). Measured against that closed form, the points inside the plan's span within half a range
-    sample, and the run says so in one warning that names the span."""
+    than the PRF (2 kHz). With one reference depression (`processing.subswaths: none`) `tracking` resolves
+    +-PRF / 2 about the reference's Doppler, so the near point (df -1.4 kHz) folds by one ambiguity and
+    lands lambda PRF / 2 metres per second of its lever from t_ref off in range (an independent review:
+    13.6 m, exit 0, no warning): measured against that closed form, and said in one warning naming the
+    span; `beam` shifts by the reference's range history and is off too. With sub-swaths (`auto`, the
+    default) every point is within half a range sample, and the run says how many it used."""
     from cli_runner import run_cli
 
     raw = yaml.safe_load((ROOT / "scenarios" / "tiny.yaml").read_text())
@@ -297,23 +299,29 @@ def test_one_reference_depression_at_steep_depression_is_measured_and_said(tmp_p
     raw["platform"]["height_m"] = 3000.0
     raw["scene"]["points_m"] = [[300.0, 2000.0], [-300.0, 3600.0], [0.0, 2800.0], [200.0, 2300.0]]
     raw["noise"]["snr_db"] = None
-    raw["processing"].update(method="tracking", q=1, cpi=32, imaging="cpi")
+    raw["processing"].update(method=method, q=1, cpi=32, imaging="cpi")
     path = tmp_path / "steep.yaml"
     path.write_text(yaml.safe_dump(raw))
-    code, out, err = run_cli(["run", str(path), "-o", str(tmp_path / "r")], capsys)
-    assert code == 0, err
-    said = [line for line in err.splitlines() if "one reference depression" in line]
-    assert len(said) == 1 and "process range gates within that span separately" in said[0]
-    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
     half = C_MPS / (2 * 24e6) / 2
-    lam, prf, t_ref = C_MPS / 10e9, 2000.0, m["t_ref_s"]
-    rows = {round(t["x_m"]): t for t in m["targets"]}
-    near = rows[300]
-    t_seen = (near["true_azimuth_deg"] + 10.0) / 25.0            # the beam on its azimuth (scan -10 deg, 25 deg/s)
-    assert abs(near["range_error_m"]) == pytest.approx(lam / 2 * prf * abs(t_seen - t_ref), rel=0.1)
-    assert abs(near["range_error_m"]) > half
-    for x in (0, 200):                                          # near the reference range: held
-        assert abs(rows[x]["range_error_m"]) < half
+    runs = {}
+    for mode in ("none", "auto"):
+        code, out, err = run_cli(["run", str(path), "-o", str(tmp_path / mode), "--set", f"processing.subswaths={mode}"],
+                                 capsys)
+        assert code == 0, err
+        runs[mode] = ({round(t["x_m"]): t for t in json.loads((tmp_path / mode / "metrics.json").read_text())["targets"]},
+                      err)
+    rows, err = runs["none"]
+    said = [line for line in err.splitlines() if "one reference depression" in line]
+    assert len(said) == 1 and "processing.subswaths: auto corrects the window" in said[0]
+    assert abs(rows[300]["range_error_m"]) > half and abs(rows[0]["range_error_m"]) < half
+    if method == "tracking":
+        lam, prf = C_MPS / 10e9, 2000.0
+        t_ref = json.loads((tmp_path / "none" / "metrics.json").read_text())["t_ref_s"]
+        t_seen = (rows[300]["true_azimuth_deg"] + 10.0) / 25.0        # the beam on its azimuth (-10 deg, 25 deg/s)
+        assert abs(rows[300]["range_error_m"]) == pytest.approx(lam / 2 * prf * abs(t_seen - t_ref), rel=0.1)
+    rows, err = runs["auto"]
+    assert "sub-swaths, one reference depression each" in err and "one reference depression (" not in err
+    assert all(abs(t["range_error_m"]) < half for t in rows.values()), {x: t["range_error_m"] for x, t in rows.items()}
     # the paper's windows (50 m up) hold one depression by far
     p = plan_for_scenario(paper("paper_fig6_a50.yaml"))
     assert p["one_depression"]["keystone"]["error_m"] < 0.1 * p["half_range_cell_m"]

@@ -117,12 +117,22 @@ def regroup(data: StageData) -> StageData:
 # ----------------------------------------------------------------------------------------------
 def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: float, prf_hz: float,
                    t_ref_s: float, ambiguity: int, doppler_ref_hz: float, depression_deg: float,
-                   reference_range_m: float, n_taps: int = 16) -> StageData:
+                   reference_range_m: float, n_taps: int = 16, subswaths: list | None = None) -> StageData:
     """Stage 3: range-migration correction of every sub-sequence (layout [P, Q, n_fr]).
 
     ``ambiguity`` is the Doppler ambiguity number at the sub-sequence rate PRF/Q (eq. 17 and 20),
     ``doppler_ref_hz`` the unrounded reference Doppler the sinc implementation demodulates.
+    ``subswaths`` (steep depression, ``forward/subswath.py``): the window corrected in parts, each with
+    its own reference depression, range, Doppler and ambiguity number.
     """
+    if subswaths:
+        from .subswath import keystone_subswaths
+
+        out = keystone_subswaths(data, subswaths, keystone_stage, method=method, implementation=implementation,
+                                 fc_hz=fc_hz, prf_hz=prf_hz, t_ref_s=t_ref_s, n_taps=n_taps)
+        out.attrs.update(method=method, keystone=implementation, ambiguity_number=int(ambiguity),
+                         t_ref_s=float(t_ref_s), subswaths=len(subswaths))
+        return out
     out = _ctx(data)
     for name in ("fr_hz", "range_m", "subseq", "sub_pulse"):
         out.vars[name] = data.vars[name]
@@ -380,10 +390,22 @@ def build_forward_stages(cube, proc: dict):
     """(source StageData, [Stage]) for a raw cube and resolved ``processing`` settings."""
     from .calibration import calibration_for_cube
 
-    from .plan import method_budget_warnings
+    from .plan import method_budget_warnings, plan_for_cube
+    from .subswath import plan_subswaths
 
     geo = chain_geometry(cube, proc)
-    for line in method_budget_warnings(cube, proc):      # where the method cannot hold (README, "Methods")
+    q_run = proc["q"] if proc["method"] == "decimation" else 1
+    plan = plan_for_cube(cube, proc, q_candidates=sorted({1, q_run}))
+    # steep depression: one reference depression per range sub-swath where one for the window does not hold
+    subswaths, left_m = (None, 0.0) if proc.get("subswaths", "auto") == "none" else plan_subswaths(
+        height_m=float(geo["p_ref"][2]), range_m=cube.range_m, velocity_mps=geo["v_ref"], fc_hz=cube.radar["fc_hz"],
+        prf_hz=cube.radar["prf_hz"], q=q_run, method=proc["method"], lever_s=plan["lever_max_s"],
+        walk_m=plan["range_walk_m"], bandwidth_hz=cube.radar["bandwidth_hz"])
+    geo["subswaths"] = len(subswaths) if subswaths else 1
+    if subswaths:
+        log.info(f"steep depression: the keystone stage corrects the range window in {len(subswaths)} sub-swaths, "
+                 "one reference depression each (README, steep depression)")
+    for line in method_budget_warnings(plan, proc, len(subswaths or ()), left_m):   # where the method cannot hold
         log.warning(line)
     m_ref = int(round((geo["t_ref_s"] - cube.slow_time_s[0]) * cube.radar["prf_hz"]))
     geo["calibration"] = calibration_for_cube(cube, proc.get("monopulse_calibration", "auto"),
@@ -443,7 +465,8 @@ def build_forward_stages(cube, proc: dict):
         Stage("keystone", keystone_stage, {
             "method": method, "implementation": proc["keystone"], "fc_hz": fc, "prf_hz": prf,
             "t_ref_s": geo["t_ref_s"], "ambiguity": ambiguity, "doppler_ref_hz": geo["f_dc0_hz"],
-            "depression_deg": geo["depression_deg"], "reference_range_m": geo["reference_range_m"]}),
+            "depression_deg": geo["depression_deg"], "reference_range_m": geo["reference_range_m"],
+            **({"subswaths": subswaths} if subswaths else {})}),
         Stage("regroup", regroup, {}, view=True),
         Stage("range_curvature", range_curvature, {
             "model": curvature, "radial_accel_mps2": geo["radial_accel_mps2"], "t_ref_s": geo["t_ref_s"],

@@ -44,6 +44,8 @@ def gpu_path(name: str, params: dict) -> str | None:
             return f"method {params['method']} has no keystone"
         if params["implementation"] != "czt":
             return f"keystone {params['implementation']} has no GPU path (only czt)"
+        if params.get("subswaths"):
+            return "range sub-swaths (steep depression) have no GPU path"
     if name == "doppler_spectra" and params.get("estimator", "fft") != "fft":
         return f"doppler_estimator {params['estimator']} has no GPU path (only fft)"
     return None

@@ -121,7 +121,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
     return {
         "half_range_cell_m": half_cell_m, "reference_range_m": float(reference_range_m),
         "depression_deg": float(np.degrees(phi)), "dwell_s": float(dwell_s), "t_ref_s": float(t_ref_s),
-        "range_walk_m": walk_m, "needs_walk_correction": walk_m >= half_cell_m,
+        "range_walk_m": walk_m, "needs_walk_correction": walk_m >= half_cell_m, "lever_max_s": lever_max,
         "range_curvature_m": curvature_m, "needs_curvature": curvature_m >= half_cell_m,
         "forward_accel_mps2": float(accel[1]), "accel_mps2": [float(a) for a in accel],
         "ambiguity_number_boresight": int(ambiguity_number(f_dc0, prf_hz)),
@@ -160,14 +160,15 @@ def plan_for_cube(cube, proc: dict, q_candidates=None) -> dict:
     return out
 
 
-def method_budget_warnings(cube, proc: dict) -> list[str]:
-    """What the plan's budget says of the method that runs, where it misses half a range sample: the
-    residual walk of ``none``, ``traditional`` and ``decimation`` at its Q (eq. 19-20), and what one
-    reference depression leaves across the range window (steep depression, any method but ``none``).
-    One line each, for the log; an empty list where the method holds."""
+def method_budget_warnings(plan: dict, proc: dict, subswaths: int = 0, subswath_error_m: float = 0.0) -> list[str]:
+    """What the plan's budget (:func:`plan_for_cube` with the run's Q among its candidates) says of the
+    method that runs, where it misses half a range sample: the residual walk of ``none``,
+    ``traditional`` and ``decimation`` at its Q (eq. 19-20), and what one reference depression leaves
+    across the range window (steep depression, any method but ``none``), or where the keystone stage
+    splits the window (``subswaths`` of them, ``forward/subswath.py``) what they still leave.  One line
+    each, for the log; an empty list where the method holds."""
     method = proc["method"]
     q = int(proc.get("q", 1)) if method == "decimation" else 1
-    plan = plan_for_cube(cube, proc, q_candidates=sorted({1, q}))
     half = plan["half_range_cell_m"]
     row = next(r for r in plan["decimation"] if r["q"] == q)
     out = []
@@ -178,15 +179,20 @@ def method_budget_warnings(cube, proc: dict) -> list[str]:
         out.append(f"processing.method {method}" + (f" (Q = {q})" if method == "decimation" else "")
                    + f": the plan's budget leaves up to {residual:.2f} m of {what} against half a range sample "
                    f"{half:.2f} m (`fwdlook plan` gives each method's)")
-    if method != "none":
+    if method != "none" and subswaths:
+        if subswath_error_m > half:
+            out.append(f"processing.method {method}: even in {subswaths} range sub-swaths, one reference depression "
+                       f"each, the window's Doppler across range leaves up to {subswath_error_m:.2f} m of range error "
+                       f"against half a range sample {half:.2f} m (README, steep depression)")
+    elif method != "none":
         dep = plan["one_depression"]["shift"] if method in ("bulk", "beam") else row["one_depression"]
         if dep["error_m"] > half:
             out.append(f"processing.method {method}: the boresight Doppler changes by "
                        f"{plan['doppler_range_spread_hz']:.0f} Hz across the range window, and one reference "
                        f"depression ({plan['depression_deg']:.1f} deg at {plan['reference_range_m']:.0f} m) leaves "
                        f"targets outside {dep['span_m'][0]:.0f}-{dep['span_m'][1]:.0f} m (slant) up to "
-                       f"{dep['error_m']:.2f} m off in range against half a range sample {half:.2f} m; process "
-                       "range gates within that span separately (README, steep depression)")
+                       f"{dep['error_m']:.2f} m off in range against half a range sample {half:.2f} m; "
+                       "processing.subswaths: auto corrects the window in range sub-swaths (README, steep depression)")
     return out
 
 
@@ -243,7 +249,7 @@ def format_plan(plan: dict, name: str) -> str:
                 f"NOT HELD: tracking/traditional up to {dep['keystone']['error_m']:.2f} m outside "
                 f"{dep['keystone']['span_m'][0]:.0f}-{dep['keystone']['span_m'][1]:.0f} m, beam/bulk up to "
                 f"{dep['shift']['error_m']:.2f} m outside {dep['shift']['span_m'][0]:.0f}-"
-                f"{dep['shift']['span_m'][1]:.0f} m: process range gates within those spans separately")
+                f"{dep['shift']['span_m'][1]:.0f} m: the chain corrects it in range sub-swaths (processing.subswaths)")
             + " (the window's Doppler across range at one depression)")
     if plan.get("range_oversample_auto") is not None:
         lines.append(f"  range oversampling   x {plan['range_oversample_auto']} (processing.range_oversample auto: "

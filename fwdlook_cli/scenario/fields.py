@@ -101,7 +101,9 @@ def boolean(value: Any) -> bool:
 def choice(*allowed: str) -> Callable[[Any], str]:
     def check(value):
         if not isinstance(value, str) or value not in allowed:
-            raise ValueError(f"allowed: {', '.join(allowed)}")
+            # YAML 1.1 reads off/on/no/yes unquoted as booleans: said where that is what arrived
+            hint = " (YAML reads off, on, no and yes as true/false: quote a word)" if isinstance(value, bool) else ""
+            raise ValueError(f"allowed: {', '.join(allowed)}{hint}")
         return value
 
     check.allowed = allowed

@@ -143,6 +143,10 @@ FORWARD_SCHEMA: dict[str, Any] = {
                              "imaging: dwell, where a projected cell's range comes from: envelope, the range "
                              "of the cell; iso_doppler, moved along the cell's iso-Doppler line to the "
                              "monopulse azimuth (steep depression: README, dwell imaging)"),
+        "subswaths": Field(choice("auto", "none"), "auto",
+                           "steep depression: auto corrects the range window in range sub-swaths, one reference "
+                           "depression each, where one for the whole window leaves over half a range sample "
+                           "(forward/subswath.py); none, one for the window always"),
         "doppler_estimator": Field(choice("fft", "iaa"), "fft",
                                    "per-CPI Doppler estimate (imaging: cpi): fft, the zoomed DFT; iaa, the "
                                    "iterative adaptive approach (Yardibi et al. 2010) per range cell"),

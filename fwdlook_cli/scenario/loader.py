@@ -127,9 +127,15 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, chec
     kind = raw.get("kind", "forward")
     if not isinstance(kind, str) or kind not in SCHEMAS:        # (a list or mapping is unhashable)
         raise BadInput(f"{source}: kind = {_show(kind)}: allowed: {', '.join(SCHEMAS)}")
-    resolved = _resolve(raw, SCHEMAS[kind], "", source)
+    try:
+        resolved = _resolve(raw, SCHEMAS[kind], "", source)
+        if kind == "forward":
+            CROSS_CHECKS[kind](resolved, source, check_pulses=check_pulses)
+        else:
+            CROSS_CHECKS[kind](resolved, source)
+    except BadInput as exc:
+        raise _with_the_setting(exc, source, overrides) from None
     if kind == "forward":
-        CROSS_CHECKS[kind](resolved, source, check_pulses=check_pulses)
         set_keys = set()                 # the scene keys the overrides name (scene.KEY..., or scene={KEY: ...})
         for item in overrides or ():
             path, value = (part.strip() for part in item.split("=", 1))
@@ -138,9 +144,19 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, chec
             elif path == "scene" and isinstance(scene_value := yaml_load(value, source), dict):
                 set_keys |= set(scene_value)
         warn_unused_scene_keys(raw.get("scene"), set_keys, source)      # a valid scenario only (one line else)
-    else:
-        CROSS_CHECKS[kind](resolved, source)
     return resolved
+
+
+def _with_the_setting(exc: BadInput, source: str, overrides) -> BadInput:
+    """A refusal of a key that a ``--set`` gave names that setting too: it had read as the scenario
+    file's own value (``tiny.yaml: processing.q = 7: ...`` for ``--set processing.q=7``; an independent
+    review)."""
+    text = str(exc)
+    for item in reversed(list(overrides or ())):
+        key = item.split("=", 1)[0].strip()
+        if key and text.startswith(f"{source}: {key}") and text[len(source) + 2 + len(key):][:1] in (" ", ":", ""):
+            return BadInput(f"{text} (set by --set {item.strip()})")
+    return exc
 
 
 def load_scenario(path: str | Path, overrides=()) -> dict:
