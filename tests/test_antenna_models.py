@@ -292,3 +292,18 @@ def test_the_squint_curve_is_computed_in_small_blocks_with_the_same_numbers():
         finally:
             mp.undo()
         assert np.array_equal(rho, rho_whole) and np.array_equal(q, q_whole) and np.array_equal(q, q_small)
+
+
+def test_a_pattern_csv_row_that_is_not_numbers_is_named_and_a_header_holds_none(tmp_path):
+    """A first row of numbers with one garbled cell had been dropped as a header (an independent review:
+    exit 0); a header is a first row that holds no number. A bad row is refused naming its line."""
+    v = lambda d: np.exp(-np.log(2.0) * d * d / 18.0)      # noqa: E731  one-way voltage, -3 dB power at +-3 deg
+    good = "\n".join(f"{d},{v(d)},{np.tanh(0.3 * d) * v(d)}" for d in np.linspace(-6, 6, 13))
+    (tmp_path / "ok.csv").write_text("offset_deg,sum,diff\n" + good + "\n")
+    assert len(read_pattern_file(tmp_path / "ok.csv", 6.0)._d) == 13
+    (tmp_path / "garbled.csv").write_text("-7abc,0.01,-0.01\n" + good + "\n")
+    with pytest.raises(AntennaDesignError, match=r"line 1: '-7abc,0.01,-0.01'"):
+        read_pattern_file(tmp_path / "garbled.csv", 6.0)
+    (tmp_path / "middle.csv").write_text("offset_deg,sum,diff\n" + good + "\nx,0.9,0.1\n")
+    with pytest.raises(AntennaDesignError, match=r"line 15: 'x,0.9,0.1'"):
+        read_pattern_file(tmp_path / "middle.csv", 6.0)

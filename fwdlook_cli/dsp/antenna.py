@@ -406,6 +406,14 @@ class TableAntenna(_RatioInverse):
         return np.interp(np.asarray(offset_deg, dtype=np.float64), self._d, self._g, left=0.0, right=0.0)
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def read_pattern_file(path: str | Path, beamwidth_3db_deg: float | None = None) -> TableAntenna:
     """A measured pattern from CSV (columns offset_deg, sum, diff; '#' comments, optional header) or
     HDF5 (datasets ``offset_deg``, ``sum``, ``diff`` at the root or in ``/antenna``)."""
@@ -413,6 +421,8 @@ def read_pattern_file(path: str | Path, beamwidth_3db_deg: float | None = None) 
     key = "antenna.pattern_file"
     if not path.exists():
         raise AntennaDesignError(f"{path}: pattern file not found", key)
+    if path.is_dir():
+        raise AntennaDesignError(f"{path}: a folder, not a pattern file (CSV or HDF5)", key)
     if path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
         import h5py
 
@@ -423,24 +433,32 @@ def read_pattern_file(path: str | Path, beamwidth_3db_deg: float | None = None) 
         except (OSError, KeyError) as exc:
             raise AntennaDesignError(f"{path}: expected HDF5 datasets offset_deg, sum, diff ({exc})", key) from None
     else:
+        where = ""
         try:
-            rows = []
-            for line in path.read_text(encoding="utf-8").splitlines():
+            rows, header_seen = [], False
+            for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
                 line = line.split("#", 1)[0].strip()
                 if not line:
                     continue
                 parts = [p for p in line.replace(",", " ").split()]
+                where = f" (line {number}: {line[:60]!r})"
                 try:
                     rows.append([float(p) for p in parts])
                 except ValueError:
-                    if rows:
+                    # a header is the first row and holds no number (a first row of numbers with one
+                    # garbled cell had been dropped as a header: an independent review)
+                    if rows or header_seen or any(_is_number(p) for p in parts):
                         raise
-                    continue  # header line
+                    header_seen = True
+                    continue
+                if len(rows[-1]) != 3:
+                    raise ValueError("columns")
+            where = ""
             arr = np.array(rows, dtype=np.float64)
             if arr.ndim != 2 or arr.shape[1] != 3:
                 raise ValueError("columns")
         except (OSError, UnicodeDecodeError, ValueError):
-            raise AntennaDesignError(f"{path}: expected CSV rows offset_deg, sum, diff (numbers)", key) from None
+            raise AntennaDesignError(f"{path}: expected CSV rows offset_deg, sum, diff (numbers){where}", key) from None
         cols = [arr[:, 0], arr[:, 1], arr[:, 2]]
     return TableAntenna(*cols, beamwidth_3db_deg=beamwidth_3db_deg, source=str(path))
 

@@ -136,7 +136,8 @@ def read_map(spec: str, *, where: str = "scene.image.file", image_cfg: dict | No
     path = Path(path_s)
     allowed = "a PNG, TIFF, .npy, path.h5:/dataset or procedural:roads"
     if not path.is_file():
-        raise BadInput(f"{path}: {where}: image file not found; allowed: {allowed}")
+        what = "a folder, not an image file" if path.is_dir() else "image file not found"
+        raise BadInput(f"{path}: {where}: {what}; allowed: {allowed}")
     suffix = path.suffix.lower()
     try:
         if dataset is not None or suffix in (".h5", ".hdf5", ".hdf"):
