@@ -170,8 +170,9 @@ config_option = click.option("-c", "--config", "config", default=None, metavar="
 raw_option = click.option("--raw", "raw", default=None, metavar="RAW.h5", help="Process this cube instead of simulating.")
 keep_stages_option = click.option(
     "--keep-stages", "keep_stages", type=click.Choice(["all", "last", "none"]), default="all", show_default=True,
-    help="Stage files written: all (resumable), last (the image stage; with CPI imaging also the Doppler "
-         "spectra its metrics read), none (fastest; a rerun recomputes everything).")
+    help="Stage files written: all (resumable), last (the image stage, and what its profile metrics read: "
+         "the Doppler spectra with CPI imaging, the range-curvature output with dwell imaging of a cube with "
+         "truth), none (fastest; a rerun recomputes everything).")
 output_dir_option = click.option("-o", "--output", "output", default=None, metavar="RUN_DIR",
                                  help="Run directory (default runs/<scenario name>).")
 out_of_core_option = click.option(

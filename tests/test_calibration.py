@@ -625,21 +625,27 @@ def test_dwell_imaging_follows_a_tables_imbalance(tmp_path):
 def test_a_fitted_curve_no_antenna_of_the_beam_has_is_no_calibration():
     """The data's tanh fit on pooled samples whose null lies far outside the sum beam (a noiseless cube's
     one track in an independent review: null 22.9 deg off, which then refused the cube's right /antenna as
-    "sign reversed") is refused as no calibration; a null inside the half-power width is kept."""
+    "sign reversed") is refused as no calibration; a null inside the half-power width is kept, and so is
+    any difference/sum gain."""
     from fwdlook_cli.errors import BadInput
     from fwdlook_cli.forward.calibration import estimate_calibration
 
     rng = np.random.default_rng(1)
     delta = np.linspace(-3.5, 3.5, 600)
 
-    def samples(null_deg):
-        z = np.tanh(0.36 * (delta - null_deg)) + 0.01 * (rng.standard_normal(600) + 1j * rng.standard_normal(600))
+    def samples(null_deg, gain=1.0):
+        z = gain * np.tanh(0.36 * (delta - null_deg)) + 0.01 * (rng.standard_normal(600) + 1j * rng.standard_normal(600))
         return {"scatterer": np.zeros(600, int), "offset_deg": delta, "z": z, "weight": np.ones(600),
                 "den": np.ones(600), "pow3": np.ones(600), "noise_power": 1e-4, "x_m": np.zeros(1), "y_m": np.zeros(1)}
 
     assert estimate_calibration(samples(2.5), beamwidth_deg=6.0).boresight_offset_deg == pytest.approx(2.5, abs=0.01)
     with pytest.raises(BadInput, match="no credible ratio curve"):
         estimate_calibration(samples(20.0), beamwidth_deg=6.0)
+    # a difference channel 20 dB weaker or 30 dB stronger than the sum is a receiver's gain, not a
+    # curve no antenna has (a second review: both had been refused by a bound on the boresight slope)
+    for gain in (0.1, 31.6):
+        cal = estimate_calibration(samples(0.3, gain), beamwidth_deg=6.0)
+        assert cal.stats["effective_slope_per_deg"] == pytest.approx(0.36 * gain, rel=0.05)
 
 
 def test_the_slope_uncertainty_includes_the_tanh_models_own_error():

@@ -156,8 +156,8 @@ def fft_workers_on_usable_cores() -> int | None:
     ``taskset``, a container's ``--cpuset-cpus`` or ``--cpus``) each such transform was split into a task
     per core of the machine, all on the few allowed.  With the machine's count faked to 64 (16) on this
     2-core VM, one fft2 of the paper cube took 4.9 against 4.3 ms (4.6 against 3.8), with 28 % (33 %) more
-    CPU, slower in 28 (30) of 30 alternated batches (README, Speed).  The same numbers with pocketfft
-    (each 1-D transform is computed whole by one thread); scipy 1.18's ducc rounds a transform by its
+    CPU, slower in 28 (30) of 30 alternated batches (docs/SPEED.md, its last section).  The same numbers
+    with pocketfft (each 1-D transform is computed whole by one thread); scipy 1.18's ducc rounds a transform by its
     place in the batch, so there the count moves the numbers at float32 rounding (README, "Python and
     library versions").  Called by the command line, never on import (a host program's threads are its
     own)."""

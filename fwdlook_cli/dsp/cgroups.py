@@ -16,8 +16,8 @@ of the affinity and this limit, rounded up.  Measured on this project's 2-core V
 machine faked (a preloaded ``get_nprocs``, ``sysconf`` and ``sched_getaffinity``) in a cgroup limited
 to 2 CPUs, the paper cube's ``decimation`` chain took 175.5 ms with the machine's counts and 152 ms with
 the limit's (medians of ten alternated pairs of processes; faster in eight), and limited to 1 CPU 287
-against 226 ms (six pairs, faster in six) (README, Speed).  cgroup v2: ``cpu.max`` ("max PERIOD": none;
-"200000 100000": 2 CPUs); v1: ``cpu.cfs_quota_us`` (-1: none) over ``cpu.cfs_period_us``.  Read once per
+against 226 ms (six pairs, faster in six) (docs/SPEED.md, its last section).  cgroup v2: ``cpu.max``
+("max PERIOD": none; "200000 100000": 2 CPUs); v1: ``cpu.cfs_quota_us`` (-1: none) over ``cpu.cfs_period_us``.  Read once per
 process (:func:`cached_cpu_limit`): the limit of a running process seldom changes.
 """
 from __future__ import annotations

@@ -202,25 +202,29 @@ def calibration_from_antenna(antenna: dict, beamwidth_deg: float) -> Calibration
 NOISE_CHI2_NOTE = 1.3   # the fit's residual over its noise, per sample, above which the stats carry a note
 
 
-CREDIBLE_SLOPE_FACTOR = 20.0   # the data's boresight slope within 1/20..20 times a beam's own, 2 / beamwidth
+CREDIBLE_SLOPE_FACTOR = 20.0   # the ratio curve's bend within 1/20..20 times a beam's own, 2 / beamwidth
 
 
-def check_credible_null_and_slope(null_deg: float, effective_slope_per_deg: float, beamwidth_deg: float,
+def check_credible_null_and_slope(null_deg: float, bend_per_deg: float | None, beamwidth_deg: float,
                                   n_scatterers: int) -> None:
     """A fitted ratio curve no antenna of this beamwidth has is refused as no calibration: its null
-    outside the sum beam's half-power width, or its boresight slope more than CREDIBLE_SLOPE_FACTOR from
-    2 / beamwidth (fwdlook's Gaussian designs: 0.44 times it at a 1.5 deg squint of a 6 deg beam, 1.08 at
-    the half-power crossing).  Found on a noiseless cube (an independent review): one track fitted to a
-    null 22.9 deg off, which then refused the cube's right /antenna as "sign reversed".  BadInput,
-    which ``auto`` reads as "the data allow no calibration" (the group is taken as it is)."""
+    outside the sum beam's half-power width, or, where the data determine it (``bend_per_deg`` not None),
+    the curve's own bend k (its slope apart from the difference/sum gain) more than CREDIBLE_SLOPE_FACTOR
+    from 2 / beamwidth (fwdlook's Gaussian designs: 0.44 times it at a 1.5 deg squint of a 6 deg beam,
+    1.08 at the half-power crossing).  The boresight slope of Re(diff/sum) is not judged: it holds the
+    receiver's difference/sum gain, which may be tens of dB (an independent review: a difference channel
+    20 dB weaker or 30 dB stronger had been refused).  Found on a noiseless cube (an independent review):
+    one track fitted to a null 22.9 deg off, which then refused the cube's right /antenna as "sign
+    reversed".  BadInput, which ``auto`` reads as "the data allow no calibration" (the group is taken
+    as it is)."""
     k_beam = 2.0 / beamwidth_deg
-    if (abs(null_deg) <= 0.5 * beamwidth_deg
-            and k_beam / CREDIBLE_SLOPE_FACTOR <= abs(effective_slope_per_deg) <= CREDIBLE_SLOPE_FACTOR * k_beam):
+    if abs(null_deg) <= 0.5 * beamwidth_deg and (
+            bend_per_deg is None or k_beam / CREDIBLE_SLOPE_FACTOR <= abs(bend_per_deg) <= CREDIBLE_SLOPE_FACTOR * k_beam):
         return
+    bend = "" if bend_per_deg is None else f", bend {bend_per_deg:.3g} per deg"
     raise BadInput(f"monopulse calibration from the data: no credible ratio curve from {n_scatterers} scatterer(s) "
-                   f"(null {null_deg:+.3g} deg off the beam axis, boresight slope {effective_slope_per_deg:.3g} per "
-                   f"deg, for a {beamwidth_deg:g} deg beam); allowed: processing.monopulse_calibration = cube "
-                   "(with /antenna) or a slope per degree")
+                   f"(null {null_deg:+.3g} deg off the beam axis{bend}, for a {beamwidth_deg:g} deg beam); allowed: "
+                   "processing.monopulse_calibration = cube (with /antenna) or a slope per degree")
 
 
 def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "auto") -> Calibration:
@@ -319,7 +323,8 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
         stats["slope_note"] = (f"the data fix only the boresight slope of Re(diff/sum), {float(est[0]):.4g} per deg "
                                f"(the ratio curve is nearly linear over the samples): the curve's slope and the "
                                f"difference/sum gain apart are not determined")
-    check_credible_null_and_slope(float(est[2]), float(est[0]), beamwidth_deg, stats["n_scatterers"])
+    check_credible_null_and_slope(float(est[2]), None if "slope_note" in stats else float(est[1]), beamwidth_deg,
+                                  stats["n_scatterers"])
     cal = Calibration("data", "tanh", float(est[1]), boresight_offset_deg=float(est[2]),
                       diff_gain_db=float(est[3]), diff_phase_deg=float(est[4]), sigma=sigma, stats=stats)
     if chosen == "table" or not np.isfinite(est[3]):
@@ -432,7 +437,8 @@ def check_slope_forms_a_beam(cal: Calibration, cube) -> None:
     if slope_per_deg <= limit:
         return
     where = {"setting": f"processing.monopulse_calibration = {slope_per_deg:g}",
-             "cube": f"/antenna monopulse_slope_per_deg = {slope_per_deg:g}"}.get(
+             "cube": f"/antenna monopulse_slope_per_deg = {slope_per_deg:g}",
+             "table": f"the Gaussian pair nearest the ratio table, slope {slope_per_deg:.4g} per deg,"}.get(
                  cal.source, f"the monopulse slope from the data, {slope_per_deg:.4g} /deg,")
     raise BadInput(f"{where}: with imaging: dwell, a slope of at most {limit:.3g} per deg for a "
                    f"{beamwidth_deg:g} deg beam (twice the largest two Gaussian beams of that width can have, "

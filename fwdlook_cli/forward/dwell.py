@@ -59,8 +59,8 @@ Cost (``fwdlook bench``, paper cube, idle machine, without step 6): the ``dwell_
 run over blocks of sub-apertures on the stage thread pool (bounded memory); the whole chain 1.12-1.17 x
 ``chain_tracking_s`` (issue 11's twenty-fourth round).  Step 6 (the tracking preset's default) adds
 130-150 ms on the paper lattice (started on forked workers before this stage projects its own
-cells), the whole chain 1.88-2.01 x ``chain_tracking_s`` (README, Speed; ``dwell_fit.py`` says where
-it goes).
+cells), the whole chain 1.88-2.01 x ``chain_tracking_s`` then, 2.8 x now (README, "Imaging over each
+direction's whole dwell"; ``dwell_fit.py`` says where it goes).
 """
 from __future__ import annotations
 
@@ -506,11 +506,11 @@ def dwell_stages(cube, proc: dict, geo: dict):
         # the rotation is the two-Gaussian-beam one: the pair nearest the table over the dwell's offsets,
         # its imbalance and null offset included (they had been dropped: 0.14-0.4 deg on reviews' cubes)
         k, gain_db, offset_deg = cal.tanh_equivalent(half_width_deg)
-        cal = Calibration(cal.source, "tanh", k, boresight_offset_deg=offset_deg,
+        cal = Calibration("table", "tanh", k, boresight_offset_deg=offset_deg,      # (source: its refusals' text)
                           diff_gain_db=cal.diff_gain_db + gain_db, diff_phase_deg=cal.diff_phase_deg,
                           pattern=cal.pattern)
         log.warning(f"processing.imaging: dwell measures angles with the two-Gaussian-beam rotation; this cube's "
-                    f"ratio curve is a {geo['calibration'].model} ({cal.source}), taken as the nearest such pair "
+                    f"ratio curve is a {geo['calibration'].model} ({geo['calibration'].source}), taken as the nearest such pair "
                     f"(null {offset_deg:+.3f} deg, boresight slope {k * 10 ** (gain_db / 20):.4g} per deg): its shape "
                     "beyond that is not followed (0.01-0.06 deg on reviews' sinc and cosine-taper beams); imaging: cpi "
                     "reads the curve itself")

@@ -155,7 +155,7 @@ _DCPL: list = []
 def _new_dataset(group_id, name: str, data):
     """A contiguous dataset holding ``data``, through HDF5's own calls: the dataset h5py's
     ``create_dataset(name, data=data)`` makes (its file type, no timestamps), at a fraction of the
-    Python around it (stage files hold about ten datasets each; README, Speed)."""
+    Python around it (stage files hold about ten datasets each; docs/SPEED.md)."""
     a = np.ascontiguousarray(data)
     types = _H5_TYPES.get(a.dtype.str)
     if types is None:      # (file type, memory type), as h5py's create_dataset and DatasetID.write

@@ -281,7 +281,7 @@ def clean_process_fft2(x, repeats: int = 21, processes: int = 1) -> dict:
     arena among all threads (``dsp.blas.share_one_allocator_arena``, for the stages' memory), and
     pocketfft's worker threads then contend for it.  Measured on this machine: about 2.1 ms in most
     plain interpreters and 3.6 ms in about one in four, 2.5-2.7 ms with the shared arena, and 3.4-3.7
-    ms in the bench's own process after its simulation (README, Speed).  Several children average over
+    ms in the bench's own process after its simulation (docs/SPEED.md).  Several children average over
     that per-process spread.  Returns {"times": [s, every child's], "medians": [s, one per child],
     "abs_sum": sum |fft2(x)| from the last child (a test checks that it is this array's transform)};
     a child that fails adds nothing."""
