@@ -264,9 +264,10 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
             radar[key] = _plain(value)
     _check_optional_radar(radar, source)
     _check_pulse_timing(slow_time_s, radar["prf_hz"], source)
-    slow_time_s, position = restore_float32_track(      # float32 rounding that reaches the phases (io/track.py)
-        slow_time_s, position, velocity, time_dtype=f["axes/slow_time_s"].dtype,
-        position_dtype=f["platform/position_m"].dtype, fc_hz=radar["fc_hz"], source=source)
+    if not isar:     # float32 rounding that reaches the phases (io/track.py; ISAR forms none from the track)
+        slow_time_s, position = restore_float32_track(
+            slow_time_s, position, velocity, time_dtype=f["axes/slow_time_s"].dtype,
+            position_dtype=f["platform/position_m"].dtype, fc_hz=radar["fc_hz"], source=source)
     _check_radar_values(radar, float(range_m[1] - range_m[0]), n_r, source)
     antenna = _read_antenna(f, source)
     noise = _read_noise(f["echo"].attrs, source)
