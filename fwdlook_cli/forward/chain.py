@@ -32,6 +32,7 @@ from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
 from ..dsp.imaging import auto_range_oversample, image_angle_grid
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import t_ref_seconds  # noqa: F401 (chain.t_ref_seconds, as before; motion.py is below plan.py)
+from .motion import tracked_depression_deg
 from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history_m, boresight_doppler_spread_hz,
                      bulk_range_history_m, cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion,
                      keystone_residual_envelope_m, reference_depression_deg, unit_vector, widest_cpi_band_hz)
@@ -168,8 +169,9 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
         if method == "tracking":
             if q != 1:
                 raise ValueError("tracking keystone runs on the whole sequence (q = 1)")
-            hist = DopplerPhaseHistory(t, data["velocity_mps"], data["scan_angle_deg"], depression_deg,
-                                       fc_hz, t_ref_s)
+            depression = tracked_depression_deg(t, data["position_m"], data["velocity_mps"], data["scan_angle_deg"],
+                                                depression_deg, fc_hz, t_ref_s, reference_range_m, prf_hz)
+            hist = DopplerPhaseHistory(t, data["velocity_mps"], data["scan_angle_deg"], depression, fc_hz, t_ref_s)
             tracking = (hist, t, prf_hz, 1.0 + fr_hz / fc_hz)    # Doppler at f_r scales by (fc+fr)/fc
         ref = 0.0 if method == "tracking" else doppler_ref_hz / (prf_hz / q)
         # one geometry, both channels: chirps, demodulation and remodulation computed once
@@ -400,7 +402,8 @@ def build_forward_stages(cube, proc: dict):
     subswaths, left_m = (None, 0.0) if proc.get("subswaths", "auto") == "none" else plan_subswaths(
         height_m=float(geo["p_ref"][2]), range_m=cube.range_m, velocity_mps=geo["v_ref"], fc_hz=cube.radar["fc_hz"],
         prf_hz=cube.radar["prf_hz"], q=q_run, method=proc["method"], lever_s=plan["lever_max_s"],
-        walk_m=plan["range_walk_m"], bandwidth_hz=cube.radar["bandwidth_hz"])
+        walk_m=plan["range_walk_m"], bandwidth_hz=cube.radar["bandwidth_hz"], implementation=proc["keystone"],
+        fastest_velocity_mps=cube.velocity_mps[int(np.argmax(np.linalg.norm(cube.velocity_mps, axis=1)))])
     geo["subswaths"] = len(subswaths) if subswaths else 1
     if subswaths:
         log.info(f"steep depression: the keystone stage corrects the range window in {len(subswaths)} sub-swaths, "

@@ -25,7 +25,7 @@ import numpy as np
 from ..dsp.pulse import weighting
 from ..dsp.xp import cis, fft_kwargs, fft_module, get_xp, is_numpy, to_device, to_host
 from ..io.stagefile import StageData
-from .motion import DopplerPhaseHistory, cpi_doppler_band_hz, cpi_means
+from .motion import DopplerPhaseHistory, cpi_doppler_band_hz, cpi_means, tracked_depression_deg
 
 log = logging.getLogger(__name__)
 
@@ -217,8 +217,9 @@ def keystone_stage(data: StageData, *, method: str, implementation: str, fc_hz: 
     if method == "tracking":
         if q != 1:
             raise ValueError("tracking keystone runs on the whole sequence (q = 1)")
-        hist = DopplerPhaseHistory(t, data["velocity_mps"], data["scan_angle_deg"], depression_deg, fc_hz,
-                                   t_ref_s)
+        depression = tracked_depression_deg(t, data["position_m"], data["velocity_mps"], data["scan_angle_deg"],
+                                            depression_deg, fc_hz, t_ref_s, reference_range_m, prf_hz)
+        hist = DopplerPhaseHistory(t, data["velocity_mps"], data["scan_angle_deg"], depression, fc_hz, t_ref_s)
         tracking = (hist, t, prf_hz, 1.0 + fr_hz / fc_hz)       # Doppler at f_r scales by (fc + fr)/fc
     y_sum, y_diff = keystone_pair(np.reshape(data["sum_f"], (p, q * n_f)), np.reshape(data["diff_f"], (p, q * n_f)),
                                   alpha=alpha, t0_index=t0, ambiguity=ambiguity, tracking=tracking,

@@ -70,22 +70,30 @@ def boresight_doppler_spread_hz(height_m: float, near_m: float, far_m: float, ve
 
 
 def depression_reference_error_m(height_m: float, ranges_m, reference_range_m: float, velocity_mps, fc_hz: float,
-                                 lever_s: float, rate_hz: float | None = None):
+                                 lever_s: float, rate_hz: float | None = None, rounded: bool = False,
+                                 guard: float = 1.0):
     """The range error one reference depression phi_0 leaves at slant ranges ``ranges_m`` (flat ground),
     for a point seen ``lever_s`` from t_ref.  There the boresight Doppler 2 v . u(phi(r)) / lambda
-    differs from the reference range's by df(r).  A shift by the reference's range history (``bulk``,
-    ``beam``: ``rate_hz`` None) leaves the walk lambda / 2 |df| lever_s; a keystone about the reference
-    Doppler at the rate ``rate_hz`` (PRF, or PRF / Q for ``decimation``; ``tracking`` follows the
-    reference's history) resolves df within +-rate / 2 and leaves the folded part, lambda / 2
-    |round(df / rate)| rate lever_s: one ambiguity is lambda PRF / 2 metres per second from t_ref."""
+    differs from the reference range's, f0.  A shift by the reference's range history (``bulk``,
+    ``beam``: ``rate_hz`` None) leaves the walk lambda / 2 |f - f0| lever_s.  A keystone at the rate
+    ``rate_hz`` (PRF, or PRF / Q for ``decimation``) resolves the Doppler within +-rate / 2 of its
+    centre and leaves the folded part, lambda / 2 |round((f - centre) / rate)| rate lever_s (one
+    ambiguity is lambda PRF / 2 metres per second from t_ref): the centre is f0 where the keystone
+    follows the reference's Doppler (``tracking``, the sinc implementation), F rate for the whole
+    ambiguity number F = round(f0 / rate) of ``traditional`` and ``decimation`` with czt or dft
+    (``rounded``: a second review found the sub-swaths judged about f0 there, their targets folded).
+    ``guard`` < 1 counts a Doppler past guard x rate / 2 as folded already (the sub-swaths' margin for
+    what the boresight model leaves out: the target's own range and speed when the beam sees it)."""
     lam = C_MPS / fc_hz
     r = np.asarray(ranges_m, dtype=np.float64)
     v = np.asarray(velocity_mps, dtype=np.float64)
     f = 2.0 * (unit_vector(0.0, np.degrees(np.arcsin(np.clip(height_m / r, -1.0, 1.0)))) @ v) / lam
     f0 = 2.0 * float(unit_vector(0.0, reference_depression_deg(height_m, reference_range_m)) @ v) / lam
-    df = f - f0
-    walk_hz = np.abs(df) if rate_hz is None else np.abs(np.rint(df / rate_hz)) * rate_hz
-    return 0.5 * lam * walk_hz * lever_s
+    if rate_hz is None:
+        return 0.5 * lam * np.abs(f - f0) * lever_s
+    centre = float(np.rint(f0 / rate_hz)) * rate_hz if rounded else f0
+    folds = np.abs(np.rint((f - centre) / (rate_hz * guard)))
+    return 0.5 * lam * folds * rate_hz * lever_s
 
 
 def beam_points_m(position_m, t_ref_index, beam_deg, depression_deg, reference_range_m):
@@ -152,6 +160,31 @@ def spline_antiderivative(t_s, values):
     from scipy.interpolate import CubicSpline
 
     return CubicSpline(t_s, values).antiderivative()
+
+
+FOLLOW_DEPRESSION_HZ_PER_PRF = 0.01   # the reference's depression followed in time where it moves f_b by more
+
+
+def tracked_depression_deg(slow_time_s, position_m, velocity_mps, beam_deg, depression_deg: float, fc_hz: float,
+                           t_ref_s: float, reference_range_m: float, prf_hz: float):
+    """The depression of ``tracking``'s reference point over the scan: the point on the beam axis at
+    ``reference_range_m`` from the antenna at t_ref closes in as the platform flies, R(t) = R_ref -
+    (p(t) - p(t_ref)) . u(theta(t), phi_0), and its depression asin(h(t) / R(t)) steepens.  At steep
+    depression with a long lever that moves its Doppler by a large part of the PRF (a second independent
+    review: 35 GHz, 3 km up, t_ref = start, targets folded 5.4 m off); the fixed phi_0 is returned where it
+    moves f_b by under ``FOLLOW_DEPRESSION_HZ_PER_PRF`` of the PRF (the paper's: 1.6 Hz), so those chains,
+    their stage keys and numbers, are as before."""
+    t = np.asarray(slow_time_s, dtype=np.float64)
+    p = np.asarray(position_m, dtype=np.float64)
+    n = np.arange(len(t), dtype=np.float64)
+    m_ref = (t_ref_s - t[0]) / max(float(t[1] - t[0]), 1e-300) if len(t) > 1 else 0.0
+    p_ref = np.array([np.interp(m_ref, n, p[:, i]) for i in range(3)])
+    r_t = reference_range_m - np.einsum("ni,ni->n", p - p_ref, unit_vector(beam_deg, depression_deg))
+    track = np.degrees(np.arcsin(np.clip(p[:, 2] / np.maximum(r_t, 1e-9), -1.0, 1.0)))
+    lam = C_MPS / fc_hz
+    v = np.asarray(velocity_mps, dtype=np.float64)
+    moved_hz = 2.0 * np.abs(np.einsum("ni,ni->n", v, unit_vector(beam_deg, track) - unit_vector(beam_deg, depression_deg))) / lam
+    return track if float(np.max(moved_hz, initial=0.0)) > FOLLOW_DEPRESSION_HZ_PER_PRF * prf_hz else depression_deg
 
 
 class DopplerPhaseHistory:

@@ -41,13 +41,15 @@ DEPRESSION_SAMPLES = 257      # slant ranges across the window at which one refe
 
 
 def one_depression_budget(height_m: float, near_m: float, far_m: float, reference_range_m: float, velocity_mps,
-                          fc_hz: float, lever_s: float, rate_hz: float | None, half_cell_m: float) -> dict:
+                          fc_hz: float, lever_s: float, rate_hz: float | None, half_cell_m: float,
+                          rounded: bool = False) -> dict:
     """What one reference depression (at ``reference_range_m``) leaves across the range window near..far
     (``motion.depression_reference_error_m``; ``rate_hz`` None for a shift by the reference's range
     history, else the keystone's rate): the largest range error, and the span of slant ranges about the
     reference range where it stays within ``half_cell_m``."""
     r = np.linspace(float(near_m), float(far_m), DEPRESSION_SAMPLES)
-    err = depression_reference_error_m(height_m, r, reference_range_m, velocity_mps, fc_hz, lever_s, rate_hz)
+    err = depression_reference_error_m(height_m, r, reference_range_m, velocity_mps, fc_hz, lever_s, rate_hz,
+                                       rounded=rounded)
     i = int(np.argmin(np.abs(r - reference_range_m)))
     bad = err > half_cell_m
     below, above = np.flatnonzero(bad[:i]), np.flatnonzero(bad[i:])
@@ -85,9 +87,9 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
     # one reference depression across the window (steep depression: motion.depression_reference_error_m)
     lever_max = float(np.max(lever_s))
 
-    def one_depression(rate_hz):
+    def one_depression(rate_hz, rounded=False):
         return one_depression_budget(height, near, far, reference_range_m, vel[m_ref], fc_hz, lever_max, rate_hz,
-                                     half_cell_m)
+                                     half_cell_m, rounded)
 
     rows = []
     for q in q_candidates:
@@ -95,7 +97,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         err = np.abs(ambiguity_number(f_dc, prf_q) - ambiguity_number(f_dc0, prf_q))
         resid = float(np.max(err * C_MPS * prf_q / (2.0 * fc_hz) * lever_s))       # eq. (19)-(20)
         rows.append({"q": q, "ambiguity_spread": int(err.max()), "residual_walk_m": resid,
-                     "one_depression": one_depression(prf_q)})
+                     "one_depression": one_depression(prf_q, rounded=True)})    # one whole F (czt, dft)
     drift_hz = float(np.ptp(f_dc - 2.0 * (los @ vel[0]) * fc_hz / C_MPS))     # what the speed change adds
     doppler_cell_hz = prf_hz / cpi
     range_spread_hz = boresight_doppler_spread_hz(height, float(near), float(far), velocity_mps[m_ref], fc_hz)
@@ -134,9 +136,11 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         "needs_doppler_centroid": abs(drift_hz) >= doppler_cell_hz / 2,
         "doppler_range_spread_hz": range_spread_hz, "range_extent_m": [float(near), float(far)],
         "band_over_depressions": range_spread_hz > doppler_cell_hz,
-        # what one reference depression leaves: a keystone at the PRF (traditional, tracking), a shift by
-        # the reference's range history (bulk, beam); decimation's at PRF / Q in its rows
-        "one_depression": {"keystone": traditional["one_depression"], "shift": one_depression(None)},
+        # what one reference depression leaves: tracking's keystone (about the reference's Doppler),
+        # traditional's (one whole ambiguity number at the PRF), a shift by the reference's range history
+        # (bulk, beam); decimation's at PRF / Q in its rows
+        "one_depression": {"keystone": one_depression(prf_hz), "traditional": traditional["one_depression"],
+                           "shift": one_depression(None)},
         "doppler_band_widest_hz": widest_hz, "n_doppler_auto": auto_doppler_cells(widest_hz, cpi=cpi, prf_hz=prf_hz),
         # processing.range_oversample: auto, the power image's Nyquist rate (dsp/imaging.py)
         "range_oversample_auto": (None if bandwidth_hz is None
@@ -185,7 +189,8 @@ def method_budget_warnings(plan: dict, proc: dict, subswaths: int = 0, subswath_
                        f"each, the window's Doppler across range leaves up to {subswath_error_m:.2f} m of range error "
                        f"against half a range sample {half:.2f} m (README, steep depression)")
     elif method != "none":
-        dep = plan["one_depression"]["shift"] if method in ("bulk", "beam") else row["one_depression"]
+        dep = {"bulk": plan["one_depression"]["shift"], "beam": plan["one_depression"]["shift"],
+               "tracking": plan["one_depression"]["keystone"]}.get(method, row["one_depression"])
         if dep["error_m"] > half:
             out.append(f"processing.method {method}: the boresight Doppler changes by "
                        f"{plan['doppler_range_spread_hz']:.0f} Hz across the range window, and one reference "
@@ -242,14 +247,14 @@ def format_plan(plan: dict, name: str) -> str:
     ]
     dep = plan.get("one_depression")
     if dep is not None:
-        worst = max(dep["keystone"]["error_m"], dep["shift"]["error_m"])
+        named = (("tracking", "keystone"), ("traditional", "traditional"), ("beam/bulk", "shift"))
+        worst = max(dep[key]["error_m"] for _, key in named)
         lines.append(
             f"  one depression       {worst:9.2f} m   vs {h:.2f} m   " + (
                 "ok" if worst <= h else
-                f"NOT HELD: tracking/traditional up to {dep['keystone']['error_m']:.2f} m outside "
-                f"{dep['keystone']['span_m'][0]:.0f}-{dep['keystone']['span_m'][1]:.0f} m, beam/bulk up to "
-                f"{dep['shift']['error_m']:.2f} m outside {dep['shift']['span_m'][0]:.0f}-"
-                f"{dep['shift']['span_m'][1]:.0f} m: the chain corrects it in range sub-swaths (processing.subswaths)")
+                "NOT HELD: " + ", ".join(f"{label} up to {dep[key]['error_m']:.2f} m outside {dep[key]['span_m'][0]:.0f}-"
+                                         f"{dep[key]['span_m'][1]:.0f} m" for label, key in named)
+                + ": processing.subswaths auto corrects it in range sub-swaths (at most 16)")
             + " (the window's Doppler across range at one depression)")
     if plan.get("range_oversample_auto") is not None:
         lines.append(f"  range oversampling   x {plan['range_oversample_auto']} (processing.range_oversample auto: "

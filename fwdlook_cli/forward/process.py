@@ -306,6 +306,8 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                    "boresight_doppler_hz": geo["f_dc0_hz"], "depression_deg": geo["depression_deg"],
                    "radial_accel_mps2": geo["radial_accel_mps2"],
                    "doppler_spread_hz": geo.get("doppler_spread_hz"),
+                   # the keystone stage's range sub-swaths (1: one reference depression for the window)
+                   "subswaths": geo.get("subswaths", 1),
                    # the zoomed Doppler cells per CPI (n_doppler: auto resolved), where a CPI Doppler stage ran
                    "n_doppler": geo.get("n_doppler") if "doppler_spectra" in names else None,
                    # the image's range oversampling (range_oversample: auto resolved)

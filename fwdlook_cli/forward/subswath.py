@@ -6,13 +6,17 @@ about it, ``traditional`` and ``decimation`` take one ambiguity number, ``bulk``
 that range's history.  Where the boresight Doppler 2 v cos(phi(r)) / lambda changes across the window
 by more than that holds (``motion.depression_reference_error_m`` over half a range sample), the keystone
 stage splits the window into sub-swaths: cores that partition the range samples, each the narrowest
-equal share of the window whose own middle reference keeps the error within half a range sample, each
-padded by the range a target's echo moves while the beam sees it (the plan's walk, plus the compressed
-pulse's reach).  Per sub-swath: its padded range samples back to range time, forward again over their
+equal share of the window whose own middle reference keeps the error within half a range sample (with a
+guard band: a Doppler past ``GUARD`` of the half rate counted as folded, for what the boresight model
+leaves out, a target's own range and speed when the beam sees it), each padded on both sides by the range
+a target's echo moves while the beam sees it (the plan's walk, plus the compressed pulse's reach; zeros
+beyond the window's ends).  Per sub-swath: its padded range samples back to range time, forward again over their
 own length, the stage's correction with the core's own reference (depression, reference range, Doppler
 and ambiguity number), back to range time, and its core kept.  The cores, whole, go back to range
 frequency for the next stage.  A range sample's core is the one its t_ref range lies in: the padding
-holds every echo that moves into it, so the cyclic shifts of the padded transform wrap nothing into it.
+holds every echo that moves into it, and an echo from beyond the padding that the correction moves out
+again wraps into the padding, not the core (at the window's ends too: a second independent review found
+ghosts at -0.3 to -2 dB where the first and last sub-swaths had no padding outside the window).
 """
 from __future__ import annotations
 
@@ -25,16 +29,22 @@ from ..io.stagefile import StageData
 from .motion import depression_reference_error_m, reference_depression_deg, unit_vector
 
 SUBSWATH_MAX = 16            # sub-swaths at most; beyond, the stage keeps 16 and the warning stays
+GUARD = 0.8                  # a sub-swath's Doppler within GUARD x rate / 2 of its keystone's centre
 PULSE_REACH_CELLS = 8.0      # the compressed pulse's reach either side, in range resolution cells (padding)
 ERROR_SAMPLES = 65           # slant ranges per core at which the one-depression error is judged
 
 
 def plan_subswaths(*, height_m: float, range_m, velocity_mps, fc_hz: float, prf_hz: float, q: int, method: str,
-                   lever_s: float, walk_m: float, bandwidth_hz: float) -> tuple[list[dict] | None, float]:
+                   lever_s: float, walk_m: float, bandwidth_hz: float, implementation: str = "czt",
+                   fastest_velocity_mps=None) -> tuple[list[dict] | None, float]:
     """The sub-swaths of ``range_m`` (module docstring) for ``method``, or None where one reference
     depression holds the whole window within half a range sample.  ``lever_s``: the longest time from
-    t_ref a target is seen; ``walk_m``: the farthest an echo moves in it (padding).  Each sub-swath:
-    ``lo``, ``hi`` (padded samples), ``core_lo``, ``core_hi``, ``reference_range_m``, ``depression_deg``,
+    t_ref a target is seen; ``walk_m``: the farthest an echo moves in it (padding); ``velocity_mps`` the
+    INS velocity at t_ref (the references' Doppler), ``fastest_velocity_mps`` the fastest pulse's (the
+    error's judge, an accelerating platform's Doppler grows).  ``traditional`` and ``decimation`` with czt or
+    dft resolve about one whole ambiguity number (``motion.depression_reference_error_m``'s ``rounded``).
+    Each sub-swath: ``lo``, ``hi`` (padded samples, beyond the window where they reach past its ends: read
+    as zeros), ``core_lo``, ``core_hi``, ``reference_range_m``, ``depression_deg``,
     ``doppler_ref_hz`` (the boresight Doppler there) and ``ambiguity`` (at PRF / Q).  Returned with the
     largest one-depression error they leave (over half a range sample only where SUBSWATH_MAX cores do
     not hold it: ``decimation`` at PRF / Q folds every few metres at steep depression)."""
@@ -44,30 +54,42 @@ def plan_subswaths(*, height_m: float, range_m, velocity_mps, fc_hz: float, prf_
     dr = float(r[1] - r[0])
     half_m = dr / 2.0
     rate = None if method in ("bulk", "beam") else prf_hz / q
+    rounded = method in ("traditional", "decimation") and implementation != "sinc"
+    judge = velocity_mps if fastest_velocity_mps is None else fastest_velocity_mps
 
-    def worst(lo_m, hi_m):
+    def worst(lo_m, hi_m, guard=GUARD):
         ref = 0.5 * (lo_m + hi_m)
         return float(np.max(depression_reference_error_m(height_m, np.linspace(lo_m, hi_m, ERROR_SAMPLES), ref,
-                                                         velocity_mps, fc_hz, lever_s, rate)))
+                                                         judge, fc_hz, lever_s, rate, rounded=rounded, guard=guard)))
 
-    whole = worst(r[0], r[-1])
-    if whole <= half_m:
-        return None, whole
-    for n in range(2, SUBSWATH_MAX + 1):
-        edges = np.linspace(r[0], r[-1], n + 1)
-        left = max(worst(edges[i], edges[i + 1]) for i in range(n))
-        if left <= half_m:
-            break
-    cuts = np.unique(np.clip(np.searchsorted(r, edges[1:-1]), 1, len(r) - 1))
-    bounds = np.concatenate([[0], cuts, [len(r)]])
-    pad = int(np.ceil((walk_m + PULSE_REACH_CELLS * C_MPS / (2.0 * bandwidth_hz)) / dr))
+    if worst(r[0], r[-1]) <= half_m:
+        return None, worst(r[0], r[-1], 1.0)
     lam = C_MPS / fc_hz
+    if rounded:
+        # one whole ambiguity number per core: the cores are the runs of the window's ranges whose boresight
+        # Doppler rounds to the same F (cut where it crosses (F + 1/2) rate); equal shares would leave a core
+        # across such a crossing, folded on one side whatever its width
+        dep_r = np.degrees(np.arcsin(np.clip(height_m / r, -1.0, 1.0)))
+        f_r = 2.0 * (unit_vector(0.0, dep_r) @ np.asarray(velocity_mps, dtype=np.float64)) / lam
+        cuts = np.flatnonzero(np.diff(ambiguity_number(f_r, rate))) + 1
+        if len(cuts) >= SUBSWATH_MAX:           # too many: the cap's equal shares, and what they leave said
+            cuts = np.searchsorted(r, np.linspace(r[0], r[-1], SUBSWATH_MAX + 1)[1:-1])
+    else:
+        for n in range(2, SUBSWATH_MAX + 1):
+            edges = np.linspace(r[0], r[-1], n + 1)
+            if max(worst(edges[i], edges[i + 1]) for i in range(n)) <= half_m:
+                break
+        cuts = np.searchsorted(r, edges[1:-1])
+    cuts = np.unique(np.clip(cuts, 1, len(r) - 1))
+    bounds = np.concatenate([[0], cuts, [len(r)]])
+    left = max(worst(r[a], r[b - 1], 1.0) for a, b in zip(bounds[:-1], bounds[1:]))   # what they leave, unguarded
+    pad = int(np.ceil((walk_m + PULSE_REACH_CELLS * C_MPS / (2.0 * bandwidth_hz)) / dr))
     out = []
     for a, b in zip(bounds[:-1], bounds[1:]):
         ref = float(0.5 * (r[a] + r[b - 1]))
         dep = reference_depression_deg(height_m, ref)
         f_dc = 2.0 * float(unit_vector(0.0, dep) @ np.asarray(velocity_mps, dtype=np.float64)) / lam
-        out.append({"lo": int(max(0, a - pad)), "hi": int(min(len(r), b + pad)), "core_lo": int(a), "core_hi": int(b),
+        out.append({"lo": int(a - pad), "hi": int(b + pad), "core_lo": int(a), "core_hi": int(b),
                     "reference_range_m": ref, "depression_deg": float(dep), "doppler_ref_hz": f_dc,
                     "ambiguity": int(ambiguity_number(f_dc, prf_hz / q))})
     return out, left
@@ -86,12 +108,16 @@ def keystone_subswaths(data: StageData, subswaths: list[dict], correct, **params
     y_time = {ch: backing.empty(x.shape, np.complex64) for ch, x in x_time.items()}
     for sw in subswaths:
         lo, hi, c0, c1 = sw["lo"], sw["hi"], sw["core_lo"], sw["core_hi"]
+        a, b = max(lo, 0), min(hi, n_f)                 # the window's samples; zeros beyond its ends
         sub = StageData(dict(data.vars), dict(data.attrs))
         sub.add("fr_hz", scipy.fft.fftfreq(hi - lo, 1.0 / fs_hz), ("fr_hz",), "Hz", "range frequency (FFT order)")
         sub.vars["range_m"] = data.vars["range_m"]
         for ch, x in x_time.items():
-            sub.add(f"{ch}_f", scipy.fft.fft(x[..., lo:hi], axis=-1, workers=-1).astype(np.complex64),
+            seg = np.zeros(x.shape[:-1] + (hi - lo,), np.complex64)
+            seg[..., a - lo:b - lo] = x[..., a:b]
+            sub.add(f"{ch}_f", scipy.fft.fft(seg, axis=-1, workers=-1).astype(np.complex64),
                     ("sub_pulse", "subseq", "fr_hz"), "1", f"{ch} channel, sub-swath")
+            del seg
         done = correct(sub, **dict(params, depression_deg=sw["depression_deg"],
                                    reference_range_m=sw["reference_range_m"], doppler_ref_hz=sw["doppler_ref_hz"],
                                    ambiguity=sw["ambiguity"]))
