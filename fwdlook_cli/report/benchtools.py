@@ -361,6 +361,11 @@ SCALING_N_DOPPLER = 64       # zoomed Doppler cells per CPI held fixed over the 
                              # default) falls as the PRF rises with the pulse count (48 cells at 2500 pulses,
                              # the 16-cell floor from 10000), and the exponents would then measure the scene's
                              # band, not the code's growth (the image's pulses exponent read 0.28-0.34)
+SCALING_SUBSWATHS = "none"   # one reference depression over the series: the keystone's range sub-swaths
+                             # (steep depression, forward/subswath.py) start where a window's Doppler spread
+                             # passes a threshold, `decimation`'s at PRF / Q from 1024 range bins and 20000
+                             # pulses here, and a fit across it would read that step as the code's growth
+                             # (the keystone's range-bin exponent 1.44 in the fifty-third round's first series)
 
 
 def scaling_scenario(paper: dict, n_pulses: int, n_range: int) -> dict:
@@ -400,8 +405,9 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
                    pulses=PULSES, range_bins=RANGE_BINS, progress=None) -> dict:
     """Stage times over pulses (range bins fixed at 280) and range bins (pulses fixed at 2500); fitted
     exponents per stage and in total; a log-log plot when ``plot_path`` is given.  The Doppler cells
-    per CPI are held at ``SCALING_N_DOPPLER`` (the range oversampling, ``auto``, does not change over
-    the series: the radar's bandwidth and sampling rate are fixed).
+    per CPI are held at ``SCALING_N_DOPPLER``, and the keystone's window at one reference depression
+    (``SCALING_SUBSWATHS``; the range oversampling, ``auto``, does not change over the series: the radar's
+    bandwidth and sampling rate are fixed).
 
     ``exponents`` fit the wall times; ``exponents_user_cpu`` the stages' user CPU time (every thread),
     which leaves out the kernel's work for the process.  The two differ where a machine charges much
@@ -419,7 +425,8 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
             for n in sizes:
                 shape = (n, 280) if axis == "pulses" else (2500, n)
                 scn = scaling_scenario(paper, *shape)
-                scn["processing"] = dict(scn["processing"], method=method, n_doppler=SCALING_N_DOPPLER)
+                scn["processing"] = dict(scn["processing"], method=method, n_doppler=SCALING_N_DOPPLER,
+                                         subswaths=SCALING_SUBSWATHS)
                 cube, _ = simulate_scenario(scn)
                 t = time_chain(cube, scn, repeats=repeats, rss=False)
                 rows.append({"shape": list(cube.sum.shape), **t["stages_s"], "total": t["total_s"],
