@@ -271,6 +271,8 @@ def test_unresolved_clusters_at_low_snr_are_refused_not_wrong(scenario, monkeypa
     with pytest.raises(BadInput, match="'unresolved': [1-9]"):
         calibration_for_cube(cube, "data")
     monkeypatch.setattr(pr, "ENVELOPE_MISFIT", np.inf)
+    import fwdlook_cli.forward.calibration as calibration        # (its own checks would refuse some of these too)
+    monkeypatch.setattr(calibration, "check_credible_null_and_slope", lambda *a, **k: None)
     wrong = calibration_for_cube(cube, "data").stats
     assert wrong["effective_slope_per_deg"] < 0.6 * slope
 
@@ -646,6 +648,10 @@ def test_a_fitted_curve_no_antenna_of_the_beam_has_is_no_calibration():
     for gain in (0.1, 31.6):
         cal = estimate_calibration(samples(0.3, gain), beamwidth_deg=6.0)
         assert cal.stats["effective_slope_per_deg"] == pytest.approx(0.36 * gain, rel=0.05)
+    # but a difference channel of noise alone shows no slope at all (a third review: accepted once the
+    # bound on the slope was gone): refused
+    with pytest.raises(BadInput, match="shows no monopulse slope"):
+        estimate_calibration(samples(0.3, 0.0), beamwidth_deg=6.0)
 
 
 def test_the_slope_uncertainty_includes_the_tanh_models_own_error():

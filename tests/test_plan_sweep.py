@@ -395,3 +395,19 @@ def test_steep_window_at_35_ghz_with_t_ref_start_is_held(tmp_path, capsys):
     half = C_MPS / (2 * 24e6) / 2
     assert m["summary"]["detected"] == len(m["targets"]) == 20
     assert max(abs(t["range_error_m"]) for t in m["targets"]) < half
+
+
+def test_a_shallow_window_near_a_half_ambiguity_gets_no_sub_swath():
+    """50 m up, a 110 m window, `traditional`: the boresight Doppler changes by a fraction of a hertz across
+    it, but sits 0.45 PRF from a whole ambiguity number, inside the guard band. The plan had returned one
+    padded sub-swath (a third review: the keystone twice as slow and off the GPU, the same numbers); one
+    piece is no split: None, as for a Doppler on a whole number."""
+    from fwdlook_cli.forward.subswath import plan_subswaths
+
+    lam, prf, h = C_MPS / 10e9, 2000.0, 50.0
+    r = np.arange(990.0, 1100.0, 6.25)
+    for ratio in (5.0, 5.45):
+        v = ratio * prf * lam / (2.0 * np.sqrt(1.0 - (h / 1045.0) ** 2))     # f0 = ratio x PRF at mid-window
+        plan, left = plan_subswaths(height_m=h, range_m=r, velocity_mps=[0.0, v, 0.0], fc_hz=10e9, prf_hz=prf, q=1,
+                                    method="traditional", lever_s=0.24, walk_m=40.0, bandwidth_hz=20e6)
+        assert plan is None, (ratio, plan)

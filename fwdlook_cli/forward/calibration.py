@@ -206,7 +206,8 @@ CREDIBLE_SLOPE_FACTOR = 20.0   # the ratio curve's bend within 1/20..20 times a 
 
 
 def check_credible_null_and_slope(null_deg: float, bend_per_deg: float | None, beamwidth_deg: float,
-                                  n_scatterers: int) -> None:
+                                  n_scatterers: int, effective_slope_per_deg: float = 1.0,
+                                  effective_slope_sigma: float = 0.0) -> None:
     """A fitted ratio curve no antenna of this beamwidth has is refused as no calibration: its null
     outside the sum beam's half-power width, or, where the data determine it (``bend_per_deg`` not None),
     the curve's own bend k (its slope apart from the difference/sum gain) more than CREDIBLE_SLOPE_FACTOR
@@ -215,11 +216,18 @@ def check_credible_null_and_slope(null_deg: float, bend_per_deg: float | None, b
     receiver's difference/sum gain, which may be tens of dB (an independent review: a difference channel
     20 dB weaker or 30 dB stronger had been refused).  Found on a noiseless cube (an independent review):
     one track fitted to a null 22.9 deg off, which then refused the cube's right /antenna as "sign
-    reversed".  BadInput, which ``auto`` reads as "the data allow no calibration" (the group is taken
-    as it is)."""
+    reversed".  And a boresight slope under 5 of its own sigma is no monopulse at all (a dead or
+    disconnected difference channel, which a third review found accepted once the slope's bound was
+    gone).  BadInput, which ``auto`` reads as "the data allow no calibration" (the group is taken as it
+    is)."""
     k_beam = 2.0 / beamwidth_deg
     if abs(null_deg) <= 0.5 * beamwidth_deg and (
             bend_per_deg is None or k_beam / CREDIBLE_SLOPE_FACTOR <= abs(bend_per_deg) <= CREDIBLE_SLOPE_FACTOR * k_beam):
+        if np.isfinite(effective_slope_sigma) and not abs(effective_slope_per_deg) > 5.0 * effective_slope_sigma:
+            raise BadInput(f"monopulse calibration from the data: the difference channel shows no monopulse slope "
+                           f"({effective_slope_per_deg:.3g} +- {effective_slope_sigma:.2g} per deg from {n_scatterers} "
+                           f"scatterer(s): dead or disconnected?); allowed: processing.monopulse_calibration = cube "
+                           "(with /antenna) or a slope per degree")
         return
     bend = "" if bend_per_deg is None else f", bend {bend_per_deg:.3g} per deg"
     raise BadInput(f"monopulse calibration from the data: no credible ratio curve from {n_scatterers} scatterer(s) "
@@ -324,7 +332,7 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
                                f"(the ratio curve is nearly linear over the samples): the curve's slope and the "
                                f"difference/sum gain apart are not determined")
     check_credible_null_and_slope(float(est[2]), None if "slope_note" in stats else float(est[1]), beamwidth_deg,
-                                  stats["n_scatterers"])
+                                  stats["n_scatterers"], float(est[0]), float(sigma["effective_slope_per_deg"]))
     cal = Calibration("data", "tanh", float(est[1]), boresight_offset_deg=float(est[2]),
                       diff_gain_db=float(est[3]), diff_phase_deg=float(est[4]), sigma=sigma, stats=stats)
     if chosen == "table" or not np.isfinite(est[3]):

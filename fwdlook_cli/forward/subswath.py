@@ -57,10 +57,10 @@ def plan_subswaths(*, height_m: float, range_m, velocity_mps, fc_hz: float, prf_
     rounded = method in ("traditional", "decimation") and implementation != "sinc"
     judge = velocity_mps if fastest_velocity_mps is None else fastest_velocity_mps
 
-    def worst(lo_m, hi_m, guard=GUARD):
+    def worst(lo_m, hi_m, guard=GUARD, velocity=judge):
         ref = 0.5 * (lo_m + hi_m)
         return float(np.max(depression_reference_error_m(height_m, np.linspace(lo_m, hi_m, ERROR_SAMPLES), ref,
-                                                         judge, fc_hz, lever_s, rate, rounded=rounded, guard=guard)))
+                                                         velocity, fc_hz, lever_s, rate, rounded=rounded, guard=guard)))
 
     if worst(r[0], r[-1]) <= half_m:
         return None, worst(r[0], r[-1], 1.0)
@@ -82,7 +82,10 @@ def plan_subswaths(*, height_m: float, range_m, velocity_mps, fc_hz: float, prf_
         cuts = np.searchsorted(r, edges[1:-1])
     cuts = np.unique(np.clip(cuts, 1, len(r) - 1))
     bounds = np.concatenate([[0], cuts, [len(r)]])
-    left = max(worst(r[a], r[b - 1], 1.0) for a, b in zip(bounds[:-1], bounds[1:]))   # what they leave, unguarded
+    # what they leave, unguarded (a whole F judged at the speed the keystone's F is taken at: t_ref's)
+    left = max(worst(r[a], r[b - 1], 1.0, velocity_mps if rounded else judge) for a, b in zip(bounds[:-1], bounds[1:]))
+    if len(bounds) == 2:     # one piece (a whole F's guard band about the window's own Doppler): nothing to split
+        return None, left
     pad = int(np.ceil((walk_m + PULSE_REACH_CELLS * C_MPS / (2.0 * bandwidth_hz)) / dr))
     out = []
     for a, b in zip(bounds[:-1], bounds[1:]):
