@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import BadInput
 from .point_returns import noise_chi2_per_sample, point_returns
-from .ratio_fit import fit_poly, fit_tanh, poly_slope_variance, tanh_over_k
+from .ratio_fit import fit_poly, fit_tanh, tanh_over_k
 
 RATIO_TABLE_POINTS = 401
 # ``auto`` takes the general curve only when tanh misfits grossly: at SNR 20 dB the chi^2 drop measured
@@ -221,8 +221,8 @@ def check_credible_null_and_slope(null_deg: float, bend_per_deg: float | None, b
     gone).  BadInput, which ``auto`` reads as "the data allow no calibration" (the group is taken as it
     is)."""
     k_beam = 2.0 / beamwidth_deg
-    if abs(null_deg) <= 0.5 * beamwidth_deg and (
-            bend_per_deg is None or k_beam / CREDIBLE_SLOPE_FACTOR <= abs(bend_per_deg) <= CREDIBLE_SLOPE_FACTOR * k_beam):
+    bend_ok = bend_per_deg is None or k_beam / CREDIBLE_SLOPE_FACTOR <= abs(bend_per_deg) <= CREDIBLE_SLOPE_FACTOR * k_beam
+    if abs(null_deg) <= 0.5 * beamwidth_deg and bend_ok:
         if np.isfinite(effective_slope_sigma) and not abs(effective_slope_per_deg) > 5.0 * effective_slope_sigma:
             raise BadInput(f"monopulse calibration from the data: the difference channel shows no monopulse slope "
                            f"({effective_slope_per_deg:.3g} +- {effective_slope_sigma:.2g} per deg from {n_scatterers} "
@@ -270,7 +270,7 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
             break
         keep_s &= ~bad
     m = use & keep_s[sc]
-    poly, chi2_poly = fit_poly(delta[m], z[m], w[m], params, b_j, sc[m])
+    poly, chi2_poly, poly_slope_var = fit_poly(delta[m], z[m], w[m], params, b_j, sc[m])
     s2 = chi2_poly / max(2 * m.sum() - 7 - n_s, 1)
     drop = (chi2 - chi2_poly) / s2
     chosen = "table" if (model == "table" or (model == "auto" and drop > AUTO_TABLE_CHI2_DROP)) else "tanh"
@@ -309,8 +309,7 @@ def estimate_calibration(samples: dict, *, beamwidth_deg: float, model: str = "a
         # 5-10 % on an independent review's cubes, 7-8 sigma of the fit's own uncertainty): where the general
         # curve's boresight slope, fitted to the same samples, differs by more than both fits' own scatter,
         # the excess is the model's own error, added in quadrature
-        excess2 = model_gap**2 - poly_slope_variance(delta[m], z[m], w[m], params, b_j, sc[m]) \
-            - sigma["effective_slope_per_deg"] ** 2
+        excess2 = model_gap**2 - poly_slope_var - sigma["effective_slope_per_deg"] ** 2
         if excess2 > 0.0:
             sigma["effective_slope_per_deg"] = float(np.hypot(sigma["effective_slope_per_deg"], np.sqrt(excess2)))
     stats = {"n_scatterers": int(keep_s.sum()), "n_samples": int(m.sum()),

@@ -31,11 +31,10 @@ from .keystone_fast import keystone_both, keystone_both_blocked
 from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
 from ..dsp.imaging import auto_range_oversample, image_angle_grid
 from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
-from .motion import t_ref_seconds  # noqa: F401 (chain.t_ref_seconds, as before; motion.py is below plan.py)
-from .motion import tracked_depression_deg
 from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history_m, boresight_doppler_spread_hz,
                      bulk_range_history_m, cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion,
-                     keystone_residual_envelope_m, reference_depression_deg, unit_vector, widest_cpi_band_hz)
+                     keystone_residual_envelope_m, position_at, reference_depression_deg, t_ref_seconds,
+                     tracked_depression_deg, unit_vector, widest_cpi_band_hz)
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData
@@ -290,7 +289,8 @@ def _window(name: str, n: int) -> np.ndarray:
 def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, fc_hz: float,
                     beamwidth_deg: float, depression_deg: float, prf_hz: float, follow_speed: bool,
                     band_beamwidths: float = 1.0, estimator: str = "fft", iaa_iterations: int = 10) -> StageData:
-    """Per CPI: zoomed DFT (a chirp-Z zoom on the main-beam Doppler band) of both channels.
+    """Per CPI: zoomed DFT (a chirp-Z zoom on the main-beam Doppler band) of both channels (of the sum
+    channel alone where ``data`` holds no ``diff``: the dwell-profile metrics, ``run_metrics.profile_spectra``).
 
     The CPI velocity is the INS mean over the CPI, v_c = v + a t_c (eq. 25, the whole vector) when
     ``follow_speed``; otherwise the initial velocity is used for every CPI (what is lost without eq. 25
@@ -312,7 +312,8 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     n_r = data["sum"].shape[1]
     # one small product per CPI and channel, the BLAS on one thread (dsp.blas: no pool stalls), the
     # two channels side by side
-    z_sum, z_diff = _zoom(e, data["sum"][:m].reshape(n_cpi, cpi, n_r), data["diff"][:m].reshape(n_cpi, cpi, n_r))
+    channels = ("sum", "diff") if "diff" in data else ("sum",)
+    z_sum, *z_diff = _zoom(e, *(data[ch][:m].reshape(n_cpi, cpi, n_r) for ch in channels))
     if estimator == "iaa":      # processing.doppler_estimator: iaa (dsp.iaa), same cells and scale
         from ..dsp.iaa import iaa_doppler
 
@@ -324,7 +325,7 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
         s_s, s_d = iaa_doppler(x_sum, x_diff, a, t_s=t_cpi - t_c[:, None], prf_hz=prf_hz,
                                n_iter=iaa_iterations, active=active,
                                noise_power=float(np.median(np.abs(x_sum) ** 2)))
-        z_sum, z_diff = s_s * np.float32(w.sum()), s_d * np.float32(w.sum())
+        z_sum, z_diff = s_s * np.float32(w.sum()), [s_d * np.float32(w.sum())]
     out.add("cpi_time_s", t_c, ("cpi_time_s",), "s", "CPI centre time t_c")
     out.add("doppler_cell", np.arange(n_doppler), ("doppler_cell",), "1", "zoomed Doppler cell")
     out.vars["range_m"] = data.vars["range_m"]
@@ -337,7 +338,8 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
             ("cpi_time_s", "xyz"), "m", "mean antenna position in the CPI")
     out.add("doppler_hz", f_z, ("cpi_time_s", "doppler_cell"), "Hz", "true Doppler of each zoomed cell")
     out.add("sum_z", z_sum, ("cpi_time_s", "doppler_cell", "range_m"), "1", "sum Doppler spectrum")
-    out.add("diff_z", z_diff, ("cpi_time_s", "doppler_cell", "range_m"), "1", "difference Doppler spectrum")
+    if z_diff:
+        out.add("diff_z", z_diff[0], ("cpi_time_s", "doppler_cell", "range_m"), "1", "difference Doppler spectrum")
     out.attrs.update(cpi=cpi, coherent_gain=float(w.sum()), doppler_window=window)
     return out
 
@@ -363,10 +365,8 @@ def chain_geometry(cube, proc: dict) -> dict:
     """Everything the stages need that is derived from the cube (never from the scenario)."""
     fit = fit_motion(cube.slow_time_s, cube.position_m)
     t_ref_s = t_ref_seconds(cube.slow_time_s, proc["t_ref"])
-    n = np.arange(cube.n_pulses, dtype=np.float64)
     m_ref = (t_ref_s - cube.slow_time_s[0]) * cube.radar["prf_hz"]
-    p_ref = np.array([np.interp(m_ref, n, cube.position_m[:, i]) for i in range(3)])
-    v_ref = np.array([np.interp(m_ref, n, cube.velocity_mps[:, i]) for i in range(3)])
+    p_ref, v_ref = position_at(cube.position_m, m_ref), position_at(cube.velocity_mps, m_ref)
     reference_range_m = float(0.5 * (cube.range_m[0] + cube.range_m[-1]))
     depression = reference_depression_deg(float(p_ref[2]), reference_range_m)
     fc = cube.radar["fc_hz"]
@@ -391,7 +391,6 @@ def monopulse_slope(cube) -> float:
 def build_forward_stages(cube, proc: dict):
     """(source StageData, [Stage]) for a raw cube and resolved ``processing`` settings."""
     from .calibration import calibration_for_cube
-
     from .plan import method_budget_warnings, plan_for_cube
     from .subswath import plan_subswaths
 

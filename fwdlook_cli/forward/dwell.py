@@ -509,8 +509,9 @@ def dwell_stages(cube, proc: dict, geo: dict):
         cal = Calibration("table", "tanh", k, boresight_offset_deg=offset_deg,      # (source: its refusals' text)
                           diff_gain_db=cal.diff_gain_db + gain_db, diff_phase_deg=cal.diff_phase_deg,
                           pattern=cal.pattern)
+        table = geo["calibration"]
         log.warning(f"processing.imaging: dwell measures angles with the two-Gaussian-beam rotation; this cube's "
-                    f"ratio curve is a {geo['calibration'].model} ({geo['calibration'].source}), taken as the nearest such pair "
+                    f"ratio curve is a {table.model} ({table.source}), taken as the nearest such pair "
                     f"(null {offset_deg:+.3f} deg, boresight slope {k * 10 ** (gain_db / 20):.4g} per deg): its shape "
                     "beyond that is not followed (0.01-0.06 deg on reviews' sinc and cosine-taper beams); imaging: cpi "
                     "reads the curve itself")

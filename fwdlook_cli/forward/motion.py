@@ -59,14 +59,28 @@ def reference_depression_deg(height_m: float, reference_range_m: float) -> float
     return float(np.degrees(np.arcsin(np.clip(height_m / reference_range_m, -1.0, 1.0))))
 
 
+def position_at(track, index):
+    """A per-pulse [n, 3] track (positions, velocities) at a fractional pulse ``index``, linearly
+    interpolated (the reference time t_ref's antenna and velocity)."""
+    track = np.asarray(track, dtype=np.float64)
+    n = np.arange(len(track), dtype=np.float64)
+    return np.array([np.interp(index, n, track[:, i]) for i in range(track.shape[1])])
+
+
+def boresight_doppler_hz(height_m: float, ranges_m, velocity_mps, fc_hz: float):
+    """The boresight Doppler 2 v . u(0, phi(r)) / lambda at slant ranges ``ranges_m`` over flat ground,
+    phi(r) = asin(h / r) (eq. 16 with the whole velocity vector)."""
+    r = np.asarray(ranges_m, dtype=np.float64)
+    depression = np.degrees(np.arcsin(np.clip(height_m / r, -1.0, 1.0)))
+    return 2.0 * (unit_vector(0.0, depression) @ np.asarray(velocity_mps, dtype=np.float64)) * fc_hz / C_MPS
+
+
 def boresight_doppler_spread_hz(height_m: float, near_m: float, far_m: float, velocity_mps, fc_hz: float) -> float:
     """How much the boresight Doppler 2 v . u(phi(r)) / lambda changes across slant ranges near..far: the
     paper's one Doppler reference (eq. 16-17) takes phi ~ phi_0 over the window, which steep depression
     breaks (10.4 Hz per metre at 1000 m of height and 1.5 km, 0.05 Hz per metre at 50 m)."""
-    lam = C_MPS / fc_hz
-    f = [2.0 * float(np.dot(velocity_mps, unit_vector(0.0, reference_depression_deg(height_m, r)))) / lam
-         for r in (near_m, far_m)]
-    return abs(f[1] - f[0])
+    f = boresight_doppler_hz(height_m, [near_m, far_m], velocity_mps, fc_hz)
+    return abs(float(f[1] - f[0]))
 
 
 def depression_reference_error_m(height_m: float, ranges_m, reference_range_m: float, velocity_mps, fc_hz: float,
@@ -85,10 +99,8 @@ def depression_reference_error_m(height_m: float, ranges_m, reference_range_m: f
     ``guard`` < 1 counts a Doppler past guard x rate / 2 as folded already (the sub-swaths' margin for
     what the boresight model leaves out: the target's own range and speed when the beam sees it)."""
     lam = C_MPS / fc_hz
-    r = np.asarray(ranges_m, dtype=np.float64)
-    v = np.asarray(velocity_mps, dtype=np.float64)
-    f = 2.0 * (unit_vector(0.0, np.degrees(np.arcsin(np.clip(height_m / r, -1.0, 1.0)))) @ v) / lam
-    f0 = 2.0 * float(unit_vector(0.0, reference_depression_deg(height_m, reference_range_m)) @ v) / lam
+    f = boresight_doppler_hz(height_m, ranges_m, velocity_mps, fc_hz)
+    f0 = float(boresight_doppler_hz(height_m, [reference_range_m], velocity_mps, fc_hz)[0])
     if rate_hz is None:
         return 0.5 * lam * np.abs(f - f0) * lever_s
     centre = float(np.rint(f0 / rate_hz)) * rate_hz if rounded else f0
@@ -106,8 +118,7 @@ def beam_points_m(position_m, t_ref_index, beam_deg, depression_deg, reference_r
     "Corrections".)
     """
     p = np.asarray(position_m, dtype=np.float64)
-    n = np.arange(len(p), dtype=np.float64)
-    p_ref = np.array([np.interp(t_ref_index, n, p[:, i]) for i in range(3)])
+    p_ref = position_at(p, t_ref_index)
     az = np.radians(np.asarray(beam_deg, dtype=np.float64))
     ground = np.sqrt(np.maximum(reference_range_m**2 - p[:, 2] ** 2, 1.0))
     target = np.column_stack([p[:, 0] + ground * np.sin(az), p[:, 1] + ground * np.cos(az), np.zeros(len(p))])
@@ -176,14 +187,14 @@ def tracked_depression_deg(slow_time_s, position_m, velocity_mps, beam_deg, depr
     their stage keys and numbers, are as before."""
     t = np.asarray(slow_time_s, dtype=np.float64)
     p = np.asarray(position_m, dtype=np.float64)
-    n = np.arange(len(t), dtype=np.float64)
     m_ref = (t_ref_s - t[0]) / max(float(t[1] - t[0]), 1e-300) if len(t) > 1 else 0.0
-    p_ref = np.array([np.interp(m_ref, n, p[:, i]) for i in range(3)])
+    p_ref = position_at(p, m_ref)
     r_t = reference_range_m - np.einsum("ni,ni->n", p - p_ref, unit_vector(beam_deg, depression_deg))
     track = np.degrees(np.arcsin(np.clip(p[:, 2] / np.maximum(r_t, 1e-9), -1.0, 1.0)))
     lam = C_MPS / fc_hz
     v = np.asarray(velocity_mps, dtype=np.float64)
-    moved_hz = 2.0 * np.abs(np.einsum("ni,ni->n", v, unit_vector(beam_deg, track) - unit_vector(beam_deg, depression_deg))) / lam
+    moved = unit_vector(beam_deg, track) - unit_vector(beam_deg, depression_deg)
+    moved_hz = 2.0 * np.abs(np.einsum("ni,ni->n", v, moved)) / lam
     return track if float(np.max(moved_hz, initial=0.0)) > FOLLOW_DEPRESSION_HZ_PER_PRF * prf_hz else depression_deg
 
 

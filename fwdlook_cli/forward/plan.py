@@ -152,7 +152,6 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
 
 
 def plan_for_cube(cube, proc: dict, q_candidates=None) -> dict:
-
     t_ref_s = t_ref_seconds(cube.slow_time_s, proc["t_ref"])
     out = plan_geometry(cube.slow_time_s, cube.position_m, cube.velocity_mps, cube.scan_angle_deg,
                         fc_hz=cube.radar["fc_hz"], prf_hz=cube.radar["prf_hz"], fs_hz=cube.radar["fs_hz"],
@@ -252,8 +251,9 @@ def format_plan(plan: dict, name: str) -> str:
         lines.append(
             f"  one depression       {worst:9.2f} m   vs {h:.2f} m   " + (
                 "ok" if worst <= h else
-                "NOT HELD: " + ", ".join(f"{label} up to {dep[key]['error_m']:.2f} m outside {dep[key]['span_m'][0]:.0f}-"
-                                         f"{dep[key]['span_m'][1]:.0f} m" for label, key in named)
+                "NOT HELD: " + ", ".join(f"{label} up to {dep[key]['error_m']:.2f} m outside "
+                                         f"{dep[key]['span_m'][0]:.0f}-{dep[key]['span_m'][1]:.0f} m"
+                                         for label, key in named)
                 + ": processing.subswaths auto corrects it in range sub-swaths (at most 16)")
             + " (the window's Doppler across range at one depression)")
     if plan.get("range_oversample_auto") is not None:

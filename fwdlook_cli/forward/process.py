@@ -277,9 +277,7 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
     # the Doppler spectra (2 x the cube, in memory when this run computed them), or under imaging: dwell
     # the compensated data: the only reference left is the one target_rows reads and drops
     spectra_of, compensated_of = captured.pop("doppler_spectra", None), captured.pop("range_curvature", None)
-    rows, islr_from = target_rows(cube, final, proc, geo,
-                                  spectra_of=spectra_of if "doppler_spectra" in names else None,
-                                  compensated_of=compensated_of)
+    rows, islr_from = target_rows(cube, final, proc, geo, spectra_of=spectra_of, compensated_of=compensated_of)
     spectra_of = compensated_of = None
     scenario_yaml = dump_scenario(scn)
     waited = sum(writes.pop()() for _ in range(len(writes)))       # every stage file written before these

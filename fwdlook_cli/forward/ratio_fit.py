@@ -65,8 +65,10 @@ def fit_tanh(delta, z, weight, k0, sc=None):
 
 
 def fit_poly(delta, z, weight, params, b_j, sc, degree=5):
-    """The general ratio curve: a degree-5 polynomial through Re(z e^{-j phi}) against delta - b_j,
-    with the tanh fit's weights (so that the two chi^2 compare); returns it and its chi^2."""
+    """The general ratio curve: a degree-5 polynomial through Re(z e^{-j phi}) against u = delta - b_j,
+    with the tanh fit's weights (so that the two chi^2 compare).  Returns it, its chi^2, and the variance
+    of its boresight slope (its linear coefficient in u, from the weighted least-squares covariance
+    scaled by the fit's own residual, as ``np.polyfit(..., cov=True)`` scales it)."""
     s_eff, phi, k, _b = params
     _, sc = np.unique(sc, return_inverse=True)
     u = delta - b_j[sc]
@@ -74,16 +76,14 @@ def fit_poly(delta, z, weight, params, b_j, sc, degree=5):
     sw = np.sqrt(2.0 * weight / (1.0 + m**2))
     zr = z * np.exp(-1j * phi)
     poly = np.polynomial.Polynomial.fit(u, zr.real, degree, w=sw)
-    chi2 = float(np.sum((sw * (zr.real - poly(u))) ** 2) + np.sum((sw * zr.imag) ** 2))
-    return poly, chi2
-
-
-def poly_slope_variance(delta, z, weight, params, b_j, sc, degree=5):
-    """The variance of :func:`fit_poly`'s boresight slope (its linear coefficient about the null) from the
-    weighted least-squares covariance, scaled by the fit's residual (``np.polyfit(..., cov=True)``)."""
-    s_eff, phi, k, _b = params
-    _, sc = np.unique(sc, return_inverse=True)
-    u = delta - b_j[sc]
-    sw = np.sqrt(2.0 * weight / (1.0 + (s_eff * tanh_over_k(k, u)) ** 2))
-    _, cov = np.polyfit(u, (z * np.exp(-1j * phi)).real, degree, w=sw, cov=True)
-    return float(cov[-2, -2])
+    resid_real = float(np.sum((sw * (zr.real - poly(u))) ** 2))
+    chi2 = resid_real + float(np.sum((sw * zr.imag) ** 2))
+    design = np.vander(u, degree + 1, increasing=True) * sw[:, None]
+    scale = np.sqrt(np.sum(design**2, axis=0))
+    scaled = design / np.where(scale > 0, scale, 1.0)
+    try:
+        cov = np.linalg.inv(scaled.T @ scaled) / np.outer(scale, scale)
+        slope_var = float(cov[1, 1]) * resid_real / max(len(u) - degree - 1, 1)
+    except np.linalg.LinAlgError:
+        slope_var = float("inf")
+    return poly, chi2, slope_var

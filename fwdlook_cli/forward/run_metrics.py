@@ -7,6 +7,7 @@ import numpy as np
 from ..dsp.geometry import C_MPS
 
 PROFILE_WINDOW_CELLS = 5     # the dwell range profile's ISLR/PSLR window: +-5 range resolution cells
+PROFILE_MARGIN_SAMPLES = 2   # range samples beyond each window in profile_spectra (a window's last search index)
 
 
 def two_way_beamwidth_deg(cube) -> float:
@@ -16,9 +17,6 @@ def two_way_beamwidth_deg(cube) -> float:
     return two_way_width_for(float(cube.radar["beamwidth_3db_deg"]), cube.antenna)
 
 
-PROFILE_MARGIN_SAMPLES = 2  # range samples beyond each window in profile_spectra (a window's last search index)
-
-
 def profile_spectra(compensated, doppler_params: dict, range_ref_m, range_window_m: float):
     """The CPI Doppler spectra of the motion-compensated data (``compensated``: the ``range_curvature``
     stage's output) on the range samples the dwell profiles read: every target's t_ref range
@@ -26,8 +24,8 @@ def profile_spectra(compensated, doppler_params: dict, range_ref_m, range_window
     between the targets' windows, never inside one).  ``chain.doppler_spectra`` with the CPI chain's
     own settings (``geo["doppler_params"]``): a range column's spectrum is a product over that column
     alone, so these are the CPI chain's spectra on those columns, and under ``imaging: dwell`` the
-    profile metrics are the same eq. (27) measures as under ``imaging: cpi``.  Only the sum channel is
-    read (it stands in for the difference channel, whose spectra nothing reads here)."""
+    profile metrics are the same eq. (27) measures as under ``imaging: cpi``.  The sum channel's only (the
+    profiles read no difference channel)."""
     from .chain import doppler_spectra
 
     range_m = np.asarray(compensated["range_m"])
@@ -41,9 +39,7 @@ def profile_spectra(compensated, doppler_params: dict, range_ref_m, range_window
     cols = np.flatnonzero(np.cumsum(edges[:-1]) > 0)
     sub = compensated.copy_vars("slow_time_s", "xyz", "scan_angle_deg", "position_m", "velocity_mps")
     sub.add("range_m", range_m[cols], ("range_m",), "m", "slant range")
-    echo = np.asarray(compensated["sum"])[:, cols]
-    sub.add("sum", echo, ("slow_time_s", "range_m"), "1", "sum channel")
-    sub.add("diff", echo, ("slow_time_s", "range_m"), "1", "the sum channel (not read)")
+    sub.add("sum", np.asarray(compensated["sum"])[:, cols], ("slow_time_s", "range_m"), "1", "sum channel")
     return doppler_spectra(sub, **doppler_params)
 
 

@@ -26,7 +26,7 @@ import scipy.fft
 from ..dsp.geometry import C_MPS, ambiguity_number
 from ..io import backing
 from ..io.stagefile import StageData
-from .motion import depression_reference_error_m, reference_depression_deg, unit_vector
+from .motion import boresight_doppler_hz, depression_reference_error_m, reference_depression_deg
 
 SUBSWATH_MAX = 16            # sub-swaths at most; beyond, the stage keeps 16 and the warning stays
 GUARD = 0.8                  # a sub-swath's Doppler within GUARD x rate / 2 of its keystone's centre
@@ -64,13 +64,11 @@ def plan_subswaths(*, height_m: float, range_m, velocity_mps, fc_hz: float, prf_
 
     if worst(r[0], r[-1]) <= half_m:
         return None, worst(r[0], r[-1], 1.0)
-    lam = C_MPS / fc_hz
     if rounded:
         # one whole ambiguity number per core: the cores are the runs of the window's ranges whose boresight
         # Doppler rounds to the same F (cut where it crosses (F + 1/2) rate); equal shares would leave a core
         # across such a crossing, folded on one side whatever its width
-        dep_r = np.degrees(np.arcsin(np.clip(height_m / r, -1.0, 1.0)))
-        f_r = 2.0 * (unit_vector(0.0, dep_r) @ np.asarray(velocity_mps, dtype=np.float64)) / lam
+        f_r = boresight_doppler_hz(height_m, r, velocity_mps, fc_hz)
         cuts = np.flatnonzero(np.diff(ambiguity_number(f_r, rate))) + 1
         if len(cuts) >= SUBSWATH_MAX:           # too many: the cap's equal shares, and what they leave said
             cuts = np.searchsorted(r, np.linspace(r[0], r[-1], SUBSWATH_MAX + 1)[1:-1])
@@ -90,10 +88,10 @@ def plan_subswaths(*, height_m: float, range_m, velocity_mps, fc_hz: float, prf_
     out = []
     for a, b in zip(bounds[:-1], bounds[1:]):
         ref = float(0.5 * (r[a] + r[b - 1]))
-        dep = reference_depression_deg(height_m, ref)
-        f_dc = 2.0 * float(unit_vector(0.0, dep) @ np.asarray(velocity_mps, dtype=np.float64)) / lam
+        f_dc = float(boresight_doppler_hz(height_m, [ref], velocity_mps, fc_hz)[0])
         out.append({"lo": int(a - pad), "hi": int(b + pad), "core_lo": int(a), "core_hi": int(b),
-                    "reference_range_m": ref, "depression_deg": float(dep), "doppler_ref_hz": f_dc,
+                    "reference_range_m": ref, "depression_deg": reference_depression_deg(height_m, ref),
+                    "doppler_ref_hz": f_dc,
                     "ambiguity": int(ambiguity_number(f_dc, prf_hz / q))})
     return out, left
 
@@ -106,8 +104,7 @@ def keystone_subswaths(data: StageData, subswaths: list[dict], correct, **params
     fr_hz = np.asarray(data["fr_hz"])
     n_f = len(fr_hz)
     fs_hz = float(fr_hz[1]) * n_f                       # FFT order: fr[1] = fs / n
-    x_time = {ch: scipy.fft.ifft(np.asarray(data[f"{ch}_f"]), axis=-1, workers=-1).astype(np.complex64)
-              for ch in ("sum", "diff")}
+    x_time = {ch: scipy.fft.ifft(np.asarray(data[f"{ch}_f"]), axis=-1, workers=-1) for ch in ("sum", "diff")}
     y_time = {ch: backing.empty(x.shape, np.complex64) for ch, x in x_time.items()}
     for sw in subswaths:
         lo, hi, c0, c1 = sw["lo"], sw["hi"], sw["core_lo"], sw["core_hi"]
@@ -118,7 +115,7 @@ def keystone_subswaths(data: StageData, subswaths: list[dict], correct, **params
         for ch, x in x_time.items():
             seg = np.zeros(x.shape[:-1] + (hi - lo,), np.complex64)
             seg[..., a - lo:b - lo] = x[..., a:b]
-            sub.add(f"{ch}_f", scipy.fft.fft(seg, axis=-1, workers=-1).astype(np.complex64),
+            sub.add(f"{ch}_f", scipy.fft.fft(seg, axis=-1, workers=-1, overwrite_x=True),
                     ("sub_pulse", "subseq", "fr_hz"), "1", f"{ch} channel, sub-swath")
             del seg
         done = correct(sub, **dict(params, depression_deg=sw["depression_deg"],
@@ -131,6 +128,7 @@ def keystone_subswaths(data: StageData, subswaths: list[dict], correct, **params
     del x_time
     out = StageData(dict(data.vars), dict(data.attrs))
     for ch, y in y_time.items():
-        out.add(f"{ch}_f", scipy.fft.fft(y, axis=-1, workers=-1).astype(np.complex64), ("sub_pulse", "subseq", "fr_hz"),
-                "1", f"{ch} channel after the {params['method']} correction, {len(subswaths)} range sub-swaths")
+        out.add(f"{ch}_f", scipy.fft.fft(y, axis=-1, workers=-1).astype(np.complex64, copy=False),
+                ("sub_pulse", "subseq", "fr_hz"), "1",
+                f"{ch} channel after the {params['method']} correction, {len(subswaths)} range sub-swaths")
     return out

@@ -24,7 +24,7 @@ from ..dsp.pulse import WEIGHTINGS, pulse_rule_broken
 from ..dsp.keystone_common import carrier_floor_text
 from ..errors import BadInput
 from .describe import _plain
-from .track import restore_float32_track
+from .track import least_squares_uniform, restore_float32_track
 from .h5 import atomic_h5, put, put_scale
 from ..limits import check_declared_dataset, shown
 
@@ -330,24 +330,15 @@ def _uniform_range_axis(range_m: np.ndarray, stored_dtype, source: str) -> np.nd
                        f"rounding of its dtype ({np.dtype(stored_dtype)})")
     if np.ptp(dr) <= 1e-6 * abs(dr[0]):
         return range_m                        # float64 axes as they are (the same numbers as before)
-    centre, step, n = _least_squares_uniform(range_m)
+    centre, step, n = least_squares_uniform(range_m)
     return centre + step * n
-
-
-def _least_squares_uniform(values: np.ndarray) -> tuple[float, float, np.ndarray]:
-    """The least-squares uniform sequence through ``values``, in closed form (no Vandermonde matrix):
-    (its centre, its step, the sample indices about their mean); it is centre + step * indices."""
-    n = np.arange(len(values), dtype=np.float64)
-    n -= n.mean()
-    centre = float(np.mean(values))
-    return centre, float(np.dot(n, values - centre) / np.dot(n, n)), n
 
 
 def _check_pulse_timing(slow_time_s: np.ndarray, prf_hz: float, source: str) -> None:
     """The chain's slow-time FFTs need uniform pulses: every pulse within 1 % of an interval of a
     uniform train (a dropped pulse or a gap is a whole interval), and ``prf_hz`` equal to the
     least-squares train's rate within 1e-4 (float32 times stay well inside both)."""
-    _, interval_s, n = _least_squares_uniform(slow_time_s)
+    _, interval_s, n = least_squares_uniform(slow_time_s)
     # the best uniform train in the max norm, approximately: for the least-squares interval and for
     # 1/prf_hz, the offset at the residuals' midrange (half their spread: the least-squares offset can
     # put a train whose pulses all lie within 1 % of a uniform one at 1.02 %)

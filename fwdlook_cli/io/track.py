@@ -38,6 +38,15 @@ PHASE_ERROR_RAD = 0.01        # the largest phase the storage's rounding may put
 AGREEMENT_STEPS = 1.5         # the replacement within this many half storage steps of every stored value
 
 
+def least_squares_uniform(values: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """The least-squares uniform sequence through ``values``, in closed form (no Vandermonde matrix):
+    (its centre, its step, the sample indices about their mean); it is centre + step * indices."""
+    n = np.arange(len(values), dtype=np.float64)
+    n -= n.mean()
+    centre = float(np.mean(values))
+    return centre, float(np.dot(n, values - centre) / np.dot(n, n)), n
+
+
 def _is_float32(dtype) -> bool:
     dtype = np.dtype(dtype)
     return dtype.kind == "f" and dtype.itemsize < 8
@@ -56,9 +65,8 @@ def restore_float32_track(slow_time_s, position_m, velocity_mps, *, time_dtype, 
         step_s = float(np.spacing(np.float32(np.max(np.abs(t)))))
         doppler_hz = 2.0 * float(np.max(np.linalg.norm(v, axis=1))) / lam     # the largest Doppler a return has
         if np.pi * doppler_hz * step_s > PHASE_ERROR_RAD:                      # 2 pi f (half a step)
-            n = np.arange(len(t), dtype=np.float64) - 0.5 * (len(t) - 1)
-            centre = float(np.mean(t))
-            train = centre + float(np.dot(n, t - centre) / np.dot(n, n)) * n
+            centre, interval, n = least_squares_uniform(t)
+            train = centre + interval * n
             off = float(np.max(np.abs(train - t))) / (0.5 * step_s)
             head = (f"{source}: /axes/slow_time_s is float32, rounded to {step_s:.3g} s "
                     f"({np.pi * doppler_hz * step_s:.2g} rad at a Doppler of {doppler_hz:.0f} Hz)")

@@ -67,9 +67,10 @@ RESIDUAL_GAIN_DB = -1.0    # with a span over a cell, the integration gain below
 
 def _say_residual_migration(correction: str, summary: dict) -> None:
     """One warning where the corrected echo still migrates over more than a range resolution cell and its
-    integration gain is more than 1 dB under the ideal: the correction does not hold for this geometry (keystone2_n0 beyond about 15 deg of theta0, a wrong
-    n0_pulses, keystone1's curvature), which had ended with exit 0 and nothing said (an independent
-    review: -17.1 dB of integration gain at 30 deg, the target not detected)."""
+    integration gain is more than 1 dB under the ideal: the correction does not hold for this geometry
+    (keystone2_n0 beyond about 15 deg of theta0, a wrong n0_pulses, keystone1's curvature), which had
+    ended with exit 0 and nothing said (an independent review: -17.1 dB of integration gain at 30 deg,
+    the target not detected)."""
     span, gain = summary.get("migration_span_cells"), summary.get("integration_gain_db")
     # both: the span alone reads over a cell from noise (1.7 cells at 10 dB per sample, the gain -0.2 dB)
     if span is None or not span > 1.0 or (gain is not None and gain > RESIDUAL_GAIN_DB):

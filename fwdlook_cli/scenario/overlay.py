@@ -31,10 +31,8 @@ def resolve_with_config(raw_scenario: dict, source: str, config_path: str | None
                         check_pulses: bool = True) -> dict:
     """Scenario's own processing section, then the -c preset over it, then --set over both."""
     raw = dict(raw_scenario or {})
-    overlay = load_config_overlay(config_path)
+    overlay = load_config_overlay(config_path)         # (a mapping: load_config_overlay checks it)
     if overlay:
-        if not isinstance(overlay, dict):
-            raise BadInput(f"{config_path}: processing: expected a mapping")
         proc = dict(raw.get("processing") or {})
         proc.update(overlay)
         raw["processing"] = proc
