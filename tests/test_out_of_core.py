@@ -425,3 +425,80 @@ def test_simulated_pulses_no_target_reaches_are_zeros_out_of_core_too(tmp_path, 
             cube, _ = simulate_scenario(scn)
         np.testing.assert_array_equal(cube.sum, expected.sum)
         np.testing.assert_array_equal(cube.diff, expected.diff)
+
+
+@pytest.mark.parametrize("method", ["tracking", "decimation"])
+def test_steep_sub_swaths_out_of_core_hold_blocks_not_the_window(tmp_path, monkeypatch, method):
+    """Steep depression (3 km up, a 1.5 km window): the keystone stage corrects the window in range
+    sub-swaths (forward/subswath.py), each a pair of range transforms around the correction.  Out of
+    core they run in blocks of rows between file-backed arrays: the stage's traced memory (numpy's own
+    allocations; the maps are the kernel's) is the one-reference correction's own working set (within
+    10 % and four blocks of it, under half a channel), where the first version held the window in range
+    time whole, both channels (3.4 channels traced, 7 times the one-reference stage); the stage's output
+    is the in-memory stage's to the FFTs' rounding."""
+    import tracemalloc
+
+    from fwdlook_cli.forward.chain import build_forward_stages
+    from fwdlook_cli.forward.simulate import simulate_scenario
+
+    h = 3000.0
+
+    def ground(r, az):
+        g = np.sqrt(r * r - h * h)
+        return [float(g * np.sin(np.radians(az))), float(g * np.cos(np.radians(az)))]
+
+    scn = tiny_scenario(antenna=dict(tiny_scenario()["antenna"], scan_rate_dps=25.0),
+                        platform=dict(tiny_scenario()["platform"], height_m=h),
+                        radar=dict(tiny_scenario()["radar"], range_window_m=[3300.0, 4900.0]),
+                        scene={"kind": "points", "points_m": [ground(3600.0, 4.0), ground(4500.0, -4.0)],
+                               "amplitude": 1.0})
+    cube, _ = simulate_scenario(scn)
+    proc = dict(scn["processing"], method=method, q=1 if method == "tracking" else 4, imaging="cpi")
+    monkeypatch.setattr(backing, "BLOCK_BYTES", 16384)
+    monkeypatch.setattr(keystone_fast, "SUPERBLOCK_BYTES", 65536)
+
+    def keystone_in_and_out(subswaths="auto"):
+        src, stages, _ = build_forward_stages(cube, dict(proc, subswaths=subswaths))
+        names = [st.name for st in stages]
+        data = src
+        for st in stages[:names.index("keystone")]:
+            data = st.fn(data, **st.params)
+        st = stages[names.index("keystone")]
+        assert len(st.params.get("subswaths") or ()) >= (3 if subswaths == "auto" else 0)
+        tracemalloc.start()
+        try:
+            out = st.fn(data, **st.params)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        return data["sum_f"].nbytes, peak, {ch: np.array(out[f"{ch}_f"]) for ch in ("sum", "diff")}
+
+    _, _, whole = keystone_in_and_out()
+    with backing.file_backed(tmp_path / "scratch", min_bytes=0):
+        channel_bytes, peak, blocked = keystone_in_and_out()
+        _, peak_one_reference, _ = keystone_in_and_out("none")
+    assert peak < min(1.1 * peak_one_reference + 4 * backing.BLOCK_BYTES, 0.5 * channel_bytes), \
+        (peak, peak_one_reference, channel_bytes)
+    n_p, n_f = cube.sum.shape[0], whole["sum"].shape[-1]
+    n_czt = scipy.fft.next_fast_len(2 * n_p - 1)
+    for ch in ("sum", "diff"):
+        assert_same_to_fft_rounding(blocked[ch], whole[ch], n_f, n_f, n_czt, n_czt, n_czt, err_msg=ch)
+
+
+def test_the_tracking_remodulation_of_one_column_is_that_column_of_many():
+    """keystone_fast.remodulation_cycles: its phase is a [pulses, 6] x [6, columns] product; numpy sends
+    a one-column product to gemv, which sums in another order than gemm, and the out-of-core keystone's
+    one-column super-blocks differed from the whole keystone in float32's last bit (a steep window's
+    sub-swath).  Each column alone is now the many-column product's, bit for bit."""
+    from fwdlook_cli.forward.keystone_fast import remodulation_cycles
+
+    rng = np.random.default_rng(3)
+    p, n_cols, prf, fc = 1600, 81, 2000.0, 10e9
+    derivs = [rng.standard_normal(p) * s for s in (3e3, 2e2, 3e1, 5.0, 1.0)]
+    alpha = fc / (fc + scipy.fft.fftfreq(n_cols, 1 / 24e6))
+    chirp_rows, chirp_cols = rng.standard_normal(p) * 1e2, rng.standard_normal(n_cols)
+    whole = remodulation_cycles(derivs, 800.0, alpha, 1.0 / alpha, prf, chirp_rows, chirp_cols)
+    for k in range(n_cols):
+        one = remodulation_cycles(derivs, 800.0, alpha[k:k + 1], 1.0 / alpha[k:k + 1], prf, chirp_rows,
+                                  chirp_cols[k:k + 1])
+        np.testing.assert_array_equal(one[:, 0], whole[:, k], err_msg=str(k))

@@ -63,6 +63,10 @@ def remodulation_cycles(derivs, t0_index: float, alpha, scale, prf_hz: float, ch
     if chirp_rows is not None:
         rows[:, 5] = chirp_rows
         cols[5] = chirp_cols
+    if cols.shape[1] == 1:      # numpy takes a one-column product to gemv, which sums in another order than
+        # gemm: the out-of-core keystone's one-column super-blocks then differed from the whole in float32's
+        # last bit (2 of 130 000 samples, a steep window's sub-swath); as two columns, gemm's sum
+        return (rows @ np.repeat(cols, 2, axis=1))[:, :1]
     return rows @ cols
 
 

@@ -96,39 +96,67 @@ def plan_subswaths(*, height_m: float, range_m, velocity_mps, fc_hz: float, prf_
     return out, left
 
 
+def _rows(fn, x, n_out: int) -> np.ndarray:
+    """``fn`` over blocks of rows of ``x`` [..., n] (its last axis, range): [..., n_out] complex64; in
+    memory one call, out of core (io/backing.py) block by block of rows into a file-backed array, the
+    same numbers (each row's transform is its own)."""
+    flat = x.reshape(-1, x.shape[-1])
+    if not backing.active():
+        return np.asarray(fn(flat), dtype=np.complex64).reshape(x.shape[:-1] + (n_out,))
+    out = backing.map_blocks(lambda s: fn(flat[s]), flat.shape[0], (flat.shape[0], n_out), np.complex64,
+                             8 * max(n_out, flat.shape[1]))
+    return out.reshape(x.shape[:-1] + (n_out,))
+
+
+def _ifft(x):
+    return scipy.fft.ifft(x, axis=-1, workers=-1)
+
+
+def _fft(x):
+    return scipy.fft.fft(x, axis=-1, workers=-1, overwrite_x=True)
+
+
 def keystone_subswaths(data: StageData, subswaths: list[dict], correct, **params) -> StageData:
     """``correct`` (the keystone stage's one-reference correction, ``chain.keystone_stage``) on each
     sub-swath with its own reference, the cores assembled (module docstring).  ``params``: the stage's
     settings; each sub-swath's ``depression_deg``, ``reference_range_m``, ``doppler_ref_hz`` and
-    ``ambiguity`` replace theirs."""
+    ``ambiguity`` replace theirs.  Out of core every range transform runs in blocks of rows between
+    file-backed arrays, as the correction itself does (the window in range time had been held whole in
+    memory, both channels)."""
     fr_hz = np.asarray(data["fr_hz"])
     n_f = len(fr_hz)
     fs_hz = float(fr_hz[1]) * n_f                       # FFT order: fr[1] = fs / n
-    x_time = {ch: scipy.fft.ifft(np.asarray(data[f"{ch}_f"]), axis=-1, workers=-1) for ch in ("sum", "diff")}
+    x_time = {ch: _rows(_ifft, data[f"{ch}_f"], n_f) for ch in ("sum", "diff")}
     y_time = {ch: backing.empty(x.shape, np.complex64) for ch, x in x_time.items()}
     for sw in subswaths:
         lo, hi, c0, c1 = sw["lo"], sw["hi"], sw["core_lo"], sw["core_hi"]
         a, b = max(lo, 0), min(hi, n_f)                 # the window's samples; zeros beyond its ends
+
+        def padded(rows, a=a, b=b, lo=lo, hi=hi):       # the sub-swath's samples, zeros beyond the window
+            seg = np.zeros((rows.shape[0], hi - lo), np.complex64)
+            seg[:, a - lo:b - lo] = rows[:, a:b]
+            return _fft(seg)
+
         sub = StageData(dict(data.vars), dict(data.attrs))
         sub.add("fr_hz", scipy.fft.fftfreq(hi - lo, 1.0 / fs_hz), ("fr_hz",), "Hz", "range frequency (FFT order)")
         sub.vars["range_m"] = data.vars["range_m"]
         for ch, x in x_time.items():
-            seg = np.zeros(x.shape[:-1] + (hi - lo,), np.complex64)
-            seg[..., a - lo:b - lo] = x[..., a:b]
-            sub.add(f"{ch}_f", scipy.fft.fft(seg, axis=-1, workers=-1, overwrite_x=True),
-                    ("sub_pulse", "subseq", "fr_hz"), "1", f"{ch} channel, sub-swath")
-            del seg
+            sub.add(f"{ch}_f", _rows(padded, x, hi - lo), ("sub_pulse", "subseq", "fr_hz"), "1",
+                    f"{ch} channel, sub-swath")
         done = correct(sub, **dict(params, depression_deg=sw["depression_deg"],
                                    reference_range_m=sw["reference_range_m"], doppler_ref_hz=sw["doppler_ref_hz"],
                                    ambiguity=sw["ambiguity"]))
-        for ch in ("sum", "diff"):
-            y = scipy.fft.ifft(np.asarray(done[f"{ch}_f"]), axis=-1, workers=-1)
-            y_time[ch][..., c0:c1] = y[..., c0 - lo:c1 - lo]
-        del sub, done
+        del sub
+        for ch in ("sum", "diff"):                      # the core, back in range time
+            y = np.asarray(done[f"{ch}_f"]).reshape(-1, hi - lo)
+            core = y_time[ch].reshape(-1, n_f)
+            step = backing.rows_per_block(8 * (hi - lo)) if backing.active() else y.shape[0]
+            for r in range(0, y.shape[0], step):
+                core[r:r + step, c0:c1] = _ifft(y[r:r + step])[:, c0 - lo:c1 - lo]
+        del done
     del x_time
     out = StageData(dict(data.vars), dict(data.attrs))
     for ch, y in y_time.items():
-        out.add(f"{ch}_f", scipy.fft.fft(y, axis=-1, workers=-1).astype(np.complex64, copy=False),
-                ("sub_pulse", "subseq", "fr_hz"), "1",
+        out.add(f"{ch}_f", _rows(_fft, y, n_f), ("sub_pulse", "subseq", "fr_hz"), "1",
                 f"{ch} channel after the {params['method']} correction, {len(subswaths)} range sub-swaths")
     return out
