@@ -267,6 +267,49 @@ def test_the_plan_counts_the_scans_own_range_curvature(tmp_path):
     assert m["summary"]["max_abs_range_error_m"] < 0.5 * off["summary"]["max_abs_range_error_m"]
 
 
+def test_bulk_says_the_walk_its_shift_leaves(tmp_path, capsys):
+    """`bulk` shifts every direction by the INS motion along +y at the reference depression
+    (motion.bulk_range_history_m), so the scan's cos theta, a heading off +y or a climb leave walk that it
+    never corrects (an independent review: 7.7-8.1 m off on a track heading -35 deg, exit 0 and no word,
+    where `traditional` and `decimation` said theirs).  The plan's budget for it is the closing speed
+    v . u(theta) less bulk's v_y cos(phi) over each direction's lever: for a straight track along +y that is
+    v cos(phi) (1 - cos theta) lever, whose largest is at the scan's ends (closed form here); a +-45 deg scan
+    leaves more than half a range sample, the run says so in one line and its targets are within the
+    budget; the tiny scan (+-10 deg) holds it, without a word."""
+    from cli_runner import run_cli
+
+    from fwdlook_cli.forward.plan import plan_geometry
+
+    prf, v, h, r_ref = 2000.0, 150.0, 50.0, 1000.0
+    t = np.arange(1200) / prf
+    scan = -45.0 + 75.0 * t
+    vel = np.tile([0.0, v, 0.0], (len(t), 1))
+    pos = np.column_stack([np.zeros_like(t), v * t, np.full_like(t, h)])
+    p = plan_geometry(t, pos, vel, scan, fc_hz=10e9, prf_hz=prf, fs_hz=24e6, beamwidth_deg=6.0,
+                      reference_range_m=r_ref, t_ref_s=float(t[len(t) // 2]), cpi=16)
+    phi = np.arcsin(h / r_ref)
+    lever = np.abs(t - t[len(t) // 2]) + p["dwell_s"] / 2
+    ends = [0, len(t) - 1]
+    assert p["bulk_residual_walk_m"] == pytest.approx(
+        max(v * np.cos(phi) * (1 - np.cos(np.radians(scan[i]))) * lever[i] for i in ends), rel=1e-9)
+    wide = ["--set", "antenna.scan_start_deg=-45", "--set", "antenna.scan_stop_deg=45", "--set",
+            "antenna.scan_rate_dps=30", "--set", "scene.points_m=[[-600,900],[0,1030],[300,800]]"]
+    half = C_MPS / (2 * 24e6) / 2
+    for name, sets in (("tiny", []), ("wide", wide)):
+        code, out, err = run_cli(["run", str(ROOT / "scenarios" / "tiny.yaml"), "-o", str(tmp_path / name),
+                                  "--keep-stages", "none", "--set", "processing.method=bulk",
+                                  "--set", "processing.imaging=cpi"] + sets, capsys)
+        assert code == 0, err
+        m = json.loads((tmp_path / name / "metrics.json").read_text())
+        said = [line for line in err.splitlines() if "processing.method bulk" in line]
+        worst = max(abs(t["range_error_m"]) for t in m["targets"] if t["detected"])
+        if name == "tiny":
+            assert said == [] and worst < half
+        else:
+            budget = float(said[0].split("leaves up to ")[1].split(" m")[0])
+            assert len(said) == 1 and half < worst <= budget, (worst, budget)
+
+
 def test_one_depression_error_closed_form():
     """motion.depression_reference_error_m against the boresight Doppler written out: a shift by the
     reference's range history leaves lambda / 2 |df| per second, a keystone at the rate PRF the folded

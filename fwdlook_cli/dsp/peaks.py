@@ -244,7 +244,7 @@ def image_peak_2d(image_power, i, j):
     return i + di, j + dj, float(peak)
 
 
-def oversample_range(x, factor: int, workers: int = -1):
+def oversample_range(x, factor: int, workers: int = -1, out=None):
     """Band-limited oversampling of the last (range) axis by ``factor`` (amplitudes kept: the native
     samples come back at every ``factor``-th output sample), complex output of ``x``'s precision.
 
@@ -256,7 +256,8 @@ def oversample_range(x, factor: int, workers: int = -1):
     spectrum in memory: about half the time of a forward FFT, a padded copy and an inverse FFT of the
     whole block (README, Speed).  ``workers``: threads (-1: :func:`dsp.blas.worker_threads`, the
     cores this process may use as the stages' pools take them, ``FWDLOOK_THREADS`` and a sweep
-    worker's ``OMP_NUM_THREADS`` obeyed)."""
+    worker's ``OMP_NUM_THREADS`` obeyed).  ``out``: where to write it (of the output's shape and
+    ``x``'s complex dtype, rows contiguous), else a new array."""
     factor = _check_factor(factor)
     x = np.asarray(x)
     if not np.iscomplexobj(x):
@@ -268,7 +269,8 @@ def oversample_range(x, factor: int, workers: int = -1):
     n = x.shape[-1]
     impulse = np.zeros(n, dtype=x.dtype)
     impulse[0] = 1
-    out = np.empty(x.shape[:-1] + (n * factor,), dtype=x.dtype)
+    if out is None:
+        out = np.empty(x.shape[:-1] + (n * factor,), dtype=x.dtype)
     if out.size == 0:
         return out
     threads = worker_threads() if workers == -1 else int(workers)

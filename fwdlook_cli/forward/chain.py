@@ -38,6 +38,7 @@ from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData
+from ..io.track import with_velocity_source
 from ..limits import check_processing_sizes
 from .monopulse import monopulse_image   # noqa: F401 (stage 7, forward/monopulse.py; chain.monopulse_image)
 
@@ -306,14 +307,16 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     frac = (np.arange(n_doppler) + 0.5) / n_doppler
     f_z = f_lo[:, None] + (f_hi - f_lo)[:, None] * frac[None, :]          # [n_cpi, n_doppler], true Hz
     w = _window(window, cpi)
-    # zoom matrix E[i, z, n] = w_n exp(-j 2 pi f_z (t_n - t_c)): the DFT evaluated on the band only
-    e = w[None, None, :] * _cis(-2.0 * np.pi * f_z[:, :, None] * (t_cpi - t_c[:, None])[:, None, :])
-    e = e.astype(np.complex64)
+
+    def zoom_matrix(c=slice(None)):   # E[i, z, n] = w_n exp(-j 2 pi f_z (t_n - t_c)) of the CPIs c: the DFT
+        return (w[None, None, :] * _cis(-2.0 * np.pi * f_z[c, :, None]       # evaluated on the band only
+                                        * (t_cpi[c] - t_c[c, None])[:, None, :])).astype(np.complex64)
+
     n_r = data["sum"].shape[1]
     # one small product per CPI and channel, the BLAS on one thread (dsp.blas: no pool stalls), the
     # two channels side by side
     channels = ("sum", "diff") if "diff" in data else ("sum",)
-    z_sum, *z_diff = _zoom(e, *(data[ch][:m].reshape(n_cpi, cpi, n_r) for ch in channels))
+    z_sum, *z_diff = _zoom(zoom_matrix, *(data[ch][:m].reshape(n_cpi, cpi, n_r) for ch in channels))
     if estimator == "iaa":      # processing.doppler_estimator: iaa (dsp.iaa), same cells and scale
         from ..dsp.iaa import iaa_doppler
 
@@ -344,15 +347,24 @@ def doppler_spectra(data: StageData, *, cpi: int, n_doppler: int, window: str, f
     return out
 
 
-def _zoom(e, *xs):
-    """``e @ x`` per CPI ([n_cpi, n_doppler, cpi] @ [n_cpi, cpi, n_r]) for each channel ``x``: one batched
-    product each, in memory the channels on threads side by side (``dsp.blas.batched_matmul_each``); in
-    blocks of CPIs into file-backed outputs out of core (io/backing.py), the same products."""
+def _zoom(zoom_matrix, *xs):
+    """``E @ x`` per CPI ([n_cpi, n_doppler, cpi] @ [n_cpi, cpi, n_r]) for each channel ``x``, E of CPIs c
+    being ``zoom_matrix(c)``: one batched product each, in memory the channels on threads side by side
+    (``dsp.blas.batched_matmul_each``); out of core (io/backing.py) in blocks of CPIs into file-backed
+    outputs, E made block by block too (whole, it grows with the pulses: 0.5 of a channel of 129 range
+    samples, an independent review), the same products."""
     if not backing.active():
-        return batched_matmul_each(e, xs)
-    return [backing.map_blocks(lambda c, x=x: batched_matmul(e[c], x[c]), x.shape[0],
-                               (x.shape[0], e.shape[1], x.shape[2]), np.result_type(e.dtype, x.dtype),
-                               8 * e.shape[1] * x.shape[2]) for x in xs]
+        return batched_matmul_each(zoom_matrix(), xs)
+    n_cpi, n_r = xs[0].shape[0], xs[0].shape[2]
+    e0 = zoom_matrix(slice(0, 1))
+    outs = [backing.empty((n_cpi, e0.shape[1], n_r), np.complex64) for _ in xs]
+    step = backing.rows_per_block(8 * e0.shape[1] * n_r)
+    for a in range(0, n_cpi, step):
+        c = slice(a, min(n_cpi, a + step))
+        e = zoom_matrix(c)
+        for x, out in zip(xs, outs):
+            out[c] = batched_matmul(e, x[c])
+    return outs
 
 
 # ----------------------------------------------------------------------------------------------
@@ -394,6 +406,7 @@ def build_forward_stages(cube, proc: dict):
     from .plan import method_budget_warnings, plan_for_cube
     from .subswath import plan_subswaths
 
+    cube = with_velocity_source(cube, proc.get("velocity_source", "ins"))
     geo = chain_geometry(cube, proc)
     q_run = proc["q"] if proc["method"] == "decimation" else 1
     plan = plan_for_cube(cube, proc, q_candidates=sorted({1, q_run}))

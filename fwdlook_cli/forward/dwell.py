@@ -85,7 +85,7 @@ from .dwell_fit import start_fit_region
 from .dwell_fit_plan import fit_cell_model_holds, fit_models_antenna
 from .dwell_grid import check_focus_sizes, focus_directions, focus_per_bin, pattern_weight, subaperture_windows
 from .dwell_range import (auto_focus_range_oversample, dwell_duration_s, dwell_stage_params, flight_axis_deg,
-                          ground_points, iso_doppler_range)
+                          ground_points, iso_doppler_range, oversample_focus_input)
 
 log = logging.getLogger(__name__)
 
@@ -370,15 +370,10 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         diff = backing.map_blocks(lambda s: (raw[s] / np.complex64(imbalance)).astype(np.complex64),
                                   raw.shape[0], raw.shape, np.complex64, raw[0].nbytes)
     sum_in, focus_os, range_in, diff_native = data["sum"], int(focus_oversample), range_m, diff
-    if focus_os > 1 and not backing.active():    # the image is not band-limited at the native rate: focus
-        sum_in = oversample_range(sum_in, focus_os).astype(np.complex64)    # on the fine grid (from the
-        diff = oversample_range(diff, focus_os).astype(np.complex64)        # band-limited input)
+    if focus_os > 1:           # the image is not band-limited at the native rate: focus on the fine grid
+        sum_in = oversample_focus_input(sum_in, focus_os)        # (from the band-limited input; file-backed
+        diff = oversample_focus_input(diff, focus_os)            # out of core)
         range_in = range_m[0] + (range_m[1] - range_m[0]) / focus_os * np.arange(sum_in.shape[1])
-    else:
-        if focus_os > 1:
-            log.warning("dwell image: this geometry needs the dwell focused on the oversampled range grid, "
-                        "which --out-of-core does not do; its ranges may be biased (README, dwell imaging)")
-        focus_os = 1
     s_rot, d_rot, gain, pos_dwell, plain_gain = dwell_focus(
         sum_in, diff, slow_time_s=data["slow_time_s"], scan_angle_deg=beam,
         position_m=data["position_m"], velocity_mps=vel, range_m=range_in, angle_deg=dirs, fc_hz=fc_hz,

@@ -34,6 +34,7 @@ import numpy as np
 
 from ..dsp.geometry import C_MPS, ambiguity_number
 from ..dsp.imaging import auto_range_oversample
+from ..io.track import with_velocity_source
 from .motion import (auto_doppler_cells, boresight_doppler_spread_hz, depression_reference_error_m,
                      doppler_band_depressions, t_ref_seconds, widest_cpi_band_hz)
 
@@ -73,6 +74,9 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
     los = np.stack([np.sin(th) * np.cos(phi), np.cos(th) * np.cos(phi), np.full_like(th, -np.sin(phi))], axis=1)
     radial_speed = np.sum(vel * los, axis=1)                               # v . u, the closing speed
     walk_m = float(np.max(np.abs(radial_speed) * lever_s))
+    # bulk's shift follows the INS motion along +y at the reference depression (motion.bulk_range_history_m):
+    # what it leaves of each direction's walk (the scan's cos theta, a heading off +y, a climb)
+    bulk_walk_m = float(np.max(np.abs(radial_speed - vel[:, 1] * np.cos(phi)) * lever_s))
     accel = np.polyfit(t, vel, 1)[0] if len(t) > 2 else np.zeros(3)      # [3]: the INS track's mean acceleration
     d2r = (np.sum(vel**2, axis=1) - radial_speed**2) / reference_range_m - los @ accel      # R'' (module doc)
     curvature_m = float(np.max(0.5 * np.abs(d2r) * lever_s**2))
@@ -124,6 +128,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
         "half_range_cell_m": half_cell_m, "reference_range_m": float(reference_range_m),
         "depression_deg": float(np.degrees(phi)), "dwell_s": float(dwell_s), "t_ref_s": float(t_ref_s),
         "range_walk_m": walk_m, "needs_walk_correction": walk_m >= half_cell_m, "lever_max_s": lever_max,
+        "bulk_residual_walk_m": bulk_walk_m,
         "range_curvature_m": curvature_m, "needs_curvature": curvature_m >= half_cell_m,
         "forward_accel_mps2": float(accel[1]), "accel_mps2": [float(a) for a in accel],
         "ambiguity_number_boresight": int(ambiguity_number(f_dc0, prf_hz)),
@@ -152,6 +157,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
 
 
 def plan_for_cube(cube, proc: dict, q_candidates=None) -> dict:
+    cube = with_velocity_source(cube, proc.get("velocity_source", "ins"))
     t_ref_s = t_ref_seconds(cube.slow_time_s, proc["t_ref"])
     out = plan_geometry(cube.slow_time_s, cube.position_m, cube.velocity_mps, cube.scan_angle_deg,
                         fc_hz=cube.radar["fc_hz"], prf_hz=cube.radar["prf_hz"], fs_hz=cube.radar["fs_hz"],
@@ -165,7 +171,7 @@ def plan_for_cube(cube, proc: dict, q_candidates=None) -> dict:
 
 def method_budget_warnings(plan: dict, proc: dict, subswaths: int = 0, subswath_error_m: float = 0.0) -> list[str]:
     """What the plan's budget (:func:`plan_for_cube` with the run's Q among its candidates) says of the
-    method that runs, where it misses half a range sample: the residual walk of ``none``,
+    method that runs, where it misses half a range sample: the residual walk of ``none``, ``bulk``,
     ``traditional`` and ``decimation`` at its Q (eq. 19-20), and what one reference depression leaves
     across the range window (steep depression, any method but ``none``), or where the keystone stage
     splits the window (``subswaths`` of them, ``forward/subswath.py``) what they still leave.  One line
@@ -175,10 +181,11 @@ def method_budget_warnings(plan: dict, proc: dict, subswaths: int = 0, subswath_
     half = plan["half_range_cell_m"]
     row = next(r for r in plan["decimation"] if r["q"] == q)
     out = []
-    residual = {"none": plan["range_walk_m"], "traditional": row["residual_walk_m"],
+    residual = {"none": plan["range_walk_m"], "bulk": plan["bulk_residual_walk_m"], "traditional": row["residual_walk_m"],
                 "decimation": row["residual_walk_m"]}.get(method)
     if residual is not None and residual > half:
-        what = "range walk" if method == "none" else "residual range walk (eq. 19-20: one ambiguity number)"
+        what = {"none": "range walk", "bulk": "residual range walk (its shift follows the motion along +y at one "
+                "depression, not each direction's)"}.get(method, "residual range walk (eq. 19-20: one ambiguity number)")
         out.append(f"processing.method {method}" + (f" (Q = {q})" if method == "decimation" else "")
                    + f": the plan's budget leaves up to {residual:.2f} m of {what} against half a range sample "
                    f"{half:.2f} m (`fwdlook plan` gives each method's)")
@@ -234,6 +241,8 @@ def format_plan(plan: dict, name: str) -> str:
         f"  ambiguity number     F = {plan['ambiguity_number_boresight']} on boresight, "
         f"{plan['ambiguity_number_range'][0]}..{plan['ambiguity_number_range'][1]} across the scan: "
         f"traditional keystone residual walk {plan['traditional_residual_walk_m']:.2f} m (eq. 19)",
+        f"  bulk shift residual  {plan['bulk_residual_walk_m']:9.2f} m   vs {h:.2f} m   "
+        f"{'ok' if plan['bulk_residual_walk_m'] < h else 'NOT HELD'} (the motion along +y at one depression)",
         f"  Doppler drift        {plan['doppler_centroid_drift_hz']:9.1f} Hz  vs half a CPI Doppler cell "
         f"{plan['doppler_cell_hz'] / 2:.1f} Hz   {verdict(plan['needs_doppler_centroid'])} (eq. 25)",
         f"  Doppler across range {plan['doppler_range_spread_hz']:9.1f} Hz  vs a CPI Doppler cell "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dsp.geometry import C_MPS
+from ..io import backing
 
 PROFILE_WINDOW_CELLS = 5     # the dwell range profile's ISLR/PSLR window: +-5 range resolution cells
 PROFILE_MARGIN_SAMPLES = 2   # range samples beyond each window in profile_spectra (a window's last search index)
@@ -39,7 +40,10 @@ def profile_spectra(compensated, doppler_params: dict, range_ref_m, range_window
     cols = np.flatnonzero(np.cumsum(edges[:-1]) > 0)
     sub = compensated.copy_vars("slow_time_s", "xyz", "scan_angle_deg", "position_m", "velocity_mps")
     sub.add("range_m", range_m[cols], ("range_m",), "m", "slant range")
-    sub.add("sum", np.asarray(compensated["sum"])[:, cols], ("slow_time_s", "range_m"), "1", "sum channel")
+    x = compensated["sum"]          # out of core gathered block by block of pulses into a file-backed array
+    columns = (backing.map_blocks(lambda s: x[s][:, cols], x.shape[0], (x.shape[0], len(cols)), x.dtype,
+                                  x[0].nbytes) if backing.active() else np.asarray(x)[:, cols])
+    sub.add("sum", columns, ("slow_time_s", "range_m"), "1", "sum channel")
     return doppler_spectra(sub, **doppler_params)
 
 
