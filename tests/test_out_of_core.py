@@ -599,3 +599,36 @@ def test_the_doppler_zoom_and_the_profile_spectra_out_of_core_hold_blocks(tmp_pa
     for (z_file, peak), (z_memory, _) in zip(on_file, memory):
         assert peak < 0.1 * channel, (peak, channel)
         np.testing.assert_array_equal(z_file, z_memory)
+
+
+def test_the_doppler_zoom_of_few_range_columns_out_of_core_holds_blocks(tmp_path, monkeypatch):
+    """With few range columns (the dwell profile metrics' windows) a block of CPIs sized by its output
+    alone had made E's float64 and complex128 temporaries cpi / n_r times that size: 86 MiB traced for
+    8 MiB blocks on 65536 pulses x 12 columns (a review of the round's change).  Sized by both: within
+    three blocks here, whatever the pulses."""
+    import tracemalloc
+
+    from fwdlook_cli.forward.chain import doppler_spectra
+    from fwdlook_cli.io.stagefile import StageData
+
+    monkeypatch.setattr(backing, "BLOCK_BYTES", 1 << 20)
+    n_p, n_r, prf = 16384, 12, 2500.0
+    d = StageData()
+    d.add("slow_time_s", np.arange(n_p) / prf, ("slow_time_s",), "s", "t")
+    d.add("xyz", np.arange(3), ("xyz",), "1", "x")
+    d.add("scan_angle_deg", np.linspace(-15, 15, n_p), ("slow_time_s",), "deg", "beam")
+    d.add("position_m", np.zeros((n_p, 3)), ("slow_time_s", "xyz"), "m", "p")
+    d.add("velocity_mps", np.tile([0.0, 240.0, 0.0], (n_p, 1)), ("slow_time_s", "xyz"), "m/s", "v")
+    d.add("range_m", 1700 + np.arange(n_r) * 2.5, ("range_m",), "m", "r")
+    with backing.file_backed(tmp_path, min_bytes=0):
+        x = backing.empty((n_p, n_r), np.complex64)
+        x[:] = 1
+        d.add("sum", x, ("slow_time_s", "range_m"), "1", "sum")
+        tracemalloc.start()
+        try:
+            doppler_spectra(d, cpi=128, n_doppler=128, window="hamming", fc_hz=18e9, beamwidth_deg=6.0,
+                            depression_deg=1.7, prf_hz=prf, follow_speed=True)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    assert peak < 3 * backing.BLOCK_BYTES, peak

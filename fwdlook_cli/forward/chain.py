@@ -38,7 +38,7 @@ from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData
-from ..io.track import with_velocity_source
+from ..io.navigation import with_navigation
 from ..limits import check_processing_sizes
 from .monopulse import monopulse_image   # noqa: F401 (stage 7, forward/monopulse.py; chain.monopulse_image)
 
@@ -358,7 +358,9 @@ def _zoom(zoom_matrix, *xs):
     n_cpi, n_r = xs[0].shape[0], xs[0].shape[2]
     e0 = zoom_matrix(slice(0, 1))
     outs = [backing.empty((n_cpi, e0.shape[1], n_r), np.complex64) for _ in xs]
-    step = backing.rows_per_block(8 * e0.shape[1] * n_r)
+    # a block's rows: its outputs, and E's float64 and complex128 temporaries (48 bytes per cell of E: with
+    # few range columns, the profile metrics' windows, they outweigh the outputs cpi / n_r times over)
+    step = backing.rows_per_block(max(8 * e0.shape[1] * n_r, 48 * e0.shape[1] * e0.shape[2]))
     for a in range(0, n_cpi, step):
         c = slice(a, min(n_cpi, a + step))
         e = zoom_matrix(c)
@@ -406,7 +408,7 @@ def build_forward_stages(cube, proc: dict):
     from .plan import method_budget_warnings, plan_for_cube
     from .subswath import plan_subswaths
 
-    cube = with_velocity_source(cube, proc.get("velocity_source", "ins"))
+    cube = with_navigation(cube, proc.get("navigation", "recorded"))
     geo = chain_geometry(cube, proc)
     q_run = proc["q"] if proc["method"] == "decimation" else 1
     plan = plan_for_cube(cube, proc, q_candidates=sorted({1, q_run}))

@@ -208,8 +208,8 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
     captured = ({"doppler_spectra": None} if "doppler_spectra" in names else
                 {"range_curvature": None} if cube.truth_xyz_m() is not None and "range_curvature" in names else {})
     src_key, holder = cube_hash(cube), [src]
-    if proc.get("velocity_source", "ins") != "ins":      # the source's velocities are not the cube's own
-        src_key = hashlib.sha256(f"{src_key}|velocity_source={proc['velocity_source']}".encode()).hexdigest()
+    if proc.get("navigation", "recorded") != "recorded":      # the source's track is not the cube's own
+        src_key = hashlib.sha256(f"{src_key}|navigation={proc['navigation']}".encode()).hexdigest()
     del src
     if release_cube:         # the CLI's cube: its echoes are needed by stage 1 only (memory: README, Speed);
         # zero-stride stand-ins keep the shapes (n_pulses, n_range) and hold no memory
@@ -309,7 +309,7 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                    "doppler_spread_hz": geo.get("doppler_spread_hz"),
                    # the keystone stage's range sub-swaths (1: one reference depression for the window)
                    "subswaths": geo.get("subswaths", 1),
-                   "velocity_source": proc.get("velocity_source", "ins"),
+                   "navigation": proc.get("navigation", "recorded"),
                    # the zoomed Doppler cells per CPI (n_doppler: auto resolved), where a CPI Doppler stage ran
                    "n_doppler": geo.get("n_doppler") if "doppler_spectra" in names else None,
                    # the image's range oversampling (range_oversample: auto resolved)

@@ -24,7 +24,8 @@ from ..dsp.pulse import WEIGHTINGS, pulse_rule_broken
 from ..dsp.keystone_common import carrier_floor_text
 from ..errors import BadInput
 from .describe import _plain
-from .track import least_squares_uniform, restore_float32_track, velocity_integral_m, warn_velocity_disagreement
+from .navigation import SMOOTHING_S, check_navigation, kept_float32_step, velocity_integral_m
+from .track import least_squares_uniform, restore_float32_track
 from .h5 import atomic_h5, put, put_scale
 from ..limits import check_declared_dataset, shown
 
@@ -268,9 +269,9 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
         slow_time_s, position = restore_float32_track(
             slow_time_s, position, velocity, time_dtype=f["axes/slow_time_s"].dtype,
             position_dtype=f["platform/position_m"].dtype, fc_hz=radar["fc_hz"], source=source)
-        if np.dtype(f["platform/position_m"].dtype).itemsize >= 8:    # (float32 ones: said above)
-            warn_velocity_disagreement(slow_time_s, position, velocity, scan_angle_deg=scan,
-                                       beamwidth_deg=radar["beamwidth_3db_deg"], fc_hz=radar["fc_hz"], source=source)
+        check_navigation(slow_time_s, position, velocity, scan_angle_deg=scan, beamwidth_deg=radar["beamwidth_3db_deg"],
+                         fc_hz=radar["fc_hz"], range_m=range_m, source=source,
+                         rounding_m=kept_float32_step(f["platform/position_m"], position))
     _check_radar_values(radar, float(range_m[1] - range_m[0]), n_r, source)
     antenna = _read_antenna(f, source)
     noise = _read_noise(f["echo"].attrs, source)
@@ -386,7 +387,10 @@ def _check_motion(position, velocity, dt, source: str, stored_dtype=np.float64) 
     if len(dt):     # the velocities the positions' differences imply, against the recorded (span means)
         floating = np.issubdtype(stored_dtype, np.floating)     # (far is within 1e7 m: checked above)
         step_m = float(np.spacing(np.asarray(far, dtype=stored_dtype))) if floating else 1.0
-        span = int(min(len(dt), max(1, np.ceil(10.0 * step_m / float(np.median(dt))))))
+        # (and at least the navigation check's smoothing: positions with centimetres of white noise had been
+        # refused as a velocity of the wrong sign or unit, pulse to pulse; their noise is that check's)
+        span = int(min(len(dt), max(1, np.ceil(10.0 * step_m / float(np.median(dt))),
+                                    np.ceil(SMOOTHING_S / float(np.median(dt))))))
         t = np.concatenate([[0.0], np.cumsum(dt)])
         moved = velocity_integral_m(t, velocity)
         gap = np.linalg.norm(((position[span:] - position[:-span]) - (moved[span:] - moved[:-span]))

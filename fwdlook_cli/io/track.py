@@ -26,18 +26,17 @@ case said in one warning.  ISAR cubes are left alone: that chain forms no phase 
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 
 import numpy as np
 
 from ..dsp.geometry import C_MPS
+from .navigation import velocity_integral_m
 
 log = logging.getLogger(__name__)
 
 PHASE_ERROR_RAD = 0.01        # the largest phase the storage's rounding may put into the chain
 AGREEMENT_STEPS = 1.5         # the replacement within this many half storage steps of every stored value
-VELOCITY_PHASE_RAD = np.pi    # velocities against positions over a beam dwell: half its Doppler resolution
 
 
 def least_squares_uniform(values: np.ndarray) -> tuple[float, float, np.ndarray]:
@@ -47,67 +46,6 @@ def least_squares_uniform(values: np.ndarray) -> tuple[float, float, np.ndarray]
     n -= n.mean()
     centre = float(np.mean(values))
     return centre, float(np.dot(n, values - centre) / np.dot(n, n)), n
-
-
-def velocity_integral_m(slow_time_s, velocity_mps) -> np.ndarray:
-    """The recorded velocities' trapezoidal integral from the first pulse, [n_pulses, 3] metres (exact for
-    a constant acceleration)."""
-    t = np.asarray(slow_time_s, dtype=np.float64)
-    v = np.asarray(velocity_mps, dtype=np.float64)
-    return np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t)[:, None], axis=0)])
-
-
-def velocity_disagreement_m(slow_time_s, position_m, velocity_mps, span: int) -> float:
-    """The largest change, over ``span`` consecutive pulses, of the positions' displacement less the
-    recorded velocities' integral (metres): what a velocity bias, a lag or velocities logged at a lower
-    rate than the positions put between the chain's Doppler history and its range history."""
-    p = np.asarray(position_m, dtype=np.float64)
-    d = (p - p[0]) - velocity_integral_m(slow_time_s, velocity_mps)
-    span = int(min(max(span, 1), len(p) - 1))
-    return float(np.max(np.linalg.norm(d[span:] - d[:-span], axis=1))) if span > 0 else 0.0
-
-
-def warn_velocity_disagreement(slow_time_s, position_m, velocity_mps, *, scan_angle_deg, beamwidth_deg: float,
-                               fc_hz: float, source: str) -> float:
-    """One warning where the recorded velocities and positions disagree, over one beam dwell (the pulses
-    the beam takes to cross a point: the longest span over which the chain integrates a Doppler history
-    taken from the velocities against range histories taken from the positions), by more than
-    ``VELOCITY_PHASE_RAD`` of round-trip phase: half the dwell's Doppler resolution.  Returns the phase."""
-    scan = np.asarray(scan_angle_deg, dtype=np.float64)
-    if len(scan) < 3:
-        return 0.0
-    step = float(np.median(np.abs(np.diff(scan))))
-    span = len(scan) - 1 if step <= 0 else int(min(len(scan) - 1, np.ceil(beamwidth_deg / step)))
-    gap_m = velocity_disagreement_m(slow_time_s, position_m, velocity_mps, span)
-    phase = 4.0 * np.pi * gap_m / (C_MPS / fc_hz)
-    if phase > VELOCITY_PHASE_RAD:
-        log.warning(f"{source}: /platform/velocity_mps: its integral departs from /platform/position_m's motion by "
-                    f"up to {gap_m * 1e3:.3g} mm over a beam dwell ({span} pulses), {phase:.3g} rad of round-trip "
-                    f"phase at {fc_hz / 1e9:.4g} GHz ({phase / (2.0 * np.pi):.2g} of the dwell's Doppler "
-                    f"resolution): the chain takes Doppler histories from the velocities and range histories from "
-                    f"the positions (a velocity bias, a lag or a lower logging rate; processing.velocity_source: positions takes "
-                    f"them from the positions' derivative; README, \"Raw cube files\")")
-    return phase
-
-
-def velocity_from_positions(slow_time_s, position_m) -> np.ndarray:
-    """The positions' time derivative at every pulse, [n_pulses, 3] m/s: central differences over the
-    actual pulse times, second order at the ends (``np.gradient``; exact for a constant acceleration)."""
-    t = np.asarray(slow_time_s, dtype=np.float64)
-    p = np.asarray(position_m, dtype=np.float64)
-    if len(t) < 3:
-        return np.gradient(p, t, axis=0) if len(t) == 2 else np.zeros_like(p)
-    return np.gradient(p, t, axis=0, edge_order=2)
-
-
-def with_velocity_source(cube, source: str):
-    """``cube``, or for ``processing.velocity_source: positions`` a shallow copy whose velocities are
-    :func:`velocity_from_positions` (the echoes and everything else shared)."""
-    if source == "ins":
-        return cube
-    if source != "positions":
-        raise ValueError(f"velocity_source {source!r}; allowed: ins, positions")
-    return dataclasses.replace(cube, velocity_mps=velocity_from_positions(cube.slow_time_s, cube.position_m))
 
 
 def _is_float32(dtype) -> bool:

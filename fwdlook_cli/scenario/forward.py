@@ -147,11 +147,12 @@ FORWARD_SCHEMA: dict[str, Any] = {
                            "steep depression: auto corrects the range window in range sub-swaths, one reference "
                            "depression each, where one for the whole window leaves over half a range sample "
                            "(forward/subswath.py); none, one for the window always"),
-        "velocity_source": Field(choice("ins", "positions"), "ins",
-                                 "the platform velocity the chain's Doppler histories take: ins, "
-                                 "/platform/velocity_mps as recorded; positions, the time derivative of "
-                                 "/platform/position_m (second order), for velocities that are biased, lag or "
-                                 "were logged at a lower rate (the reader's warning; README, Raw cube files)"),
+        "navigation": Field(choice("recorded", "positions", "fused"), "recorded",
+                            "the track the chain takes: recorded, /platform/position_m and velocity_mps as stored; "
+                            "positions, the velocities from the positions' smoothed time derivative (velocities "
+                            "biased, lagging or logged at a lower rate); fused, one track blending the positions' "
+                            "low frequencies with the velocities' high ones (io/navigation.py; the reader's "
+                            "warnings; README, Raw cube files)"),
         "doppler_estimator": Field(choice("fft", "iaa"), "fft",
                                    "per-CPI Doppler estimate (imaging: cpi): fft, the zoomed DFT; iaa, the "
                                    "iterative adaptive approach (Yardibi et al. 2010) per range cell"),
