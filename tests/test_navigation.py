@@ -73,3 +73,65 @@ def test_the_roughness_estimate_is_the_noise_sigma_and_ignores_sparse_kinks():
     sag_m = 50.0 * 0.02**2 / 8                                      # a chord's sag over a 20 ms interval, a T^2 / 8
     assert position_roughness_m(t, kinked, los) < 0.01 * sag_m
     assert velocity_integral_m(t, v).shape == p.shape
+
+
+def test_the_smoothing_holds_at_the_tracks_ends():
+    """Within a window of an end the smoothing is the least-squares line through the end's whole window
+    (a window shrunk to one sample had left the derivative of 1 mm of position noise 6 m/s off at the last
+    pulses, 0.17 m/s in the middle; a review): the ends' error within 3 times the middle's RMS, and the
+    fused track's too."""
+    t, p, v = _track(jitter=0.0)
+    noisy = p + 0.001 * np.random.default_rng(4).standard_normal(p.shape)
+    for got in (velocity_from_positions(t, noisy), fused_track(t, noisy, v)[1]):
+        err = got - v
+        middle = np.sqrt(np.mean(err[200:-200] ** 2))
+        assert np.max(np.abs(np.concatenate([err[:5], err[-5:]]))) < 3 * 3 * middle, (middle, err[:5], err[-5:])
+
+
+def _checked(t, p, v, scan, caplog, **kw):
+    from fwdlook_cli.io.navigation import check_navigation
+
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        out = check_navigation(t, p, v, scan_angle_deg=scan, beamwidth_deg=6.0, fc_hz=18e9, source="x", **kw)
+    return out, [r.getMessage() for r in caplog.records]
+
+
+def test_the_checks_see_along_track_below_a_steep_window_and_float32_noise(caplog):
+    """Lines of sight at the far range's depression: a window whose middle range lies below the platform
+    (2 km up, 768-3000 m) had turned them straight down, blind to an along-track bias of 0.2 m/s (the
+    review read 0 rad); now b cos(phi_far) x span x dt.  A stepped scan's dwell is its mean step's, not the
+    whole record.  Float32 positions kept as stored still have their roughness told (quadrature with the
+    rounding's step / sqrt(12))."""
+    t, p, v = _track(jitter=0.0)
+    p = p + [0.0, 0.0, 1900.0]
+    scan = np.linspace(-15.0, 15.0, len(t))
+    out, said = _checked(t, p, v + [0.0, 0.2, 0.0], scan, caplog, range_m=np.array([768.0, 3000.0]))
+    cos_far = np.cos(np.arcsin(np.median(p[:, 2]) / 3000.0))
+    span = int(np.ceil(6.0 / (30.0 / (len(t) - 1))))
+    assert out["dwell_pulses"] == span
+    assert out["disagreement_m"] == pytest.approx(0.2 * cos_far * span / 2500.0, rel=1e-3)
+    assert any("disagree:" in m for m in said)
+    stepped = np.repeat(np.linspace(-15.0, 15.0, len(t) // 10), 10)           # ten pulses per position
+    out, _ = _checked(t, p, v, stepped, caplog, range_m=np.array([768.0, 3000.0]))
+    assert out["dwell_pulses"] == int(np.ceil(6.0 / (30.0 / (len(t) - 1))))
+    noisy32 = (p + 0.001 * np.random.default_rng(5).standard_normal(p.shape)).astype(np.float32).astype(float)
+    step = float(np.spacing(np.float32(np.max(np.abs(noisy32)))))
+    out, said = _checked(t, noisy32, v, scan, caplog, range_m=np.array([768.0, 3000.0]), rounding_m=step)
+    assert out["roughness_m"] == pytest.approx(0.001, rel=0.1) and any("position_m is rough" in m for m in said)
+
+
+def test_the_chain_applies_the_navigation_once(monkeypatch):
+    """build_forward_stages replaces the track once and plans on that track (the plan had applied
+    `fused` a second time: 0.08 mm and 0.17 m/s off the stages' own track on 1 mm of noise, a review)."""
+    from fwdlook_cli.forward import chain, plan
+    from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.testing import tiny_scenario
+
+    modes = []
+    real = plan.with_navigation
+    monkeypatch.setattr(plan, "with_navigation", lambda cube, mode: modes.append(mode) or real(cube, mode))
+    scn = tiny_scenario()
+    cube, _ = simulate_scenario(scn)
+    chain.build_forward_stages(cube, dict(scn["processing"], imaging="cpi", navigation="fused"))
+    assert modes == ["recorded"]

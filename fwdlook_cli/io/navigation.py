@@ -1,24 +1,26 @@
-"""The recorded navigation against itself: velocities against positions, and the positions' roughness.
+"""The recorded navigation against itself: velocities against positions, and each record's roughness.
 
 The chain takes its Doppler histories (the ``tracking`` keystone's, the dwell focus's Doppler bins, the
 CPI bands) from ``/platform/velocity_mps`` and its range histories (the dwell image's exact ranges,
-``bulk`` and ``beam``) from ``/platform/position_m``.  Two checks, each one warning where it matters:
+``bulk`` and ``beam``) from ``/platform/position_m``.  Three checks along the scan's lines of sight (its
+ends and its middle at the far range's depression), each one warning where it matters:
 
 * *Disagreement.*  d(t) = p(t) - p(0) - integral of v (trapezoids), smoothed over ``SMOOTHING_S`` (white
-  position noise is the next check's), projected on the lines of sight of the scan (its ends and its
-  middle at the window's depression), and its largest excursion within any beam dwell (the pulses the
+  position noise is the next check's), and its largest excursion within any beam dwell (the pulses the
   beam takes to cross a point: the span over which a Doppler history is integrated against range
   histories).  Every lag up to the dwell counts, not only the dwell's ends: positions interpolated from
   a 50 Hz solution repeat their error every 20 ms, and a dwell of whole periods had read 0 (an
   independent study).  Over ``VELOCITY_PHASE_RAD`` of round-trip phase (half the dwell's Doppler
   resolution): a velocity bias, a lag of one record against the other, velocities held at a lower rate.
-* *Roughness.*  The positions' pulse-to-pulse noise, from their third divided differences along the
-  lines of sight (robust: the median absolute deviation, so the kinks of positions interpolated linearly from a
-  navigation solution, a few samples in each period, do not count), as round-trip phase; over
-  ``ROUGHNESS_PHASE_RAD`` the dwell image's exact ranges carry it (1 mm at 18 GHz, 0.75 rad: the study
-  measured the isolated scene's dwell image -8.4 dB from the clean one).
+* *Rough positions.*  Their pulse-to-pulse noise, from third divided differences (:func:`roughness`:
+  robust, so the kinks of positions interpolated linearly from a navigation solution, a few samples in
+  each period, do not count), as round-trip phase; over ``ROUGHNESS_PHASE_RAD`` the dwell image's exact
+  ranges carry it (1 mm at 18 GHz, 0.75 rad: the study measured the isolated scene's dwell image -8.4
+  dB from the clean one).
+* *Rough velocities.*  The same from second divided differences, as the phase that Doppler error
+  gathers over ``SMOOTHING_S`` (0.05 m/s: the dwell image -9 to -18 dB from the clean one, a review).
 
-Neither sees a lag common to both records (a time-tag offset against the radar): they agree with each
+None sees a lag common to both records (a time-tag offset against the radar): they agree with each
 other; only the echoes could show it (README, "Raw cube files").
 
 ``processing.navigation`` then chooses what the chain takes (:func:`with_navigation`): ``recorded``
@@ -31,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 
 import numpy as np
 
@@ -40,7 +43,8 @@ from ..errors import BadInput
 log = logging.getLogger(__name__)
 
 VELOCITY_PHASE_RAD = np.pi     # velocities against positions within a beam dwell: half its Doppler resolution
-ROUGHNESS_PHASE_RAD = 0.5      # the positions' pulse-to-pulse noise as round-trip phase (exp(-0.25): -1.1 dB)
+ROUGHNESS_PHASE_RAD = 0.5      # pulse-to-pulse noise as round-trip phase (exp(-0.25): -1.1 dB): the positions',
+                               # and the velocities' over SMOOTHING_S (the Doppler a sub-aperture or CPI reads)
 SMOOTHING_S = 0.02             # the smoothing of the disagreement and of the positions' derivative
 FUSED_CROSSOVER_S = 0.05       # navigation: fused: the positions below 1 / (this) Hz, the velocities above
 NAVIGATION_MODES = ("recorded", "positions", "fused")
@@ -55,16 +59,33 @@ def velocity_integral_m(slow_time_s, velocity_mps) -> np.ndarray:
 
 
 def centred_mean(x, half: int) -> np.ndarray:
-    """The mean of ``x`` (along axis 0) over 2 half + 1 samples centred on each, the window shrunk
-    symmetrically at the ends: a linear function is kept exactly, everywhere."""
+    """``x`` (along axis 0) smoothed over 2 half + 1 samples: the centred mean where the whole window fits,
+    and within ``half`` samples of an end the least-squares line through the end's whole window (a
+    window shrunk to one sample had left the ends' noise as it was: 6 m/s at the last pulses of a
+    derivative whose middle was good to 0.17 m/s, a review).  A linear function of the sample index is
+    kept exactly, everywhere; a record shorter than a window is its own least-squares line."""
     x = np.asarray(x, dtype=np.float64)
-    n = x.shape[0]
+    n, half = x.shape[0], int(half)
     if half <= 0 or n < 3:
         return x.copy()
-    i = np.arange(n)
-    h = np.minimum(np.minimum(i, n - 1 - i), int(half))
+    width = 2 * half + 1
+    if n < width:
+        return _line_through(x, np.arange(n))
     c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
-    return (c[i + h + 1] - c[i - h]) / (2 * h + 1).reshape((-1,) + (1,) * (x.ndim - 1))
+    out = np.empty_like(x)
+    out[half:n - half] = (c[width:] - c[:n - width + 1]) / width
+    out[:half] = _line_through(x[:width], np.arange(half))
+    out[n - half:] = _line_through(x[n - width:], np.arange(width - half, width))
+    return out
+
+
+def _line_through(x, at) -> np.ndarray:
+    """The least-squares line through ``x`` (along axis 0, samples 0, 1, ...) at the sample indices ``at``."""
+    m = np.arange(x.shape[0], dtype=np.float64)
+    m_bar = m.mean()
+    x_bar = x.mean(axis=0)
+    slope = np.tensordot(m - m_bar, x - x_bar, axes=(0, 0)) / np.sum((m - m_bar) ** 2)
+    return x_bar + np.multiply.outer(np.asarray(at, dtype=np.float64) - m_bar, slope)
 
 
 def _half_window(slow_time_s, seconds: float) -> int:
@@ -84,7 +105,10 @@ def lines_of_sight(scan_angle_deg, depression_deg: float) -> np.ndarray:
 def beam_dwell_pulses(scan_angle_deg, beamwidth_deg: float) -> int:
     """The pulses the beam takes to cross a point (the whole record for a scan that does not move)."""
     scan = np.asarray(scan_angle_deg, dtype=np.float64)
-    step = float(np.median(np.abs(np.diff(scan)))) if len(scan) > 1 else 0.0
+    if len(scan) < 2:
+        return 0
+    # (a stepped scan's median step is 0: its mean step over the record then, not the whole record)
+    step = max(float(np.median(np.abs(np.diff(scan)))), float(np.ptp(scan)) / (len(scan) - 1))
     return len(scan) - 1 if step <= 0 else int(min(len(scan) - 1, np.ceil(beamwidth_deg / step)))
 
 
@@ -114,23 +138,28 @@ def velocity_disagreement_m(slow_time_s, position_m, velocity_mps, *, span: int,
     return max(largest_excursion(d @ u, width) for u in np.asarray(los, dtype=np.float64))
 
 
-def position_roughness_m(slow_time_s, position_m, los) -> float:
-    """The positions' pulse-to-pulse noise along the lines of sight (the largest of them), metres: their
-    third divided differences over the actual pulse times (zero for any constant-acceleration track,
-    whatever the spacing: a pulse train jittered by 1 % had read as a millimetre of noise), times 6 dt^3
-    (dt the median interval: the third difference on a uniform train), as a Gaussian sigma from the
-    median absolute deviation (1.4826 MAD), over sqrt(20) (a third difference of white noise has 20 times
-    its variance)."""
+def roughness(slow_time_s, x, los, order: int) -> float:
+    """The pulse-to-pulse noise of ``x`` ([n, 3]: positions with ``order`` 3, velocities with 2) along the
+    lines of sight (the largest of them), in ``x``'s unit: its divided differences of that order over the
+    actual pulse times (zero for a constant acceleration whatever the spacing: a pulse train jittered by
+    1 % had read as a millimetre of position noise), times order! dt^order (dt the median interval: the
+    plain difference on a uniform train), as a Gaussian sigma from the median absolute deviation (1.4826
+    MAD: a few kinks in each period, of a track interpolated linearly from a navigation solution, do not
+    count), over the root of the difference's noise gain (20 for the third, 6 for the second)."""
     t = np.asarray(slow_time_s, dtype=np.float64)
-    p = np.asarray(position_m, dtype=np.float64) @ np.asarray(los, dtype=np.float64).T      # [n, k]
-    if len(t) < 5:
+    dd = np.asarray(x, dtype=np.float64) @ np.asarray(los, dtype=np.float64).T          # [n, k]
+    if len(t) < order + 2:
         return 0.0
-    dd = p
-    for order in (1, 2, 3):
-        dd = np.diff(dd, axis=0) / (t[order:] - t[:-order])[:, None]
-    third = dd * 6.0 * float(np.median(np.diff(t))) ** 3
-    mad = np.median(np.abs(third - np.median(third, axis=0)), axis=0)
-    return float(np.max(1.4826 * mad / np.sqrt(20.0)))
+    for k in range(1, order + 1):
+        dd = np.diff(dd, axis=0) / (t[k:] - t[:-k])[:, None]
+    plain = dd * float(math.factorial(order)) * float(np.median(np.diff(t))) ** order
+    mad = np.median(np.abs(plain - np.median(plain, axis=0)), axis=0)
+    return float(np.max(1.4826 * mad / np.sqrt(math.comb(2 * order, order))))
+
+
+def position_roughness_m(slow_time_s, position_m, los) -> float:
+    """The positions' pulse-to-pulse noise along the lines of sight, metres (:func:`roughness`)."""
+    return roughness(slow_time_s, position_m, los, 3)
 
 
 def kept_float32_step(stored, position) -> float:
@@ -147,46 +176,59 @@ def kept_float32_step(stored, position) -> float:
 
 def check_navigation(slow_time_s, position_m, velocity_mps, *, scan_angle_deg, beamwidth_deg: float, fc_hz: float,
                      range_m, source: str, rounding_m: float = 0.0) -> dict:
-    """Both checks (module docstring), each said in one warning past its phase; returns their numbers.
-    The lines of sight at the depression of the window's middle range (``range_m``) from the track's median
+    """The checks (module docstring), each said in one warning past its phase; returns their numbers.
+    The lines of sight at the depression of the window's far range (``range_m``; a middle range below the
+    platform had turned them straight down, blind to an along-track bias) from the track's median
     height.  ``rounding_m``: the positions' storage step where they are kept in float32 (taken off the
-    disagreement; their roughness is then the float32 warning's)."""
+    disagreement, and off their roughness in quadrature, step / sqrt(12))."""
     lam = C_MPS / fc_hz
-    r_mid = 0.5 * (float(range_m[0]) + float(range_m[-1]))
+    r_far = float(np.max(np.abs([range_m[0], range_m[-1]])))
     height = float(np.median(np.asarray(position_m)[:, 2]))
-    depression_deg = float(np.degrees(np.arcsin(np.clip(height / r_mid, -1.0, 1.0)))) if r_mid > 0 else 0.0
+    depression_deg = float(np.degrees(np.arcsin(np.clip(height / r_far, -1.0, 1.0)))) if r_far > 0 else 0.0
     los = lines_of_sight(scan_angle_deg, depression_deg)
     span = beam_dwell_pulses(scan_angle_deg, beamwidth_deg)
     gap_m = max(0.0, velocity_disagreement_m(slow_time_s, position_m, velocity_mps, span=span, los=los) - rounding_m)
-    rough_m = position_roughness_m(slow_time_s, position_m, los) if rounding_m == 0.0 else 0.0
+    rough_m = float(np.sqrt(max(position_roughness_m(slow_time_s, position_m, los) ** 2 - rounding_m**2 / 12.0, 0.0)))
+    vel_rough_mps = roughness(slow_time_s, velocity_mps, los, 2)
     gap_rad, rough_rad = 4.0 * np.pi * gap_m / lam, 4.0 * np.pi * rough_m / lam
+    vel_rough_rad = 4.0 * np.pi * vel_rough_mps * SMOOTHING_S / lam
+    ghz = f"{fc_hz / 1e9:.4g} GHz"
     if gap_rad > VELOCITY_PHASE_RAD:
         log.warning(f"{source}: /platform/velocity_mps and /platform/position_m disagree: the velocities' integral "
                     f"departs from the positions by up to {gap_m * 1e3:.3g} mm along a line of sight within a beam "
-                    f"dwell ({span} pulses), {gap_rad:.3g} rad of round-trip phase at {fc_hz / 1e9:.4g} GHz "
-                    f"({gap_rad / (2.0 * np.pi):.2g} of the dwell's Doppler resolution): a velocity bias, a lag of one "
-                    f"record against the other or a lower logging rate; processing.navigation: positions takes the "
-                    f"velocities from the positions, fused blends the two (README, \"Raw cube files\")")
+                    f"dwell ({span} pulses), {gap_rad:.3g} rad of round-trip phase at {ghz} ({gap_rad / (2.0 * np.pi):.2g} "
+                    f"of the dwell's Doppler resolution): a velocity bias, a lag of one record against the other or a "
+                    f"lower logging rate; processing.navigation: positions takes the velocities from the positions, "
+                    f"fused blends the two (README, \"Raw cube files\")")
     if rough_rad > ROUGHNESS_PHASE_RAD:
         log.warning(f"{source}: /platform/position_m is rough: {rough_m * 1e3:.3g} mm of pulse-to-pulse noise along "
-                    f"a line of sight, {rough_rad:.3g} rad of round-trip phase at {fc_hz / 1e9:.4g} GHz, which the "
-                    f"dwell image's ranges carry; processing.navigation: fused takes the positions' low frequencies "
-                    f"only (README, \"Raw cube files\")")
+                    f"a line of sight, {rough_rad:.3g} rad of round-trip phase at {ghz}, which the dwell image's "
+                    f"ranges carry; processing.navigation: fused takes the positions' low frequencies only (README, "
+                    f"\"Raw cube files\")")
+    if vel_rough_rad > ROUGHNESS_PHASE_RAD:
+        log.warning(f"{source}: /platform/velocity_mps is rough: {vel_rough_mps:.3g} m/s of pulse-to-pulse noise "
+                    f"along a line of sight, {vel_rough_rad:.3g} rad of round-trip phase over {SMOOTHING_S * 1e3:.0f} "
+                    f"ms at {ghz} (the Doppler a sub-aperture or CPI reads); processing.navigation: positions takes "
+                    f"the velocities from the positions (README, \"Raw cube files\")")
     return {"disagreement_m": gap_m, "disagreement_rad": gap_rad, "roughness_m": rough_m, "roughness_rad": rough_rad,
-            "dwell_pulses": span}
+            "velocity_roughness_mps": vel_rough_mps, "velocity_roughness_rad": vel_rough_rad, "dwell_pulses": span}
 
 
 def velocity_from_positions(slow_time_s, position_m) -> np.ndarray:
     """The positions' time derivative, [n_pulses, 3] m/s: central differences over the actual pulse times
-    (second order at the ends, ``np.gradient``: exact for a constant acceleration on any spacing),
-    averaged over ``SMOOTHING_S`` (symmetric windows: exact on a uniform train, within the acceleration
-    times the window's mean jitter on another; white position noise sigma gives about sigma /
-    SMOOTHING_S, not sigma / (sqrt(2) dt))."""
+    (exact for a constant acceleration on any spacing), smoothed over ``SMOOTHING_S`` (:func:`centred_mean`:
+    exact on a uniform train, within the acceleration times the pulses' jitter on another; white position
+    noise sigma gives about sigma / SMOOTHING_S, not sigma / (sqrt(2) dt)), the first and last pulses one
+    step along their ends' lines."""
     t = np.asarray(slow_time_s, dtype=np.float64)
     p = np.asarray(position_m, dtype=np.float64)
-    if len(t) < 3:
-        return np.gradient(p, t, axis=0) if len(t) == 2 else np.zeros_like(p)
-    return centred_mean(np.gradient(p, t, axis=0, edge_order=2), _half_window(t, SMOOTHING_S))
+    if len(t) < 4:
+        return np.gradient(p, t, axis=0) if len(t) >= 2 else np.zeros_like(p)
+    # central differences at pulses 1 .. n-2 (the one-sided ones at the ends carry sqrt(13) times their
+    # noise: their weight in the ends' lines had left 0.5 m/s there), smoothed, then one step of each
+    # end's line outwards
+    inner = centred_mean((p[2:] - p[:-2]) / (t[2:] - t[:-2])[:, None], _half_window(t, SMOOTHING_S))
+    return np.concatenate([2 * inner[:1] - inner[1:2], inner, 2 * inner[-1:] - inner[-2:-1]])
 
 
 def fused_track(slow_time_s, position_m, velocity_mps) -> tuple[np.ndarray, np.ndarray]:
