@@ -17,8 +17,10 @@ ends and its middle at the far range's depression), each one warning where it ma
   each period, do not count), as round-trip phase; over ``ROUGHNESS_PHASE_RAD`` the dwell image's exact
   ranges carry it (1 mm at 18 GHz, 0.75 rad: the study measured the isolated scene's dwell image -8.4
   dB from the clean one).
-* *Rough velocities.*  The same from second divided differences, as the phase that Doppler error
-  gathers over ``SMOOTHING_S`` (0.05 m/s: the dwell image -9 to -18 dB from the clean one, a review).
+* *Rough velocities.*  The same from second divided differences, as a Doppler error against the
+  resolution of ``SMOOTHING_S`` (a sub-aperture or a CPI reads the Doppler of one velocity), past half
+  of it (``VELOCITY_PHASE_RAD`` over ``SMOOTHING_S``, as the disagreement over a dwell): 0.21 m/s at 18
+  GHz (0.05 m/s had put the dwell image -9 to -18 dB from the clean one, its targets unchanged).
 
 None sees a lag common to both records (a time-tag offset against the radar): they agree with each
 other; only the echoes could show it (README, "Raw cube files").
@@ -33,7 +35,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 
 import numpy as np
 
@@ -43,8 +44,7 @@ from ..errors import BadInput
 log = logging.getLogger(__name__)
 
 VELOCITY_PHASE_RAD = np.pi     # velocities against positions within a beam dwell: half its Doppler resolution
-ROUGHNESS_PHASE_RAD = 0.5      # pulse-to-pulse noise as round-trip phase (exp(-0.25): -1.1 dB): the positions',
-                               # and the velocities' over SMOOTHING_S (the Doppler a sub-aperture or CPI reads)
+ROUGHNESS_PHASE_RAD = 0.5      # the positions' pulse-to-pulse noise as round-trip phase (exp(-0.25): -1.1 dB)
 SMOOTHING_S = 0.02             # the smoothing of the disagreement and of the positions' derivative
 FUSED_CROSSOVER_S = 0.05       # navigation: fused: the positions below 1 / (this) Hz, the velocities above
 NAVIGATION_MODES = ("recorded", "positions", "fused")
@@ -107,8 +107,9 @@ def beam_dwell_pulses(scan_angle_deg, beamwidth_deg: float) -> int:
     scan = np.asarray(scan_angle_deg, dtype=np.float64)
     if len(scan) < 2:
         return 0
-    # (a stepped scan's median step is 0: its mean step over the record then, not the whole record)
-    step = max(float(np.median(np.abs(np.diff(scan)))), float(np.ptp(scan)) / (len(scan) - 1))
+    # (a stepped scan's median step is 0: its mean step along the path then, not the whole record)
+    steps = np.abs(np.diff(scan))
+    step = float(np.median(steps)) or float(np.mean(steps))
     return len(scan) - 1 if step <= 0 else int(min(len(scan) - 1, np.ceil(beamwidth_deg / step)))
 
 
@@ -125,70 +126,87 @@ def largest_excursion(x, width: int) -> float:
     return float(np.max(np.maximum(hi[:len(hi) - j], hi[j:]) - np.minimum(lo[:len(lo) - j], lo[j:])))
 
 
-def velocity_disagreement_m(slow_time_s, position_m, velocity_mps, *, span: int, los) -> float:
+def velocity_disagreement_m(slow_time_s, position_m, velocity_mps, *, span: int, los, rounding_m=0.0) -> float:
     """The largest excursion, within any ``span`` + 1 consecutive pulses and along any of the lines of
     sight ``los`` ([k, 3]), of the positions' displacement less the velocities' integral, smoothed over
-    ``SMOOTHING_S`` (module docstring), metres."""
+    ``SMOOTHING_S`` (module docstring), metres; ``rounding_m`` (per axis: float32 positions kept as
+    stored) taken off along each line of sight."""
     p = np.asarray(position_m, dtype=np.float64)
     if len(p) < 3:
         return 0.0
     d = centred_mean((p - p[0]) - velocity_integral_m(slow_time_s, velocity_mps),
                      _half_window(slow_time_s, SMOOTHING_S))
     width = int(min(max(span, 1), len(p) - 1)) + 1
-    return max(largest_excursion(d @ u, width) for u in np.asarray(los, dtype=np.float64))
+    los = np.asarray(los, dtype=np.float64)
+    step = np.broadcast_to(np.asarray(rounding_m, dtype=np.float64), (3,))
+    return max(max(0.0, largest_excursion(d @ u, width) - float(np.sqrt(np.sum((u * step) ** 2)))) for u in los)
 
 
-def roughness(slow_time_s, x, los, order: int) -> float:
+def roughness(slow_time_s, x, los, order: int, rounding=0.0) -> float:
     """The pulse-to-pulse noise of ``x`` ([n, 3]: positions with ``order`` 3, velocities with 2) along the
     lines of sight (the largest of them), in ``x``'s unit: its divided differences of that order over the
     actual pulse times (zero for a constant acceleration whatever the spacing: a pulse train jittered by
-    1 % had read as a millimetre of position noise), times order! dt^order (dt the median interval: the
-    plain difference on a uniform train), as a Gaussian sigma from the median absolute deviation (1.4826
-    MAD: a few kinks in each period, of a track interpolated linearly from a navigation solution, do not
-    count), over the root of the difference's noise gain (20 for the third, 6 for the second)."""
+    1 % had read as a millimetre of position noise), each over its own white-noise gain sqrt(sum_j w_j^2),
+    w_j = 1 / prod_{m != j} (t_j - t_m) (exact on any spacing: a median interval's gain had under-read a
+    staggered train's noise by up to 45 %, a review), as a Gaussian sigma from the median absolute
+    deviation (1.4826 MAD: a few kinks in each period, of a track interpolated linearly from a navigation
+    solution, do not count).  ``rounding`` (per axis: float32 storage steps) taken off in quadrature,
+    step / sqrt(12) along each line of sight."""
     t = np.asarray(slow_time_s, dtype=np.float64)
-    dd = np.asarray(x, dtype=np.float64) @ np.asarray(los, dtype=np.float64).T          # [n, k]
+    los = np.asarray(los, dtype=np.float64)
+    dd = np.asarray(x, dtype=np.float64) @ los.T                                        # [n, k]
     if len(t) < order + 2:
         return 0.0
     for k in range(1, order + 1):
         dd = np.diff(dd, axis=0) / (t[k:] - t[:-k])[:, None]
-    plain = dd * float(math.factorial(order)) * float(np.median(np.diff(t))) ** order
-    mad = np.median(np.abs(plain - np.median(plain, axis=0)), axis=0)
-    return float(np.max(1.4826 * mad / np.sqrt(math.comb(2 * order, order))))
+    n_w = len(t) - order                                  # windows t[i .. i + order]
+    gain2 = np.zeros(n_w)
+    for j in range(order + 1):
+        w = np.ones(n_w)
+        for m in range(order + 1):
+            if m != j:
+                w = w * (t[j:j + n_w] - t[m:m + n_w])
+        gain2 += 1.0 / w**2
+    unit = dd / np.sqrt(gain2)[:, None]
+    sigma = 1.4826 * np.median(np.abs(unit - np.median(unit, axis=0)), axis=0)          # [k]
+    step = np.broadcast_to(np.asarray(rounding, dtype=np.float64), (3,))
+    quantum2 = np.sum((los * step) ** 2, axis=1) / 12.0
+    return float(np.max(np.sqrt(np.maximum(sigma**2 - quantum2, 0.0))))
 
 
-def position_roughness_m(slow_time_s, position_m, los) -> float:
+def position_roughness_m(slow_time_s, position_m, los, rounding_m=0.0) -> float:
     """The positions' pulse-to-pulse noise along the lines of sight, metres (:func:`roughness`)."""
-    return roughness(slow_time_s, position_m, los, 3)
+    return roughness(slow_time_s, position_m, los, 3, rounding_m)
 
 
-def kept_float32_step(stored, position) -> float:
-    """The storage step of float32 positions the reader kept as stored (io/track.py; 0 for float64 ones and
-    for restored ones: a restored track is the velocities' integral fitted through them, whose drift, a
-    velocity bias against the positions, the disagreement then measures)."""
+def kept_float32_step(stored, position) -> np.ndarray:
+    """The storage step, per axis, of float32 positions the reader kept as stored (io/track.py; zeros for
+    float64 ones and for restored ones: a restored track is the velocities' integral fitted through them,
+    whose drift, a velocity bias against the positions, the disagreement then measures)."""
     if np.dtype(stored.dtype).itemsize >= 8:
-        return 0.0
+        return np.zeros(3)
     kept = np.asarray(stored[()], dtype=np.float64)
     if not np.array_equal(kept, position):
-        return 0.0
-    return float(np.spacing(np.float32(np.max(np.abs(kept)))))
+        return np.zeros(3)
+    return np.spacing(np.max(np.abs(kept), axis=0).astype(np.float32)).astype(np.float64)
 
 
 def check_navigation(slow_time_s, position_m, velocity_mps, *, scan_angle_deg, beamwidth_deg: float, fc_hz: float,
-                     range_m, source: str, rounding_m: float = 0.0) -> dict:
+                     range_m, source: str, rounding_m=0.0) -> dict:
     """The checks (module docstring), each said in one warning past its phase; returns their numbers.
-    The lines of sight at the depression of the window's far range (``range_m``; a middle range below the
-    platform had turned them straight down, blind to an along-track bias) from the track's median
-    height.  ``rounding_m``: the positions' storage step where they are kept in float32 (taken off the
-    disagreement, and off their roughness in quadrature, step / sqrt(12))."""
+    The lines of sight at the depressions of the window's near and far ranges (``range_m``) that reach
+    the ground from the track's median height, level where none does (a middle range below the platform
+    had turned them straight down, blind to an along-track bias).  ``rounding_m`` (per axis): the
+    positions' storage step where they are kept in float32 (taken off the disagreement, and off their
+    roughness in quadrature, step / sqrt(12))."""
     lam = C_MPS / fc_hz
-    r_far = float(np.max(np.abs([range_m[0], range_m[-1]])))
     height = float(np.median(np.asarray(position_m)[:, 2]))
-    depression_deg = float(np.degrees(np.arcsin(np.clip(height / r_far, -1.0, 1.0)))) if r_far > 0 else 0.0
-    los = lines_of_sight(scan_angle_deg, depression_deg)
+    reach = [abs(float(r)) for r in (range_m[0], range_m[-1]) if abs(float(r)) > abs(height)]
+    depressions = sorted({float(np.degrees(np.arcsin(height / r))) for r in reach}) or [0.0]
+    los = np.concatenate([lines_of_sight(scan_angle_deg, d) for d in depressions])
     span = beam_dwell_pulses(scan_angle_deg, beamwidth_deg)
-    gap_m = max(0.0, velocity_disagreement_m(slow_time_s, position_m, velocity_mps, span=span, los=los) - rounding_m)
-    rough_m = float(np.sqrt(max(position_roughness_m(slow_time_s, position_m, los) ** 2 - rounding_m**2 / 12.0, 0.0)))
+    gap_m = velocity_disagreement_m(slow_time_s, position_m, velocity_mps, span=span, los=los, rounding_m=rounding_m)
+    rough_m = position_roughness_m(slow_time_s, position_m, los, rounding_m)
     vel_rough_mps = roughness(slow_time_s, velocity_mps, los, 2)
     gap_rad, rough_rad = 4.0 * np.pi * gap_m / lam, 4.0 * np.pi * rough_m / lam
     vel_rough_rad = 4.0 * np.pi * vel_rough_mps * SMOOTHING_S / lam
@@ -205,11 +223,12 @@ def check_navigation(slow_time_s, position_m, velocity_mps, *, scan_angle_deg, b
                     f"a line of sight, {rough_rad:.3g} rad of round-trip phase at {ghz}, which the dwell image's "
                     f"ranges carry; processing.navigation: fused takes the positions' low frequencies only (README, "
                     f"\"Raw cube files\")")
-    if vel_rough_rad > ROUGHNESS_PHASE_RAD:
+    if vel_rough_rad > VELOCITY_PHASE_RAD:
         log.warning(f"{source}: /platform/velocity_mps is rough: {vel_rough_mps:.3g} m/s of pulse-to-pulse noise "
-                    f"along a line of sight, {vel_rough_rad:.3g} rad of round-trip phase over {SMOOTHING_S * 1e3:.0f} "
-                    f"ms at {ghz} (the Doppler a sub-aperture or CPI reads); processing.navigation: positions takes "
-                    f"the velocities from the positions (README, \"Raw cube files\")")
+                    f"along a line of sight, a Doppler error of {vel_rough_rad / (2.0 * np.pi):.2g} of the "
+                    f"resolution of {SMOOTHING_S * 1e3:.0f} ms at {ghz} ({vel_rough_rad:.3g} rad over it; a "
+                    f"sub-aperture or a CPI reads the Doppler of one velocity); processing.navigation: positions "
+                    f"takes the velocities from the positions (README, \"Raw cube files\")")
     return {"disagreement_m": gap_m, "disagreement_rad": gap_rad, "roughness_m": rough_m, "roughness_rad": rough_rad,
             "velocity_roughness_mps": vel_rough_mps, "velocity_roughness_rad": vel_rough_rad, "dwell_pulses": span}
 
@@ -222,8 +241,9 @@ def velocity_from_positions(slow_time_s, position_m) -> np.ndarray:
     step along their ends' lines."""
     t = np.asarray(slow_time_s, dtype=np.float64)
     p = np.asarray(position_m, dtype=np.float64)
-    if len(t) < 4:
-        return np.gradient(p, t, axis=0) if len(t) >= 2 else np.zeros_like(p)
+    if len(t) < 4:            # (exact for a constant acceleration from 3 pulses; 2 give their chord, 1 zero)
+        return (np.gradient(p, t, axis=0, edge_order=2 if len(t) == 3 else 1) if len(t) >= 2
+                else np.zeros_like(p))
     # central differences at pulses 1 .. n-2 (the one-sided ones at the ends carry sqrt(13) times their
     # noise: their weight in the ends' lines had left 0.5 m/s there), smoothed, then one step of each
     # end's line outwards
