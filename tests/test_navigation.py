@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from fwdlook_cli.io.navigation import (centred_mean, fused_track, largest_excursion, position_roughness_m,
-                                       velocity_from_positions, velocity_integral_m)
+                                       velocity_from_positions)
 
 
 def test_the_largest_excursion_is_the_brute_force_one():
@@ -72,7 +72,6 @@ def test_the_roughness_estimate_is_the_noise_sigma_and_ignores_sparse_kinks():
     kinked = np.stack([np.interp(t, knots, np.interp(knots, t, p[:, i])) for i in range(3)], axis=-1)
     sag_m = 50.0 * 0.02**2 / 8                                      # a chord's sag over a 20 ms interval, a T^2 / 8
     assert position_roughness_m(t, kinked, los) < 0.01 * sag_m
-    assert velocity_integral_m(t, v).shape == p.shape
 
 
 def test_the_smoothing_holds_at_the_tracks_ends():
@@ -123,18 +122,26 @@ def test_the_checks_see_along_track_below_a_steep_window_and_float32_noise(caplo
 
 def test_the_chain_applies_the_navigation_once(monkeypatch):
     """build_forward_stages replaces the track once and plans on that track (the plan had applied
-    `fused` a second time: 0.08 mm and 0.17 m/s off the stages' own track on 1 mm of noise, a review)."""
+    `fused` a second time: 0.08 mm and 0.17 m/s off the stages' own track on 1 mm of noise, a review):
+    the plan is given the cube the chain built, and a cube already given a mode comes back as it is."""
     from fwdlook_cli.forward import chain, plan
     from fwdlook_cli.forward.simulate import simulate_scenario
+    from fwdlook_cli.io.navigation import with_navigation
     from fwdlook_cli.testing import tiny_scenario
 
-    modes = []
-    real = plan.with_navigation
-    monkeypatch.setattr(plan, "with_navigation", lambda cube, mode: modes.append(mode) or real(cube, mode))
+    planned = []
+    real = plan.plan_geometry
+    monkeypatch.setattr(plan, "plan_geometry", lambda t, p, v, *a, **k: planned.append((p, v)) or real(t, p, v, *a, **k))
     scn = tiny_scenario()
     cube, _ = simulate_scenario(scn)
-    chain.build_forward_stages(cube, dict(scn["processing"], imaging="cpi", navigation="fused"))
-    assert modes == ["recorded"]
+    cube.position_m = cube.position_m + 0.001 * np.random.default_rng(8).standard_normal(cube.position_m.shape)
+    src, _, _ = chain.build_forward_stages(cube, dict(scn["processing"], imaging="cpi", navigation="fused"))
+    once = with_navigation(cube, "fused")
+    assert with_navigation(once, "fused") is once
+    (p, v), = planned
+    np.testing.assert_array_equal(p, once.position_m)
+    np.testing.assert_array_equal(v, once.velocity_mps)
+    np.testing.assert_array_equal(src["velocity_mps"], once.velocity_mps)
 
 
 def test_the_roughness_is_exact_on_a_staggered_train_and_three_pulses_give_the_velocity():
@@ -170,14 +177,9 @@ def test_the_lines_of_sight_stay_level_where_no_range_reaches_the_ground_and_flo
     step = np.spacing(np.max(np.abs(stored), axis=0))
     from fwdlook_cli.io.navigation import kept_float32_step
 
-    class Stored:                                   # a float32 dataset read as it was written
-        dtype = np.dtype(np.float32)
-
-        def __getitem__(self, key):
-            return stored
-
-    rounding = kept_float32_step(Stored(), stored.astype(np.float64))
+    rounding = kept_float32_step(np.float32, stored.astype(np.float64), stored.astype(np.float64))
     np.testing.assert_array_equal(rounding, step)
+    assert not kept_float32_step(np.float32, stored.astype(np.float64), east).any()      # restored: none
     out, said = _checked(t, stored.astype(np.float64), v, scan, caplog, range_m=np.array([1000.0, 1200.0]),
                          rounding_m=rounding)
     assert out["roughness_m"] == pytest.approx(0.003, rel=0.1)

@@ -45,6 +45,13 @@ def depression_deg(position_m, targets_m):
     return np.degrees(np.arctan2(p[None, :, 2] - t[:, None, 2], ground))
 
 
+def unit_vector(azimuth_deg, depression_deg):
+    """Unit line-of-sight vector from the antenna towards (azimuth, depression): [..., 3]."""
+    az, de = np.radians(azimuth_deg), np.radians(depression_deg)
+    return np.stack(np.broadcast_arrays(np.cos(de) * np.sin(az), np.cos(de) * np.cos(az), -np.sin(de)),
+                    axis=-1)
+
+
 def scan_angle_deg(slow_time_s, scan_start_deg, scan_rate_dps):
     """Beam pointing azimuth of a uniform scan."""
     return scan_start_deg + scan_rate_dps * np.asarray(slow_time_s, dtype=np.float64)

@@ -411,7 +411,7 @@ def build_forward_stages(cube, proc: dict):
     cube = with_navigation(cube, proc.get("navigation", "recorded"))
     geo = chain_geometry(cube, proc)
     q_run = proc["q"] if proc["method"] == "decimation" else 1
-    plan = plan_for_cube(cube, dict(proc, navigation="recorded"), q_candidates=sorted({1, q_run}))   # (applied)
+    plan = plan_for_cube(cube, proc, q_candidates=sorted({1, q_run}))
     # steep depression: one reference depression per range sub-swath where one for the window does not hold
     subswaths, left_m = (None, 0.0) if proc.get("subswaths", "auto") == "none" else plan_subswaths(
         height_m=float(geo["p_ref"][2]), range_m=cube.range_m, velocity_mps=geo["v_ref"], fc_hz=cube.radar["fc_hz"],

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..dsp.geometry import C_MPS
+from ..dsp.geometry import C_MPS, unit_vector   # noqa: F401 (motion.unit_vector: its callers')
 from ..dsp.spline import UniformSplineAntiderivative
 
 
@@ -45,13 +45,6 @@ def fit_motion(slow_time_s, position_m) -> MotionFit:
 def t_ref_seconds(slow_time_s, t_ref: str) -> float:
     """The reference time t_ref (NOTES.md): the first pulse's time (``start``) or the scan's centre."""
     return float(slow_time_s[0]) if t_ref == "start" else float(0.5 * (slow_time_s[0] + slow_time_s[-1]))
-
-
-def unit_vector(azimuth_deg, depression_deg):
-    """Unit line-of-sight vector from the antenna towards (azimuth, depression): [..., 3]."""
-    az, de = np.radians(azimuth_deg), np.radians(depression_deg)
-    return np.stack(np.broadcast_arrays(np.cos(de) * np.sin(az), np.cos(de) * np.cos(az), -np.sin(de)),
-                    axis=-1)
 
 
 def reference_depression_deg(height_m: float, reference_range_m: float) -> float:

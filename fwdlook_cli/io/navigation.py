@@ -38,7 +38,7 @@ import logging
 
 import numpy as np
 
-from ..dsp.geometry import C_MPS
+from ..dsp.geometry import C_MPS, unit_vector
 from ..errors import BadInput
 
 log = logging.getLogger(__name__)
@@ -97,9 +97,7 @@ def _half_window(slow_time_s, seconds: float) -> int:
 def lines_of_sight(scan_angle_deg, depression_deg: float) -> np.ndarray:
     """Unit vectors towards the scan's two ends and its middle at ``depression_deg`` ([3, 3])."""
     scan = np.asarray(scan_angle_deg, dtype=np.float64)
-    th = np.radians([scan.min(), 0.5 * (scan.min() + scan.max()), scan.max()])
-    ph = np.radians(depression_deg)
-    return np.stack([np.sin(th) * np.cos(ph), np.cos(th) * np.cos(ph), np.full(3, -np.sin(ph))], axis=1)
+    return unit_vector([scan.min(), 0.5 * (scan.min() + scan.max()), scan.max()], depression_deg)
 
 
 def beam_dwell_pulses(scan_angle_deg, beamwidth_deg: float) -> int:
@@ -179,16 +177,14 @@ def position_roughness_m(slow_time_s, position_m, los, rounding_m=0.0) -> float:
     return roughness(slow_time_s, position_m, los, 3, rounding_m)
 
 
-def kept_float32_step(stored, position) -> np.ndarray:
-    """The storage step, per axis, of float32 positions the reader kept as stored (io/track.py; zeros for
-    float64 ones and for restored ones: a restored track is the velocities' integral fitted through them,
-    whose drift, a velocity bias against the positions, the disagreement then measures)."""
-    if np.dtype(stored.dtype).itemsize >= 8:
+def kept_float32_step(stored_dtype, stored, position) -> np.ndarray:
+    """The storage step, per axis, of positions stored as ``stored_dtype`` (read as ``stored``) where the
+    reader kept them as stored (io/track.py; zeros for float64 ones and for restored ones, ``position``
+    then differing: a restored track is the velocities' integral fitted through them, whose drift, a
+    velocity bias against the positions, the disagreement then measures)."""
+    if np.dtype(stored_dtype).itemsize >= 8 or not np.array_equal(stored, position):
         return np.zeros(3)
-    kept = np.asarray(stored[()], dtype=np.float64)
-    if not np.array_equal(kept, position):
-        return np.zeros(3)
-    return np.spacing(np.max(np.abs(kept), axis=0).astype(np.float32)).astype(np.float64)
+    return np.spacing(np.max(np.abs(np.asarray(stored)), axis=0).astype(np.float32)).astype(np.float64)
 
 
 def check_navigation(slow_time_s, position_m, velocity_mps, *, scan_angle_deg, beamwidth_deg: float, fc_hz: float,
@@ -269,12 +265,16 @@ def fused_track(slow_time_s, position_m, velocity_mps) -> tuple[np.ndarray, np.n
 
 def with_navigation(cube, mode: str):
     """``cube``, or a shallow copy whose navigation ``processing.navigation`` replaces (module docstring;
-    the echoes and everything else shared)."""
-    if mode == "recorded":
+    the echoes and everything else shared), marked in its ``attrs`` so that a cube already given ``mode``
+    comes back as it is (``fused`` is not idempotent: the chain plans on the cube it built, a review had
+    found the plan blending it a second time)."""
+    if mode == "recorded" or cube.attrs.get("navigation") == mode:
         return cube
+    attrs = dict(cube.attrs, navigation=mode)
     if mode == "positions":
-        return dataclasses.replace(cube, velocity_mps=velocity_from_positions(cube.slow_time_s, cube.position_m))
+        return dataclasses.replace(cube, velocity_mps=velocity_from_positions(cube.slow_time_s, cube.position_m),
+                                   attrs=attrs)
     if mode == "fused":
         p, v = fused_track(cube.slow_time_s, cube.position_m, cube.velocity_mps)
-        return dataclasses.replace(cube, position_m=p, velocity_mps=v)
+        return dataclasses.replace(cube, position_m=p, velocity_mps=v, attrs=attrs)
     raise BadInput(f"processing.navigation = {mode!r}; allowed: {', '.join(NAVIGATION_MODES)}")

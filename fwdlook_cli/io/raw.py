@@ -266,12 +266,13 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
     _check_optional_radar(radar, source)
     _check_pulse_timing(slow_time_s, radar["prf_hz"], source)
     if not isar:     # float32 rounding that reaches the phases (io/track.py; ISAR forms none from the track)
+        stored_position, stored_dtype = position, f["platform/position_m"].dtype
         slow_time_s, position = restore_float32_track(
             slow_time_s, position, velocity, time_dtype=f["axes/slow_time_s"].dtype,
-            position_dtype=f["platform/position_m"].dtype, fc_hz=radar["fc_hz"], source=source)
+            position_dtype=stored_dtype, fc_hz=radar["fc_hz"], source=source)
         check_navigation(slow_time_s, position, velocity, scan_angle_deg=scan, beamwidth_deg=radar["beamwidth_3db_deg"],
                          fc_hz=radar["fc_hz"], range_m=range_m, source=source,
-                         rounding_m=kept_float32_step(f["platform/position_m"], position))
+                         rounding_m=kept_float32_step(stored_dtype, stored_position, position))
     _check_radar_values(radar, float(range_m[1] - range_m[0]), n_r, source)
     antenna = _read_antenna(f, source)
     noise = _read_noise(f["echo"].attrs, source)
