@@ -38,7 +38,7 @@ from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData
-from ..io.navigation import with_navigation
+from ..io.navigation import navigation_of, with_navigation
 from ..limits import check_processing_sizes
 from .monopulse import monopulse_image   # noqa: F401 (stage 7, forward/monopulse.py; chain.monopulse_image)
 
@@ -408,7 +408,7 @@ def build_forward_stages(cube, proc: dict):
     from .plan import method_budget_warnings, plan_for_cube
     from .subswath import plan_subswaths
 
-    cube = with_navigation(cube, proc.get("navigation", "recorded"))
+    cube = with_navigation(cube, *navigation_of(proc))
     geo = chain_geometry(cube, proc)
     q_run = proc["q"] if proc["method"] == "decimation" else 1
     plan = plan_for_cube(cube, proc, q_candidates=sorted({1, q_run}))

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..dsp.geometry import C_MPS, ambiguity_number
 from ..dsp.imaging import auto_range_oversample
-from ..io.navigation import with_navigation
+from ..io.navigation import navigation_of, with_navigation
 from .motion import (auto_doppler_cells, boresight_doppler_spread_hz, depression_reference_error_m,
                      doppler_band_depressions, t_ref_seconds, widest_cpi_band_hz)
 
@@ -157,7 +157,7 @@ def plan_geometry(slow_time_s, position_m, velocity_mps, scan_deg, *, fc_hz, prf
 
 
 def plan_for_cube(cube, proc: dict, q_candidates=None) -> dict:
-    cube = with_navigation(cube, proc.get("navigation", "recorded"))
+    cube = with_navigation(cube, *navigation_of(proc))
     t_ref_s = t_ref_seconds(cube.slow_time_s, proc["t_ref"])
     out = plan_geometry(cube.slow_time_s, cube.position_m, cube.velocity_mps, cube.scan_angle_deg,
                         fc_hz=cube.radar["fc_hz"], prf_hz=cube.radar["prf_hz"], fs_hz=cube.radar["fs_hz"],

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import logging
 import time
 from pathlib import Path
 
@@ -16,6 +17,8 @@ from ..errors import BadInput
 from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, json_text, put_scale, put_sparse_gzip, set_attrs
 from ..io import backing, pending, signals
 from ..io.cube import cube_hash
+
+log = logging.getLogger(__name__)
 
 
 def tail_percentiles(x, q_lo: float, q_hi: float):
@@ -205,11 +208,15 @@ def process_cube(cube, scn: dict, run_dir: str | Path, *, force=False, from_stag
         raise BadInput(f"--from-stage {from_stage}: unknown stage; allowed: {', '.join(names)}")
     # the dwell-profile metrics read the CPI Doppler spectra, or under imaging: dwell the compensated data
     # (stage 5), whose spectra they compute on the targets' range windows (run_metrics.profile_spectra)
+    # (and the echoes' Doppler against the navigation reads the same: forward/echo_navigation.py)
     captured = ({"doppler_spectra": None} if "doppler_spectra" in names else
-                {"range_curvature": None} if cube.truth_xyz_m() is not None and "range_curvature" in names else {})
+                {"range_curvature": None} if "range_curvature" in names else {})
     src_key, holder = cube_hash(cube), [src]
     if proc.get("navigation", "recorded") != "recorded":      # the source's track is not the cube's own
         src_key = hashlib.sha256(f"{src_key}|navigation={proc['navigation']}".encode()).hexdigest()
+    for key in ("navigation_delay_s", "scan_angle_offset_deg"):   # nor where its time tags or scan angles move
+        if proc.get(key, 0.0):
+            src_key = hashlib.sha256(f"{src_key}|{key}={float(proc[key])!r}".encode()).hexdigest()
     del src
     if release_cube:         # the CLI's cube: its echoes are needed by stage 1 only (memory: README, Speed);
         # zero-stride stand-ins keep the shapes (n_pulses, n_range) and hold no memory
@@ -261,6 +268,28 @@ def _start_quicklook(run_dir, final, truth, scn, proc, geo):
                                  f"{proc['keystone']}), t_ref = {proc['t_ref']}", markers=markers)
 
 
+def _strong_column_spectra(compensated, geo):
+    """Both channels' CPI spectra on the compensated data's strongest range columns (imaging: dwell)."""
+    from .echo_navigation import strong_columns
+    from .run_metrics import column_spectra
+
+    return column_spectra(compensated, geo["doppler_params"], strong_columns(compensated), channels=("sum", "diff"))
+
+
+def _echo_navigation(spectra, cube, proc, geo) -> dict:
+    """metrics.json's ``echo_navigation`` of the CPI Doppler spectra, its warnings logged."""
+    from .echo_navigation import echo_navigation_of, echo_navigation_warnings
+
+    check = echo_navigation_of(spectra, geo["calibration"], fc_hz=float(cube.radar["fc_hz"]),
+                               beamwidth_deg=float(cube.radar["beamwidth_3db_deg"]), prf_hz=float(cube.radar["prf_hz"]),
+                               cpi=int(proc["cpi"]), position_ref_m=geo["p_ref"],
+                               speed_mps=float(np.linalg.norm(geo["v_ref"])))
+    for line in echo_navigation_warnings(check, range_spacing_m=float(cube.range_spacing_m),
+                                         angle_step_deg=float(proc["angle_step_deg"])):
+        log.warning(line)
+    return check
+
+
 def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, captured, writes, t_start, t_out, png,
              pending_png, scenario_note=""):
     """image.h5, metrics.json, image.png of a finished chain; returns (metrics, scenario YAML).
@@ -280,6 +309,17 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
     # the Doppler spectra (2 x the cube, in memory when this run computed them), or under imaging: dwell
     # the compensated data: the only reference left is the one target_rows reads and drops
     spectra_of, compensated_of = captured.pop("doppler_spectra", None), captured.pop("range_curvature", None)
+    # the echoes' Doppler against the navigation's, from the same spectra (or compensated data), read once:
+    # target_rows takes them from the holder, which then drops them
+    echo_nav = None
+    if spectra_of is not None:
+        held = [spectra_of()]
+        echo_nav, spectra_of = _echo_navigation(held[0], cube, proc, geo), held.pop
+    elif compensated_of is not None:
+        held = [compensated_of()]
+        echo_nav = _echo_navigation(_strong_column_spectra(held[0], geo), cube, proc, geo)
+        compensated_of = held.pop
+    held = None
     rows, islr_from = target_rows(cube, final, proc, geo, spectra_of=spectra_of, compensated_of=compensated_of)
     spectra_of = compensated_of = None
     scenario_yaml = dump_scenario(scn)
@@ -310,6 +350,8 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
                    # the keystone stage's range sub-swaths (1: one reference depression for the window)
                    "subswaths": geo.get("subswaths", 1),
                    "navigation": proc.get("navigation", "recorded"),
+                   "navigation_delay_s": float(proc.get("navigation_delay_s", 0.0)),
+                   "scan_angle_offset_deg": float(proc.get("scan_angle_offset_deg", 0.0)),
                    # the zoomed Doppler cells per CPI (n_doppler: auto resolved), where a CPI Doppler stage ran
                    "n_doppler": geo.get("n_doppler") if "doppler_spectra" in names else None,
                    # the image's range oversampling (range_oversample: auto resolved)
@@ -322,6 +364,8 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
         "summary": ({**summarize(rows), "islr_from": islr_from} if rows else {"n_targets": 0, "detected": 0}),
         "timing_s": timing,
     }
+    if echo_nav is not None:      # the echoes' Doppler against the navigation's (forward/echo_navigation.py)
+        metrics["echo_navigation"] = echo_nav
     if scn["scene"]["kind"] == "image":                  # extended scene: metrics against its map
         from .scene_metrics import scene_metrics
 

@@ -27,8 +27,6 @@ def profile_spectra(compensated, doppler_params: dict, range_ref_m, range_window
     alone, so these are the CPI chain's spectra on those columns, and under ``imaging: dwell`` the
     profile metrics are the same eq. (27) measures as under ``imaging: cpi``.  The sum channel's only (the
     profiles read no difference channel)."""
-    from .chain import doppler_spectra
-
     range_m = np.asarray(compensated["range_m"])
     n_r = len(range_m)
     ref = np.atleast_1d(np.asarray(range_ref_m, dtype=np.float64))
@@ -38,12 +36,23 @@ def profile_spectra(compensated, doppler_params: dict, range_ref_m, range_window
     np.add.at(edges, lo, 1)
     np.add.at(edges, hi, -1)
     cols = np.flatnonzero(np.cumsum(edges[:-1]) > 0)
+    return column_spectra(compensated, doppler_params, cols)
+
+
+def column_spectra(compensated, doppler_params: dict, cols, channels=("sum",)):
+    """``chain.doppler_spectra`` of the motion-compensated data on the range columns ``cols`` only (a
+    column's spectrum is a product over that column alone: the CPI chain's spectra there), of
+    ``channels``; out of core the columns are gathered block by block of pulses into file-backed arrays."""
+    from .chain import doppler_spectra
+
+    range_m = np.asarray(compensated["range_m"])
     sub = compensated.copy_vars("slow_time_s", "xyz", "scan_angle_deg", "position_m", "velocity_mps")
     sub.add("range_m", range_m[cols], ("range_m",), "m", "slant range")
-    x = compensated["sum"]          # out of core gathered block by block of pulses into a file-backed array
-    columns = (backing.map_blocks(lambda s: x[s][:, cols], x.shape[0], (x.shape[0], len(cols)), x.dtype,
-                                  x[0].nbytes) if backing.active() else np.asarray(x)[:, cols])
-    sub.add("sum", columns, ("slow_time_s", "range_m"), "1", "sum channel")
+    for ch in channels:
+        x = compensated[ch]          # out of core gathered block by block of pulses into a file-backed array
+        columns = (backing.map_blocks(lambda s, x=x: x[s][:, cols], x.shape[0], (x.shape[0], len(cols)), x.dtype,
+                                      x[0].nbytes) if backing.active() else np.asarray(x)[:, cols])
+        sub.add(ch, columns, ("slow_time_s", "range_m"), "1", f"{ch} channel")
     return doppler_spectra(sub, **doppler_params)
 
 

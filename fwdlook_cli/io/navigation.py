@@ -23,7 +23,8 @@ ends and its middle at the far range's depression), each one warning where it ma
   GHz (0.05 m/s had put the dwell image -9 to -18 dB from the clean one, its targets unchanged).
 
 None sees a lag common to both records (a time-tag offset against the radar): they agree with each
-other; only the echoes could show it (README, "Raw cube files").
+other; the echoes show it where the platform accelerates (``forward/echo_navigation.py``), and
+``processing.navigation_delay_s`` moves both records by it (:func:`delayed_track`).
 
 ``processing.navigation`` then chooses what the chain takes (:func:`with_navigation`): ``recorded``
 (both as stored), ``positions`` (the velocities from the positions' smoothed derivative: right where
@@ -263,18 +264,59 @@ def fused_track(slow_time_s, position_m, velocity_mps) -> tuple[np.ndarray, np.n
     return moved + low, v + np.gradient(low, t, axis=0, edge_order=2)
 
 
-def with_navigation(cube, mode: str):
+def delayed_track(slow_time_s, position_m, velocity_mps, delay_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(positions, velocities) at radar time t of a navigation that lags the radar by ``delay_s`` (its
+    record tagged t holds the platform at t - delay): the records evaluated at t + delay.  Positions by
+    cubic Hermite interpolation from the positions and velocities either side, velocities linearly, and
+    beyond the record's ends along the end's constant acceleration (the last two velocities): exact for
+    a constant acceleration, as the paper's platform (Fig. 1)."""
+    t = np.asarray(slow_time_s, dtype=np.float64)
+    p = np.asarray(position_m, dtype=np.float64)
+    v = np.asarray(velocity_mps, dtype=np.float64)
+    if delay_s == 0.0 or len(t) < 2:
+        return p.copy(), v.copy()
+    tq = t + delay_s
+    k = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, len(t) - 2)      # the interval [t_k, t_k+1]
+    h = t[k + 1] - t[k]
+    s = ((tq - t[k]) / h)[:, None]
+    hh = h[:, None]
+    pos = ((2 * s**3 - 3 * s**2 + 1) * p[k] + (s**3 - 2 * s**2 + s) * hh * v[k]
+           + (-2 * s**3 + 3 * s**2) * p[k + 1] + (s**3 - s**2) * hh * v[k + 1])
+    vel = (1 - s) * v[k] + s * v[k + 1]
+    for end, outside in ((0, tq < t[0]), (len(t) - 1, tq > t[-1])):
+        if outside.any():
+            j = 1 if end == 0 else end - 1
+            accel = (v[max(end, j)] - v[min(end, j)]) / (t[max(end, j)] - t[min(end, j)])
+            dt = (tq[outside] - t[end])[:, None]
+            pos[outside] = p[end] + v[end] * dt + 0.5 * accel * dt**2
+            vel[outside] = v[end] + accel * dt
+    return pos, vel
+
+
+def with_navigation(cube, mode: str, delay_s: float = 0.0, scan_angle_offset_deg: float = 0.0):
     """``cube``, or a shallow copy whose navigation ``processing.navigation`` replaces (module docstring;
-    the echoes and everything else shared), marked in its ``attrs`` so that a cube already given ``mode``
-    comes back as it is (``fused`` is not idempotent: the chain plans on the cube it built, a review had
-    found the plan blending it a second time)."""
-    if mode == "recorded" or cube.attrs.get("navigation") == mode:
+    the echoes and everything else shared), after moving both records by ``processing.navigation_delay_s``
+    (:func:`delayed_track`) and the scan angles by -``processing.scan_angle_offset_deg`` (recorded that
+    far towards +x of where the antenna pointed), marked in its ``attrs`` so that a cube already given
+    them comes back as it is (``fused`` is not idempotent: the chain plans on the cube it built, a review
+    had found the plan blending it a second time)."""
+    delay_s, scan_angle_offset_deg = float(delay_s), float(scan_angle_offset_deg)
+    mark = {"navigation": mode, "navigation_delay_s": delay_s, "scan_angle_offset_deg": scan_angle_offset_deg}
+    if (mode == "recorded" and delay_s == 0.0 and scan_angle_offset_deg == 0.0) or all(
+            cube.attrs.get(k, 0.0 if k != "navigation" else "recorded") == v for k, v in mark.items()):
         return cube
-    attrs = dict(cube.attrs, navigation=mode)
+    if mode not in NAVIGATION_MODES:
+        raise BadInput(f"processing.navigation = {mode!r}; allowed: {', '.join(NAVIGATION_MODES)}")
+    p, v = delayed_track(cube.slow_time_s, cube.position_m, cube.velocity_mps, delay_s)
     if mode == "positions":
-        return dataclasses.replace(cube, velocity_mps=velocity_from_positions(cube.slow_time_s, cube.position_m),
-                                   attrs=attrs)
-    if mode == "fused":
-        p, v = fused_track(cube.slow_time_s, cube.position_m, cube.velocity_mps)
-        return dataclasses.replace(cube, position_m=p, velocity_mps=v, attrs=attrs)
-    raise BadInput(f"processing.navigation = {mode!r}; allowed: {', '.join(NAVIGATION_MODES)}")
+        v = velocity_from_positions(cube.slow_time_s, p)
+    elif mode == "fused":
+        p, v = fused_track(cube.slow_time_s, p, v)
+    scan = cube.scan_angle_deg - scan_angle_offset_deg if scan_angle_offset_deg else cube.scan_angle_deg
+    return dataclasses.replace(cube, position_m=p, velocity_mps=v, scan_angle_deg=scan, attrs=dict(cube.attrs, **mark))
+
+
+def navigation_of(proc: dict) -> tuple:
+    """The arguments of :func:`with_navigation` from resolved ``processing`` settings."""
+    return (proc.get("navigation", "recorded"), proc.get("navigation_delay_s", 0.0),
+            proc.get("scan_angle_offset_deg", 0.0))

@@ -153,6 +153,15 @@ FORWARD_SCHEMA: dict[str, Any] = {
                             "biased, lagging or logged at a lower rate); fused, one track blending the positions' "
                             "low frequencies with the velocities' high ones (io/navigation.py; the reader's "
                             "warnings; README, Raw cube files)"),
+        "navigation_delay_s": Field(num(-1.0, 1.0), 0.0,
+                                    "time by which the navigation lags the radar (its record tagged t holds the "
+                                    "platform at t - delay): both records are read at t + delay before "
+                                    "processing.navigation (io/navigation.py::delayed_track); metrics.json's "
+                                    "echo_navigation.delay_s estimates it from the echoes"),
+        "scan_angle_offset_deg": Field(num(-10.0, 10.0), 0.0,
+                                       "degrees by which the recorded scan angles lie towards +x of where the "
+                                       "antenna pointed (a pointing error of the whole antenna): subtracted before "
+                                       "processing; metrics.json's echo_navigation.pointing_error_deg estimates it"),
         "doppler_estimator": Field(choice("fft", "iaa"), "fft",
                                    "per-CPI Doppler estimate (imaging: cpi): fft, the zoomed DFT; iaa, the "
                                    "iterative adaptive approach (Yardibi et al. 2010) per range cell"),

@@ -1,0 +1,242 @@
+"""The echoes against the navigation: the Doppler the echoes show at their monopulse angles against the
+Doppler the recorded track predicts there (README, "The echoes against the navigation").
+
+Every check in ``io/navigation.py`` compares the navigation with itself; a time-tag offset common to the
+positions and the velocities (the navigation lagging the radar by d) passes them all, and moves every
+target by about |v| d.  The echoes can see it where the platform accelerates: the recorded velocity at
+radar time t is then v(t - d) = v(t) - a d, so a point's Doppler 2 v . u / lambda (eq. 2's rate of the
+range history) sits 2 (a . u) d / lambda above what the record predicts.  The monopulse gives each
+strong Doppler cell its own direction u (the chain's angle, ``forward/monopulse.py``), independently of
+its Doppler; the residual f - 2 v . u / lambda over the cells measures the velocity error along the
+lines of sight, and with the acceleration along them the offset d.
+
+Only cells whose direction the Doppler resolves are used: near the flight axis the Doppler of the beam
+is flat in angle (a forward-looking radar's blind zone), cells mix targets across the beam and their
+monopulse angle no longer belongs to their Doppler.  A cell counts where the beam's Doppler span,
+2 |v| cos(phi) |sin(theta)| x beamwidth / lambda, covers at least ``MIN_SPAN_RESOLUTIONS`` Doppler
+resolution cells (prf / cpi).  The estimate is the median over CPIs of each CPI's median residual
+(cells within a CPI share targets and are not independent; CPIs are), its uncertainty 1.25 x the
+CPIs' MAD-sigma / sqrt(CPIs) (the median's efficiency for Gaussian spread).
+
+What it cannot tell apart: a velocity bias and a time-tag offset read alike along the lines of sight
+(a d against a velocity error); the navigation's own checks tell the first from the second (a bias
+makes the velocities disagree with the positions, a common offset does not).  A pointing error of the
+whole antenna moves the monopulse angles and reads as a residual that changes sign across the flight
+axis (sin theta), not as an offset common to both sides; the estimate is the median over both sides.
+Without acceleration along the lines of sight an offset is a fixed shift of the track, which no echo
+shows (``delay_s`` is then None).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..dsp.geometry import C_MPS, azimuth_at_t_ref
+from ..io.backing import BLOCK_BYTES
+
+MAX_BLEND_HZ = 2.0      # the beam's Doppler span, in Doppler resolution cells, for a cell to count
+THRESHOLD_DB = 20.0             # a cell's sum power over its CPI's median (the noise floor), as the image
+SHIFT_WARN_SAMPLES = 0.1       # a delay warned where it moves the targets over this many range samples
+MAX_DWELL_COLUMNS = 128         # range columns a dwell-imaging chain computes CPI spectra on for the check
+MIN_CPIS = 5                    # CPIs with counted cells needed for an estimate
+
+
+def _peaks(z, threshold_db: float):
+    """The Doppler peaks of a block of CPI spectra ``z`` [cpi, doppler, range] over ``threshold_db`` of
+    each CPI's noise floor: (CPI in the block, Doppler cell, range cell, the sum sample, the power of
+    the cell below, the cell, the cell above)."""
+    power = np.abs(z) ** 2
+    n_z = power.shape[1]
+    # the CPI's noise floor: the median of every 11th cell (the 20 dB threshold needs no exact median)
+    floor = np.median(power.reshape(len(power), -1)[:, ::11], axis=1)
+    flat = np.flatnonzero(power > floor[:, None, None] * np.float32(10.0 ** (threshold_db / 10.0)))
+    jc, rest = np.divmod(flat, power.shape[1] * power.shape[2])
+    iz, ir = np.divmod(rest, power.shape[2])
+    inner = (iz > 0) & (iz < n_z - 1)
+    jc, iz, ir = jc[inner], iz[inner], ir[inner]
+    p_lo, p_0, p_hi = power[jc, iz - 1, ir], power[jc, iz, ir], power[jc, iz + 1, ir]
+    peak = (p_0 > p_lo) & (p_0 >= p_hi)                     # local maxima along Doppler
+    jc, iz, ir = jc[peak], iz[peak], ir[peak]
+    return jc, iz, ir, z[jc, iz, ir], p_lo[peak], p_0[peak], p_hi[peak]
+
+
+def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, position_m, range_m, *, fc_hz: float,
+                      beamwidth_deg: float, prf_hz: float, cpi: int, offset_of_ratio, diff_gain_db: float = 0.0,
+                      diff_phase_deg: float = 0.0, position_ref_m=None, threshold_db: float = THRESHOLD_DB):
+    """Per counted cell (the Doppler peaks over ``threshold_db`` of the CPI spectra, module docstring):
+    (CPI index, residual Hz, line-of-sight unit vector [n, 3], sine of the azimuth, F = 2 |v| cos(depression)
+    / lambda, the Doppler per unit cos(azimuth)).  ``sum_z``, ``diff_z``: [cpi, doppler,
+    range] spectra of the Doppler stage with ``doppler_hz`` [cpi, doppler] their true Doppler;
+    ``beam_deg``, ``velocity_mps``, ``position_m``: the CPIs' mean beam angle, velocity and antenna
+    position; ``range_m``: the spectra's slant ranges at t_ref (``position_ref_m``, the antenna there);
+    ``offset_of_ratio``: the calibration's inverse ratio curve (degrees from the beam axis)."""
+    wavelength_m = C_MPS / fc_hz
+    # only CPIs whose beam reaches angles that can count (the bound below at the beam's outer edge, the
+    # largest offset the image projects, half a beamwidth, and the CPI's largest F = 2 |v| / lambda)
+    edge = np.abs(np.asarray(beam_deg, float)) + 0.5 * beamwidth_deg
+    f_top_hz = 2.0 * np.linalg.norm(velocity_mps, axis=1) / wavelength_m
+    usable = np.flatnonzero(np.sin(np.radians(np.minimum(edge, 90.0))) ** 2 * 8.0 * f_top_hz * MAX_BLEND_HZ
+                            >= (prf_hz / cpi) ** 2)
+    if len(usable) == 0:
+        empty = np.zeros(0)
+        return empty.astype(np.int64), empty, np.zeros((0, 3)), empty, empty
+    # blocks of whole CPIs (a file-backed stage's spectra are read a block at a time: README, out of core)
+    per_block = max(1, BLOCK_BYTES // max(1, sum_z[0].nbytes))
+    parts = [_peaks(sum_z[usable[i:i + per_block]], threshold_db) for i in range(0, len(usable), per_block)]
+    jc = np.concatenate([part[0] + i for part, i in zip(parts, range(0, len(usable), per_block))])
+    iz, ir, z_0, p_lo, p_0, p_hi = (np.concatenate([part[k] for part in parts]) for k in range(1, 7))
+    ic = usable[jc]
+    ratio = diff_z[ic, iz, ir] / z_0
+    if diff_gain_db or diff_phase_deg:     # the calibration's channel imbalance divided out (as the image)
+        ratio = ratio / (10.0 ** (diff_gain_db / 20.0) * np.exp(1j * np.radians(diff_phase_deg)))
+    angle_deg = beam_deg[ic] + offset_of_ratio(np.real(ratio))
+    # the Doppler peak interpolated (parabola through the cell and its neighbours' power)
+    curve = p_lo - 2.0 * p_0 + p_hi
+    shift = np.where(curve < 0, 0.5 * (p_lo - p_hi) / np.where(curve < 0, curve, -1.0), 0.0)
+    step_hz = doppler_hz[ic, 1] - doppler_hz[ic, 0]
+    f_hz = doppler_hz[ic, iz] + np.clip(shift, -0.5, 0.5) * step_hz
+    # the ground point at that angle from the CPI's antenna and at the cell's t_ref range (as the image)
+    p_ref = position_m[len(position_m) // 2] if position_ref_m is None else np.asarray(position_ref_m, float)
+    _, gx, gy = azimuth_at_t_ref(range_m[ir], angle_deg, position_m[ic], p_ref)
+    los = np.stack([gx - position_m[ic, 0], gy - position_m[ic, 1], -position_m[ic, 2]], axis=1)
+    los /= np.linalg.norm(los, axis=1, keepdims=True)
+    v = velocity_mps[ic]
+    predicted_hz = 2.0 * np.einsum("ij,ij->i", v, los) / wavelength_m
+    # the Doppler blind zone: two scatterers in one Doppler resolution cell (prf / cpi, an angle
+    # (prf / cpi) / |df/dtheta| wide) read at their mean angle and mean Doppler, and f = F cos(theta) is
+    # curved, so such a cell reads F cos(theta) (1 - cos(width / 2)) ~ (prf / cpi)^2 / (8 F sin^2 theta)
+    # low; a cell counts where that bound is at most MAX_BLEND_HZ
+    speed = np.linalg.norm(v, axis=1)
+    f_span_hz = 2.0 * speed * np.hypot(los[:, 0], los[:, 1]) / wavelength_m          # F
+    sin2 = np.sin(np.radians(angle_deg)) ** 2
+    blend_hz = (prf_hz / cpi) ** 2 / (8.0 * f_span_hz * np.maximum(sin2, 1e-12))
+    keep = np.isfinite(predicted_hz) & (blend_hz <= MAX_BLEND_HZ)
+    return (ic[keep], (f_hz - predicted_hz)[keep], los[keep], np.sin(np.radians(angle_deg))[keep],
+            f_span_hz[keep])
+
+
+def _group_medians(groups, values):
+    """The median of ``values`` in each distinct value of ``groups`` (sorted by group): one sort."""
+    order = np.lexsort((values, groups))
+    g, v = groups[order], values[order]
+    first = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    count = np.diff(np.r_[first, len(g)])
+    return 0.5 * (v[first + (count - 1) // 2] + v[first + count // 2])
+
+
+def _side(residual_hz, sin_angle, f_span_hz, cpi_index, mask):
+    """(median over the side's CPIs of each CPI's median residual, its sigma, the CPIs' median of
+    F sin(theta), CPIs)."""
+    if not mask.any():
+        return None
+    per_cpi = _group_medians(cpi_index[mask], residual_hz[mask])
+    lever_cpi = _group_medians(cpi_index[mask], (f_span_hz * sin_angle)[mask])
+    med = float(np.median(per_cpi))
+    # 1.4826 MAD: the CPIs' sigma; 1.25 / sqrt(n): the median's sigma for Gaussian spread
+    sigma = float(1.25 * 1.4826 * np.median(np.abs(per_cpi - med)) / np.sqrt(len(per_cpi)))
+    return med, sigma, float(np.median(lever_cpi)), len(per_cpi)
+
+
+def echo_navigation_check(cpi_index, residual_hz, los, sin_angle, f_span_hz, *, fc_hz: float, accel_mps2,
+                          speed_mps: float) -> dict:
+    """The estimate of the module docstring from :func:`cell_residuals_hz`'s cells.  Each side of the
+    flight axis gives the median over its CPIs of each CPI's median residual, m_L and m_R, at g_L < 0 <
+    g_R, the CPIs' median of F sin(theta) (F = 2 |v| cos(depression) / lambda).  Scan angles recorded b
+    (rad) towards +x of where the antenna pointed add g b to a side; the navigation's offset c0 adds the
+    same to both: m = c0 + g b on each side, solved for c0 and b (one side alone: c0 its median, no b;
+    ``sides`` says which).  Returns ``doppler_offset_hz`` c0 and ``sigma_hz``; the line-of-sight velocity
+    error ``velocity_error_mps`` = lambda c0 / 2 (positive: the echoes faster than the record) and its
+    sigma; the acceleration along the lines of sight ``accel_los_mps2``; where it makes an offset visible
+    (above the velocity error's sigma per second), ``delay_s`` (the navigation lagging the radar by it:
+    ``processing.navigation_delay_s``), ``sigma_delay_s`` and ``shift_m`` = ``speed_mps`` x delay, how far
+    it moves the targets; with both sides ``pointing_error_deg`` b and its sigma; ``cells``, ``cpis``, and
+    ``blend_bound_hz`` (the blind zone's bound: c0 may read that much low).  ``doppler_offset_hz`` None
+    where fewer than ``MIN_CPIS`` CPIs hold a counted cell."""
+    wavelength_m = C_MPS / fc_hz
+    n_cpis = len(np.unique(cpi_index))
+    out = {"cells": int(len(residual_hz)), "cpis": int(n_cpis), "sides": 0, "doppler_offset_hz": None,
+           "sigma_hz": None, "velocity_error_mps": None, "sigma_velocity_mps": None,
+           "accel_los_mps2": None, "delay_s": None, "sigma_delay_s": None, "shift_m": None,
+           "pointing_error_deg": None, "sigma_pointing_deg": None, "blend_bound_hz": MAX_BLEND_HZ}
+    if n_cpis < MIN_CPIS:
+        return out
+    sides = [side for side in (_side(residual_hz, sin_angle, f_span_hz, cpi_index, sin_angle < 0),
+                               _side(residual_hz, sin_angle, f_span_hz, cpi_index, sin_angle > 0))
+             if side is not None]
+    if len(sides) == 2:           # m = c0 + (F sin(theta)) x pointing error, one equation per side
+        (m_l, sg_l, g_l, _), (m_r, sg_r, g_r, _) = sides
+        point_rad = (m_r - m_l) / (g_r - g_l)
+        offset_hz = (m_l * g_r - m_r * g_l) / (g_r - g_l)
+        sigma_hz = float(np.hypot(g_r * sg_l, g_l * sg_r) / (g_r - g_l))
+        out["pointing_error_deg"] = float(np.degrees(point_rad))
+        out["sigma_pointing_deg"] = float(np.degrees(np.hypot(sg_l, sg_r) / (g_r - g_l)))
+    else:
+        offset_hz, sigma_hz = sides[0][0], sides[0][1]
+    accel_los = float(np.median(los @ np.asarray(accel_mps2, float)))
+    out.update(sides=len(sides), doppler_offset_hz=float(offset_hz), sigma_hz=sigma_hz,
+               velocity_error_mps=wavelength_m * offset_hz / 2.0, sigma_velocity_mps=wavelength_m * sigma_hz / 2.0,
+               accel_los_mps2=accel_los)
+    if abs(accel_los) * 1.0 > out["sigma_velocity_mps"]:
+        delay = out["velocity_error_mps"] / accel_los
+        out.update(delay_s=delay, sigma_delay_s=out["sigma_velocity_mps"] / abs(accel_los),
+                   shift_m=abs(speed_mps * delay))
+    return out
+
+
+def echo_navigation_of(spectra, calibration, *, fc_hz: float, beamwidth_deg: float, prf_hz: float, cpi: int,
+                       position_ref_m, speed_mps: float) -> dict:
+    """:func:`echo_navigation_check` of the Doppler stage's output ``spectra`` (both channels) with the
+    chain's monopulse ``calibration`` (``forward/calibration.py``); the acceleration is the CPIs' velocity
+    slope (least squares over the CPI times)."""
+    t_c = np.asarray(spectra["cpi_time_s"], float)
+    vel = np.asarray(spectra["cpi_velocity_mps"], float)
+    accel = (np.polyfit(t_c - t_c.mean(), vel, 1)[0] if len(t_c) >= 2 else np.zeros(3))
+    cells = cell_residuals_hz(spectra["sum_z"], spectra["diff_z"], np.asarray(spectra["doppler_hz"]),
+                              np.asarray(spectra["cpi_beam_deg"]), vel, np.asarray(spectra["cpi_position_m"]),
+                              np.asarray(spectra["range_m"]), fc_hz=fc_hz, beamwidth_deg=beamwidth_deg,
+                              prf_hz=prf_hz, cpi=cpi, offset_of_ratio=calibration.offset_deg,
+                              diff_gain_db=calibration.diff_gain_db, diff_phase_deg=calibration.diff_phase_deg,
+                              position_ref_m=position_ref_m)
+    return echo_navigation_check(*cells, fc_hz=fc_hz, accel_mps2=accel, speed_mps=speed_mps)
+
+
+def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_deg: float) -> list[str]:
+    """The warnings of :func:`echo_navigation_check`'s result: a navigation offset that moves the targets
+    over half a range sample, and a pointing error over the image's angle step, each only where it
+    stands out of the estimate's noise (3 sigma) and, for the offset, of the blind zone's bound."""
+    out = []
+    if check.get("doppler_offset_hz") is None:
+        return out
+    off, sig = check["doppler_offset_hz"], check["sigma_hz"]
+    if (check["delay_s"] is not None and check["shift_m"] > SHIFT_WARN_SAMPLES * range_spacing_m
+            and abs(off) > 3.0 * sig + check["blend_bound_hz"]):
+        out.append(
+            f"the echoes' Doppler sits {off:+.1f} +- {sig:.1f} Hz from the navigation's at their monopulse angles "
+            f"({check['cells']} cells in {check['cpis']} CPIs): the track's velocity is "
+            f"{check['velocity_error_mps']:+.3f} m/s off along the lines of sight; a navigation lagging the radar by "
+            f"{check['delay_s'] * 1e3:.2f} +- {check['sigma_delay_s'] * 1e3:.2f} ms reads so (acceleration "
+            f"{check['accel_los_mps2']:.1f} m/s^2 along them) and moves the targets about {check['shift_m']:.2f} m: "
+            f"where the navigation agrees with itself, set processing.navigation_delay_s: "
+            f"{check['delay_s'] + 0.0:.5f} (README, The echoes against the navigation)")
+    point = check.get("pointing_error_deg")
+    if point is not None and abs(point) > max(3.0 * check["sigma_pointing_deg"], angle_step_deg):
+        out.append(
+            f"the echoes' Doppler agrees with their monopulse angles only with the scan angles moved by "
+            f"{-point:+.3f} +- {check['sigma_pointing_deg']:.3f} deg: a pointing error of the antenna (or scan "
+            f"angles recorded that far off) puts the targets that far off in azimuth: set "
+            f"processing.scan_angle_offset_deg: {point:.4f} (README, The echoes against the navigation)")
+    return out
+
+
+def strong_columns(compensated, max_columns: int = MAX_DWELL_COLUMNS, over_db: float = 10.0) -> np.ndarray:
+    """The range columns of the motion-compensated data (``range_curvature``'s output) whose sum-channel
+    energy is ``over_db`` over the median column's, the strongest ``max_columns`` of them, in range
+    order: where a dwell-imaging chain, which forms no CPI spectra, has its echoes' spectra computed
+    for this check (``run_metrics.column_spectra``).  Read in blocks of pulses."""
+    x = compensated["sum"]
+    rows = max(1, BLOCK_BYTES // max(1, x[0].nbytes))
+    energy = np.zeros(x.shape[1])
+    for i in range(0, x.shape[0], rows):
+        block = np.asarray(x[i:i + rows])
+        energy += np.einsum("ij,ij->j", block.real, block.real) + np.einsum("ij,ij->j", block.imag, block.imag)
+    strong = np.flatnonzero(energy >= np.median(energy) * 10.0 ** (over_db / 10.0))
+    return np.sort(strong[np.argsort(energy[strong])[::-1][:max_columns]])
