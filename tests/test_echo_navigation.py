@@ -9,6 +9,7 @@ of the simulator's constant acceleration (p - v d + a d^2 / 2, v - a d), not by 
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -39,6 +40,22 @@ def test_delayed_track_is_the_track_at_the_later_time(delay_s):
         p_d, v_d = delayed_track(t, p, v, delay_s)
         p_true, v_true = _track(t + delay_s)
         assert np.abs(p_d - p_true).max() < 1e-9 and np.abs(v_d - v_true).max() < 1e-9
+
+
+def test_delayed_track_extrapolates_along_the_velocities_least_squares_line():
+    """Beyond the record's end the velocity follows the least-squares line of the velocities over the
+    end's 20 ms: with white velocity noise sigma its error 5 ms out has the line's prediction sigma,
+    sigma sqrt(1 / n + (d + span / 2)^2 / sum (t - t_mean)^2) (the last two samples' slope had carried the
+    noise about 15 times: 0.45 m/s for 0.02 m/s)."""
+    t = np.arange(2500) / 2500.0
+    p, v = _track(t)
+    rng = np.random.default_rng(5)
+    sigma, d = 0.02, 0.005
+    end = t[np.abs(t - t[-1]) <= 0.02]
+    predicted = sigma * np.sqrt(1 / len(end) + (t[-1] + d - end.mean()) ** 2 / np.sum((end - end.mean()) ** 2))
+    errors = [delayed_track(t, p, v + rng.standard_normal(v.shape) * sigma, d)[1][-1] - _track(t[-1:] + d)[1][0]
+              for _ in range(100)]
+    assert np.sqrt(np.mean(np.square(errors))) == pytest.approx(predicted, rel=0.15)
 
 
 def test_with_navigation_delays_before_the_source_and_only_once():
@@ -123,7 +140,7 @@ def test_the_echoes_measure_a_navigation_lag_and_a_pointing_error(tmp_path, caps
 
     clean, err, clean_image = run(src, "clean")
     check = clean["echo_navigation"]
-    assert check["sides"] == 2 and check["cells"] > 500 and delay_within(check, 0.0), check
+    assert check["sides"] == 2 and check["cells"] > 200 and delay_within(check, 0.0), check
     assert abs(check["pointing_error_deg"]) <= 3 * check["sigma_pointing_deg"], check
     assert "echoes' Doppler" not in err
     lagged = _rewritten(src, tmp_path / "lagged.h5", lag_s=0.005)
@@ -131,6 +148,11 @@ def test_the_echoes_measure_a_navigation_lag_and_a_pointing_error(tmp_path, caps
     check = metrics["echo_navigation"]
     assert delay_within(check, 0.005) and check["shift_m"] > 1.0, check
     assert "processing.navigation_delay_s" in err and "lagging the radar" in err
+    metrics, err, _ = run(lagged, "partly", "--set", "processing.navigation_delay_s=0.002")
+    check = metrics["echo_navigation"]          # what the setting left, and the warning names the sum
+    assert delay_within(check, 0.003), check
+    said = float(re.search(r"set processing.navigation_delay_s: (-?[0-9.]+)", err).group(1))
+    assert said == pytest.approx(0.002 + check["delay_s"], abs=1e-5)
     metrics, err, image = run(lagged, "undone", "--set", "processing.navigation_delay_s=0.005")
     assert metrics["params"]["navigation_delay_s"] == 0.005 and "lagging the radar" not in err
     assert np.sum((image - clean_image) ** 2) < 1e-10 * np.sum(clean_image ** 2)
@@ -146,3 +168,32 @@ def test_the_echoes_measure_a_navigation_lag_and_a_pointing_error(tmp_path, caps
     metrics, err, image = run(pointed, "pointed_undone", "--set", "processing.scan_angle_offset_deg=0.3")
     assert metrics["params"]["scan_angle_offset_deg"] == 0.3 and "pointing error" not in err
     assert np.sum((image - clean_image) ** 2) < 1e-10 * np.sum(clean_image ** 2)
+
+
+def test_at_steep_depression_only_a_method_that_holds_its_ranges_is_read():
+    """At 800 m height the predicted Doppler moves about 4 Hz per metre of range (through the depression),
+    and `decimation`'s budget leaves metres of range error there (a review: +16 Hz, a false delay of 2.6
+    ms, from its range errors): its cells are not counted (no estimate), while `tracking`, which holds
+    its ranges (range_error_m 0), reads the clean cube's delay within its bounds."""
+    from fwdlook_cli.forward.chain import build_forward_stages
+    from fwdlook_cli.forward.echo_navigation import echo_navigation_of
+
+    scn = fw.load_scenario(ROOT / "scenarios" / "paper_fig6_a50.yaml", overrides=["platform.height_m=800"])
+    cube = fw.simulate_cube(scn)
+    for method, held in (("decimation", False), ("tracking", True)):
+        proc = dict(scn["processing"], method=method, q=25, imaging="cpi", dwell_fit="none")
+        src, stages, geo = build_forward_stages(cube, proc)
+        data = src
+        for stage in stages[:stages.index(next(s for s in stages if s.name == "doppler_spectra")) + 1]:
+            data = stage.fn(data, **stage.params)
+        check = echo_navigation_of(data, geo["calibration"], fc_hz=cube.radar["fc_hz"],
+                                   beamwidth_deg=cube.radar["beamwidth_3db_deg"], prf_hz=cube.radar["prf_hz"],
+                                   cpi=proc["cpi"], position_ref_m=geo["p_ref"],
+                                   speed_mps=float(np.linalg.norm(geo["v_ref"])),
+                                   range_resolution_m=C_MPS / (2 * cube.radar["bandwidth_hz"]),
+                                   range_error_m=geo["range_error_m"])
+        if held:
+            assert geo["range_error_m"] == 0.0 and check["cells"] > 200, check
+            assert -(3 * check["sigma_hz"] + MAX_BLEND_HZ) <= check["doppler_offset_hz"] <= 3 * check["sigma_hz"]
+        else:
+            assert geo["range_error_m"] > 1.25 and check["doppler_offset_hz"] is None, (geo["range_error_m"], check)

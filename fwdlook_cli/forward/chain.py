@@ -405,7 +405,7 @@ def monopulse_slope(cube) -> float:
 def build_forward_stages(cube, proc: dict):
     """(source StageData, [Stage]) for a raw cube and resolved ``processing`` settings."""
     from .calibration import calibration_for_cube
-    from .plan import method_budget_warnings, plan_for_cube
+    from .plan import method_budget_warnings, method_range_error_m, plan_for_cube
     from .subswath import plan_subswaths
 
     cube = with_navigation(cube, *navigation_of(proc))
@@ -424,6 +424,7 @@ def build_forward_stages(cube, proc: dict):
                  "one reference depression each (README, steep depression)")
     for line in method_budget_warnings(plan, proc, len(subswaths or ()), left_m):   # where the method cannot hold
         log.warning(line)
+    geo["range_error_m"] = method_range_error_m(plan, proc, len(subswaths or ()), left_m)
     m_ref = int(round((geo["t_ref_s"] - cube.slow_time_s[0]) * cube.radar["prf_hz"]))
     geo["calibration"] = calibration_for_cube(cube, proc.get("monopulse_calibration", "auto"),
                                               t_ref_index=min(max(m_ref, 0), cube.n_pulses - 1),

@@ -11,57 +11,76 @@ its Doppler; the residual f - 2 v . u / lambda over the cells measures the veloc
 lines of sight, and with the acceleration along them the offset d.
 
 Only cells whose direction the Doppler resolves are used: near the flight axis the Doppler of the beam
-is flat in angle (a forward-looking radar's blind zone), cells mix targets across the beam and their
-monopulse angle no longer belongs to their Doppler.  A cell counts where the beam's Doppler span,
-2 |v| cos(phi) |sin(theta)| x beamwidth / lambda, covers at least ``MIN_SPAN_RESOLUTIONS`` Doppler
-resolution cells (prf / cpi).  The estimate is the median over CPIs of each CPI's median residual
-(cells within a CPI share targets and are not independent; CPIs are), its uncertainty 1.25 x the
-CPIs' MAD-sigma / sqrt(CPIs) (the median's efficiency for Gaussian spread).
+is flat in angle (a forward-looking radar's blind zone), and two scatterers in one Doppler resolution
+cell (prf / cpi, an angle (prf / cpi) / |df/dtheta| wide) read at their mean angle and mean Doppler,
+which the curvature of f = F cos(theta) (F = 2 |v| cos(phi) / lambda) puts up to
+(prf / cpi)^2 / (8 F sin^2 theta) low.  A cell counts where that bound is at most ``MAX_BLEND_HZ``.
+On each side of the flight axis the median over its CPIs of each CPI's median residual (cells within a
+CPI share targets and are not independent; CPIs are), with its sigma 1.25 x the CPIs' MAD-sigma /
+sqrt(CPIs) (the median's efficiency for Gaussian spread); the two sides are solved for the offset
+common to both and a pointing error, which changes sign across the axis (:func:`echo_navigation_check`).
 
 What it cannot tell apart: a velocity bias and a time-tag offset read alike along the lines of sight
 (a d against a velocity error); the navigation's own checks tell the first from the second (a bias
-makes the velocities disagree with the positions, a common offset does not).  A pointing error of the
-whole antenna moves the monopulse angles and reads as a residual that changes sign across the flight
-axis (sin theta), not as an offset common to both sides; the estimate is the median over both sides.
-Without acceleration along the lines of sight an offset is a fixed shift of the track, which no echo
-shows (``delay_s`` is then None).
+makes the velocities disagree with the positions, a common offset does not).  Without acceleration
+along the lines of sight an offset is a fixed shift of the track, which no echo shows (``delay_s`` is
+then None).  The estimates are what is left after ``processing.navigation_delay_s`` and
+``scan_angle_offset_deg``: the warnings name those settings plus the estimates.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..dsp.geometry import C_MPS, azimuth_at_t_ref
+from ..dsp.pulse import weighting
 from ..io.backing import BLOCK_BYTES
 
-MAX_BLEND_HZ = 2.0      # the beam's Doppler span, in Doppler resolution cells, for a cell to count
+MAX_BLEND_HZ = 2.0              # a cell counts where the blind zone's blend bound is at most this (Hz)
 THRESHOLD_DB = 20.0             # a cell's sum power over its CPI's median (the noise floor), as the image
 SHIFT_WARN_SAMPLES = 0.1       # a delay warned where it moves the targets over this many range samples
 MAX_DWELL_COLUMNS = 128         # range columns a dwell-imaging chain computes CPI spectra on for the check
 MIN_CPIS = 5                    # CPIs with counted cells needed for an estimate
 
 
-def _peaks(z, threshold_db: float):
-    """The Doppler peaks of a block of CPI spectra ``z`` [cpi, doppler, range] over ``threshold_db`` of
-    each CPI's noise floor: (CPI in the block, Doppler cell, range cell, the sum sample, the power of
-    the cell below, the cell, the cell above)."""
+def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_curvature: float, eligible):
+    """The point-like Doppler peaks of a block of CPI spectra ``z`` [cpi, doppler, range]: over
+    ``threshold_db`` of each CPI's noise floor, the largest power within +-``range_cells`` in range (same
+    Doppler cell) and +-``doppler_cells`` in Doppler (same range cell), so that no sidelobe of a stronger
+    echo counts (at steep depression the predicted Doppler moves 3 Hz per metre of range: sidelobe cells
+    4-10 m off a target had read +20 Hz, a review), and with the Doppler curvature of a single
+    scatterer, (2 p0 - p_lo - p_hi) / p0 at least ``min_curvature`` (a blend of scatterers is wider), in
+    range cells ``eligible`` (their +-``range_cells`` neighbours contiguous samples).  Returns (CPI in the block, Doppler cell, range cell, the sum sample, the powers of the Doppler cells
+    below, at and above, and of the range cells before and after)."""
     power = np.abs(z) ** 2
-    n_z = power.shape[1]
+    n_c, n_z, n_r = power.shape
     # the CPI's noise floor: the median of every 11th cell (the 20 dB threshold needs no exact median)
-    floor = np.median(power.reshape(len(power), -1)[:, ::11], axis=1)
+    floor = np.median(power.reshape(n_c, -1)[:, ::11], axis=1)
     flat = np.flatnonzero(power > floor[:, None, None] * np.float32(10.0 ** (threshold_db / 10.0)))
-    jc, rest = np.divmod(flat, power.shape[1] * power.shape[2])
-    iz, ir = np.divmod(rest, power.shape[2])
-    inner = (iz > 0) & (iz < n_z - 1)
+    jc, rest = np.divmod(flat, n_z * n_r)
+    iz, ir = np.divmod(rest, n_r)
+    inner = (iz > 0) & (iz < n_z - 1) & eligible[ir]
     jc, iz, ir = jc[inner], iz[inner], ir[inner]
-    p_lo, p_0, p_hi = power[jc, iz - 1, ir], power[jc, iz, ir], power[jc, iz + 1, ir]
-    peak = (p_0 > p_lo) & (p_0 >= p_hi)                     # local maxima along Doppler
-    jc, iz, ir = jc[peak], iz[peak], ir[peak]
-    return jc, iz, ir, z[jc, iz, ir], p_lo[peak], p_0[peak], p_hi[peak]
+    p_0 = power[jc, iz, ir]
+    # local maxima first (cheap: one neighbour each way), then the wider dominance on those few
+    first = ((p_0 > power[jc, iz - 1, ir]) & (p_0 >= power[jc, iz + 1, ir]) & (p_0 >= power[jc, iz, ir - 1])
+             & (p_0 >= power[jc, iz, ir + 1]))
+    jc, iz, ir, p_0 = jc[first], iz[first], ir[first], p_0[first]
+    keep = np.ones(len(jc), bool)
+    for k in range(2, range_cells + 1):
+        keep &= (p_0 >= power[jc, iz, np.maximum(ir - k, 0)]) & (p_0 >= power[jc, iz, np.minimum(ir + k, n_r - 1)])
+    for k in range(2, doppler_cells + 1):
+        keep &= (p_0 >= power[jc, np.maximum(iz - k, 0), ir]) & (p_0 >= power[jc, np.minimum(iz + k, n_z - 1), ir])
+    jc, iz, ir, p_0 = jc[keep], iz[keep], ir[keep], p_0[keep]
+    p_lo, p_hi = power[jc, iz - 1, ir], power[jc, iz + 1, ir]
+    single = (2.0 * p_0 - p_lo - p_hi) >= min_curvature * p_0
+    jc, iz, ir, p_0, p_lo, p_hi = jc[single], iz[single], ir[single], p_0[single], p_lo[single], p_hi[single]
+    return (jc, iz, ir, z[jc, iz, ir], p_lo, p_0, p_hi, power[jc, iz, ir - 1], power[jc, iz, ir + 1])
 
 
 def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, position_m, range_m, *, fc_hz: float,
                       beamwidth_deg: float, prf_hz: float, cpi: int, offset_of_ratio, diff_gain_db: float = 0.0,
-                      diff_phase_deg: float = 0.0, position_ref_m=None, threshold_db: float = THRESHOLD_DB):
+                      diff_phase_deg: float = 0.0, position_ref_m=None, threshold_db: float = THRESHOLD_DB,
+                      range_resolution_m: float | None = None, window=None, range_error_m: float = 0.0):
     """Per counted cell (the Doppler peaks over ``threshold_db`` of the CPI spectra, module docstring):
     (CPI index, residual Hz, line-of-sight unit vector [n, 3], sine of the azimuth, F = 2 |v| cos(depression)
     / lambda, the Doppler per unit cos(azimuth)).  ``sum_z``, ``diff_z``: [cpi, doppler,
@@ -81,9 +100,32 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
         return empty.astype(np.int64), empty, np.zeros((0, 3)), empty, empty
     # blocks of whole CPIs (a file-backed stage's spectra are read a block at a time: README, out of core)
     per_block = max(1, BLOCK_BYTES // max(1, sum_z[0].nbytes))
-    parts = [_peaks(sum_z[usable[i:i + per_block]], threshold_db) for i in range(0, len(usable), per_block)]
+    step_hz = float(np.median(np.diff(np.asarray(doppler_hz)[:, :2], axis=1)))
+    resolution_hz = prf_hz / cpi
+    gaps = np.diff(np.asarray(range_m, float))
+    spacing_m = float(np.min(gaps)) if len(gaps) else 1.0
+    # a point's first sidelobes lie within 1.5 resolution cells: dominance over 2 of them either way
+    range_cells = int(np.ceil(2.0 * (range_resolution_m or spacing_m) / spacing_m))
+    # range cells whose neighbours are contiguous samples (a dwell chain's strong columns have gaps)
+    run = np.concatenate([[0], np.cumsum(gaps > 1.5 * spacing_m)])
+    idx = np.arange(len(range_m))
+    lo, hi = idx - range_cells, idx + range_cells
+    eligible = (lo >= 0) & (hi < len(range_m))
+    eligible[eligible] &= (run[lo[eligible]] == run[idx[eligible]]) & (run[hi[eligible]] == run[idx[eligible]])
+    doppler_cells = int(np.ceil(2.0 * resolution_hz / step_hz))
+    w = np.ones(cpi) if window is None else np.asarray(window, float)
+    n = np.arange(len(w))
+
+    def response(offset_steps):        # the zoom's power response to one scatterer, offset in cells
+        return abs(np.sum(w * np.exp(2j * np.pi * offset_steps * step_hz * n / prf_hz))) ** 2
+    # a single scatterer's curvature 2 - (W(d - 1) + W(d + 1)) / W(d) at its least, half a cell off
+    # (0.84 of the centred one for a rectangular window at 4 cells per resolution cell); 0.8 of that
+    min_curvature = 0.8 * (2.0 - (response(-0.5) + response(1.5)) / response(0.5))
+    parts = [_peaks(sum_z[usable[i:i + per_block]], threshold_db, range_cells=range_cells,
+                    doppler_cells=doppler_cells, min_curvature=min_curvature, eligible=eligible)
+             for i in range(0, len(usable), per_block)]
     jc = np.concatenate([part[0] + i for part, i in zip(parts, range(0, len(usable), per_block))])
-    iz, ir, z_0, p_lo, p_0, p_hi = (np.concatenate([part[k] for part in parts]) for k in range(1, 7))
+    iz, ir, z_0, p_lo, p_0, p_hi, r_lo, r_hi = (np.concatenate([part[k] for part in parts]) for k in range(1, 9))
     ic = usable[jc]
     ratio = diff_z[ic, iz, ir] / z_0
     if diff_gain_db or diff_phase_deg:     # the calibration's channel imbalance divided out (as the image)
@@ -92,11 +134,15 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
     # the Doppler peak interpolated (parabola through the cell and its neighbours' power)
     curve = p_lo - 2.0 * p_0 + p_hi
     shift = np.where(curve < 0, 0.5 * (p_lo - p_hi) / np.where(curve < 0, curve, -1.0), 0.0)
-    step_hz = doppler_hz[ic, 1] - doppler_hz[ic, 0]
-    f_hz = doppler_hz[ic, iz] + np.clip(shift, -0.5, 0.5) * step_hz
+    cell_step_hz = doppler_hz[ic, 1] - doppler_hz[ic, 0]
+    f_hz = doppler_hz[ic, iz] + np.clip(shift, -0.5, 0.5) * cell_step_hz
     # the ground point at that angle from the CPI's antenna and at the cell's t_ref range (as the image)
     p_ref = position_m[len(position_m) // 2] if position_ref_m is None else np.asarray(position_ref_m, float)
-    _, gx, gy = azimuth_at_t_ref(range_m[ir], angle_deg, position_m[ic], p_ref)
+    # the range peak interpolated too (the predicted Doppler moves with range at steep depression)
+    r_curve = r_lo - 2.0 * p_0 + r_hi
+    r_shift = np.where(r_curve < 0, 0.5 * (r_lo - r_hi) / np.where(r_curve < 0, r_curve, -1.0), 0.0)
+    _, gx, gy = azimuth_at_t_ref(range_m[ir] + np.clip(r_shift, -0.5, 0.5) * spacing_m, angle_deg, position_m[ic],
+                                 p_ref)
     los = np.stack([gx - position_m[ic, 0], gy - position_m[ic, 1], -position_m[ic, 2]], axis=1)
     los /= np.linalg.norm(los, axis=1, keepdims=True)
     v = velocity_mps[ic]
@@ -109,7 +155,14 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
     f_span_hz = 2.0 * speed * np.hypot(los[:, 0], los[:, 1]) / wavelength_m          # F
     sin2 = np.sin(np.radians(angle_deg)) ** 2
     blend_hz = (prf_hz / cpi) ** 2 / (8.0 * f_span_hz * np.maximum(sin2, 1e-12))
-    keep = np.isfinite(predicted_hz) & (blend_hz <= MAX_BLEND_HZ)
+    # a range error moves the predicted Doppler through the depression: df/dR = 2 |v| |cos(theta)|
+    # sin^2(phi) / (cos(phi) lambda R) (4 Hz per metre at 800 m height and 1.7 km; 0.015 at 50 m); where the
+    # method's own budget leaves ``range_error_m`` (over half a range sample), cells it would move by over
+    # MAX_BLEND_HZ do not count (decimation at 800 m: +16 Hz from its range errors, a review)
+    cos_dep = np.hypot(los[:, 0], los[:, 1])
+    dfdr = 2.0 * speed * np.abs(los[:, 1]) * los[:, 2] ** 2 / (np.maximum(cos_dep, 1e-12) ** 2 * wavelength_m
+                                                                * range_m[ir])
+    keep = np.isfinite(predicted_hz) & (blend_hz <= MAX_BLEND_HZ) & (dfdr * range_error_m <= MAX_BLEND_HZ)
     return (ic[keep], (f_hz - predicted_hz)[keep], los[keep], np.sin(np.radians(angle_deg))[keep],
             f_span_hz[keep])
 
@@ -183,7 +236,8 @@ def echo_navigation_check(cpi_index, residual_hz, los, sin_angle, f_span_hz, *, 
 
 
 def echo_navigation_of(spectra, calibration, *, fc_hz: float, beamwidth_deg: float, prf_hz: float, cpi: int,
-                       position_ref_m, speed_mps: float) -> dict:
+                       position_ref_m, speed_mps: float, range_resolution_m: float | None = None,
+                       range_error_m: float = 0.0) -> dict:
     """:func:`echo_navigation_check` of the Doppler stage's output ``spectra`` (both channels) with the
     chain's monopulse ``calibration`` (``forward/calibration.py``); the acceleration is the CPIs' velocity
     slope (least squares over the CPI times)."""
@@ -195,14 +249,19 @@ def echo_navigation_of(spectra, calibration, *, fc_hz: float, beamwidth_deg: flo
                               np.asarray(spectra["range_m"]), fc_hz=fc_hz, beamwidth_deg=beamwidth_deg,
                               prf_hz=prf_hz, cpi=cpi, offset_of_ratio=calibration.offset_deg,
                               diff_gain_db=calibration.diff_gain_db, diff_phase_deg=calibration.diff_phase_deg,
-                              position_ref_m=position_ref_m)
+                              position_ref_m=position_ref_m, range_resolution_m=range_resolution_m,
+                              window=weighting(spectra.attrs.get("doppler_window", "none"), cpi),
+                              range_error_m=range_error_m)
     return echo_navigation_check(*cells, fc_hz=fc_hz, accel_mps2=accel, speed_mps=speed_mps)
 
 
-def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_deg: float) -> list[str]:
+def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_deg: float,
+                             delay_set_s: float = 0.0, scan_offset_set_deg: float = 0.0) -> list[str]:
     """The warnings of :func:`echo_navigation_check`'s result: a navigation offset that moves the targets
-    over half a range sample, and a pointing error over the image's angle step, each only where it
-    stands out of the estimate's noise (3 sigma) and, for the offset, of the blind zone's bound."""
+    over ``SHIFT_WARN_SAMPLES`` of a range sample, and a pointing error over the image's angle step, each
+    only where it stands out of the estimate's noise (3 sigma) and, for the offset, of the blind zone's
+    bound.  The estimates are what the settings in force (``delay_set_s``, ``scan_offset_set_deg``) left:
+    each warning names the setting plus the estimate."""
     out = []
     if check.get("doppler_offset_hz") is None:
         return out
@@ -213,25 +272,34 @@ def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_
             f"the echoes' Doppler sits {off:+.1f} +- {sig:.1f} Hz from the navigation's at their monopulse angles "
             f"({check['cells']} cells in {check['cpis']} CPIs): the track's velocity is "
             f"{check['velocity_error_mps']:+.3f} m/s off along the lines of sight; a navigation lagging the radar by "
-            f"{check['delay_s'] * 1e3:.2f} +- {check['sigma_delay_s'] * 1e3:.2f} ms reads so (acceleration "
+            f"{check['delay_s'] * 1e3:.2f} +- {check['sigma_delay_s'] * 1e3:.2f} ms more reads so (acceleration "
             f"{check['accel_los_mps2']:.1f} m/s^2 along them) and moves the targets about {check['shift_m']:.2f} m: "
             f"where the navigation agrees with itself, set processing.navigation_delay_s: "
-            f"{check['delay_s'] + 0.0:.5f} (README, The echoes against the navigation)")
+            f"{delay_set_s + check['delay_s']:.5f} (README, The echoes against the navigation)")
     point = check.get("pointing_error_deg")
     if point is not None and abs(point) > max(3.0 * check["sigma_pointing_deg"], angle_step_deg):
         out.append(
             f"the echoes' Doppler agrees with their monopulse angles only with the scan angles moved by "
-            f"{-point:+.3f} +- {check['sigma_pointing_deg']:.3f} deg: a pointing error of the antenna (or scan "
+            f"{-point:+.3f} +- {check['sigma_pointing_deg']:.3f} deg more: a pointing error of the antenna (or scan "
             f"angles recorded that far off) puts the targets that far off in azimuth: set "
-            f"processing.scan_angle_offset_deg: {point:.4f} (README, The echoes against the navigation)")
+            f"processing.scan_angle_offset_deg: {scan_offset_set_deg + point:.4f} (README, The echoes against "
+            f"the navigation)")
     return out
 
 
-def strong_columns(compensated, max_columns: int = MAX_DWELL_COLUMNS, over_db: float = 10.0) -> np.ndarray:
+def echo_margin_cells(range_m, range_resolution_m: float) -> int:
+    """The range samples either side a counted cell's dominance test reads (:func:`_peaks`), plus one."""
+    spacing_m = float(np.min(np.diff(np.asarray(range_m, float)))) if len(range_m) > 1 else range_resolution_m
+    return int(np.ceil(2.0 * range_resolution_m / spacing_m)) + 1
+
+
+def strong_columns(compensated, max_columns: int = MAX_DWELL_COLUMNS, over_db: float = 10.0,
+                   margin: int = 0) -> np.ndarray:
     """The range columns of the motion-compensated data (``range_curvature``'s output) whose sum-channel
-    energy is ``over_db`` over the median column's, the strongest ``max_columns`` of them, in range
-    order: where a dwell-imaging chain, which forms no CPI spectra, has its echoes' spectra computed
-    for this check (``run_metrics.column_spectra``).  Read in blocks of pulses."""
+    energy is ``over_db`` over the median column's, the strongest ``max_columns`` of them, each with
+    ``margin`` columns either side (the peak tests' neighbours), in range order: where a dwell-imaging
+    chain, which forms no CPI spectra, has its echoes' spectra computed for this check
+    (``run_metrics.column_spectra``).  Read in blocks of pulses."""
     x = compensated["sum"]
     rows = max(1, BLOCK_BYTES // max(1, x[0].nbytes))
     energy = np.zeros(x.shape[1])
@@ -239,4 +307,6 @@ def strong_columns(compensated, max_columns: int = MAX_DWELL_COLUMNS, over_db: f
         block = np.asarray(x[i:i + rows])
         energy += np.einsum("ij,ij->j", block.real, block.real) + np.einsum("ij,ij->j", block.imag, block.imag)
     strong = np.flatnonzero(energy >= np.median(energy) * 10.0 ** (over_db / 10.0))
-    return np.sort(strong[np.argsort(energy[strong])[::-1][:max_columns]])
+    strong = strong[np.argsort(energy[strong])[::-1][:max_columns]]
+    wide = (strong[:, None] + np.arange(-margin, margin + 1)[None, :]).ravel()
+    return np.unique(wide[(wide >= 0) & (wide < x.shape[1])])

@@ -169,6 +169,25 @@ def plan_for_cube(cube, proc: dict, q_candidates=None) -> dict:
     return out
 
 
+def method_range_error_m(plan: dict, proc: dict, subswaths: int = 0, subswath_error_m: float = 0.0) -> float:
+    """The largest range error the plan's budget leaves the method that runs where it misses half a range
+    sample (the lines of :func:`method_budget_warnings`), else 0: what a cell's range may be off by in
+    the stages after the keystone (the echoes' check, ``forward/echo_navigation.py``, reads it)."""
+    method = proc["method"]
+    q = int(proc.get("q", 1)) if method == "decimation" else 1
+    row = next(r for r in plan["decimation"] if r["q"] == q)
+    residual = {"none": plan["range_walk_m"], "bulk": plan["bulk_residual_walk_m"], "traditional": row["residual_walk_m"],
+                "decimation": row["residual_walk_m"]}.get(method) or 0.0
+    if method == "none":
+        dep = 0.0
+    elif subswaths:
+        dep = subswath_error_m
+    else:
+        dep = {"bulk": plan["one_depression"]["shift"], "beam": plan["one_depression"]["shift"],
+               "tracking": plan["one_depression"]["keystone"]}.get(method, row["one_depression"])["error_m"]
+    return float(max((e for e in (residual, dep) if e > plan["half_range_cell_m"]), default=0.0))
+
+
 def method_budget_warnings(plan: dict, proc: dict, subswaths: int = 0, subswath_error_m: float = 0.0) -> list[str]:
     """What the plan's budget (:func:`plan_for_cube` with the run's Q among its candidates) says of the
     method that runs, where it misses half a range sample: the residual walk of ``none``, ``bulk``,

@@ -13,6 +13,7 @@ from .. import __version__
 from ..scenario.loader import dump_scenario, scenario_hash
 from ..dsp import spawner
 from ..dsp.blas import on_one_blas_thread, worker_threads
+from ..dsp.geometry import C_MPS
 from ..errors import BadInput
 from ..io.h5 import GzipChunks, atomic_h5, atomic_write_text, json_text, put_scale, put_sparse_gzip, set_attrs
 from ..io import backing, pending, signals
@@ -268,12 +269,13 @@ def _start_quicklook(run_dir, final, truth, scn, proc, geo):
                                  f"{proc['keystone']}), t_ref = {proc['t_ref']}", markers=markers)
 
 
-def _strong_column_spectra(compensated, geo):
+def _strong_column_spectra(compensated, geo, bandwidth_hz: float):
     """Both channels' CPI spectra on the compensated data's strongest range columns (imaging: dwell)."""
-    from .echo_navigation import strong_columns
+    from .echo_navigation import echo_margin_cells, strong_columns
     from .run_metrics import column_spectra
 
-    return column_spectra(compensated, geo["doppler_params"], strong_columns(compensated), channels=("sum", "diff"))
+    return column_spectra(compensated, geo["doppler_params"], strong_columns(compensated, margin=echo_margin_cells(
+        compensated["range_m"], C_MPS / (2.0 * bandwidth_hz))), channels=("sum", "diff"))
 
 
 def _echo_navigation(spectra, cube, proc, geo) -> dict:
@@ -283,9 +285,13 @@ def _echo_navigation(spectra, cube, proc, geo) -> dict:
     check = echo_navigation_of(spectra, geo["calibration"], fc_hz=float(cube.radar["fc_hz"]),
                                beamwidth_deg=float(cube.radar["beamwidth_3db_deg"]), prf_hz=float(cube.radar["prf_hz"]),
                                cpi=int(proc["cpi"]), position_ref_m=geo["p_ref"],
-                               speed_mps=float(np.linalg.norm(geo["v_ref"])))
+                               speed_mps=float(np.linalg.norm(geo["v_ref"])),
+                               range_resolution_m=C_MPS / (2.0 * float(cube.radar["bandwidth_hz"])),
+                               range_error_m=float(geo.get("range_error_m", 0.0)))
     for line in echo_navigation_warnings(check, range_spacing_m=float(cube.range_spacing_m),
-                                         angle_step_deg=float(proc["angle_step_deg"])):
+                                         angle_step_deg=float(proc["angle_step_deg"]),
+                                         delay_set_s=float(proc.get("navigation_delay_s", 0.0)),
+                                         scan_offset_set_deg=float(proc.get("scan_angle_offset_deg", 0.0))):
         log.warning(line)
     return check
 
@@ -317,7 +323,7 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
         echo_nav, spectra_of = _echo_navigation(held[0], cube, proc, geo), held.pop
     elif compensated_of is not None:
         held = [compensated_of()]
-        echo_nav = _echo_navigation(_strong_column_spectra(held[0], geo), cube, proc, geo)
+        echo_nav = _echo_navigation(_strong_column_spectra(held[0], geo, float(cube.radar["bandwidth_hz"])), cube, proc, geo)
         compensated_of = held.pop
     held = None
     rows, islr_from = target_rows(cube, final, proc, geo, spectra_of=spectra_of, compensated_of=compensated_of)

@@ -268,8 +268,8 @@ def delayed_track(slow_time_s, position_m, velocity_mps, delay_s: float) -> tupl
     """(positions, velocities) at radar time t of a navigation that lags the radar by ``delay_s`` (its
     record tagged t holds the platform at t - delay): the records evaluated at t + delay.  Positions by
     cubic Hermite interpolation from the positions and velocities either side, velocities linearly, and
-    beyond the record's ends along the end's constant acceleration (the last two velocities): exact for
-    a constant acceleration, as the paper's platform (Fig. 1)."""
+    beyond the record's ends along the velocities' least-squares line over the end's ``SMOOTHING_S``:
+    exact for a constant acceleration, as the paper's platform (Fig. 1)."""
     t = np.asarray(slow_time_s, dtype=np.float64)
     p = np.asarray(position_m, dtype=np.float64)
     v = np.asarray(velocity_mps, dtype=np.float64)
@@ -285,11 +285,14 @@ def delayed_track(slow_time_s, position_m, velocity_mps, delay_s: float) -> tupl
     vel = (1 - s) * v[k] + s * v[k + 1]
     for end, outside in ((0, tq < t[0]), (len(t) - 1, tq > t[-1])):
         if outside.any():
-            j = 1 if end == 0 else end - 1
-            accel = (v[max(end, j)] - v[min(end, j)]) / (t[max(end, j)] - t[min(end, j)])
+            # the velocities' least-squares line over the end's SMOOTHING_S (at least two pulses): the
+            # last two alone had carried their noise 15 times into 5 ms of extrapolation (a review)
+            near = np.abs(t - t[end]) <= SMOOTHING_S
+            near[[end, 1 if end == 0 else end - 1]] = True
+            slope, at_end = np.polyfit(t[near] - t[end], v[near], 1)
             dt = (tq[outside] - t[end])[:, None]
-            pos[outside] = p[end] + v[end] * dt + 0.5 * accel * dt**2
-            vel[outside] = v[end] + accel * dt
+            pos[outside] = p[end] + at_end * dt + 0.5 * slope * dt**2
+            vel[outside] = at_end + slope * dt
     return pos, vel
 
 
