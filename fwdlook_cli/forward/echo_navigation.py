@@ -6,55 +6,75 @@ positions and the velocities (the navigation lagging the radar by d) passes them
 target by about |v| d.  The echoes can see it where the platform accelerates: the recorded velocity at
 radar time t is then v(t - d) = v(t) - a d, so a point's Doppler 2 v . u / lambda (eq. 2's rate of the
 range history) sits 2 (a . u) d / lambda above what the record predicts.  The monopulse gives each
-strong Doppler cell its own direction u (the chain's angle, ``forward/monopulse.py``), independently of
-its Doppler; the residual f - 2 v . u / lambda over the cells measures the velocity error along the
-lines of sight, and with the acceleration along them the offset d.
+Doppler peak its own direction u (the chain's angle, ``forward/monopulse.py``), independently of its
+Doppler; the residual f - 2 v . u / lambda over the peaks measures the velocity error along the lines
+of sight, and with the acceleration along them the offset d.
 
-Only cells whose direction the Doppler resolves are used: near the flight axis the Doppler of the beam
-is flat in angle (a forward-looking radar's blind zone), and two scatterers in one Doppler resolution
-cell (prf / cpi, an angle (prf / cpi) / |df/dtheta| wide) read at their mean angle and mean Doppler,
-which the curvature of f = F cos(theta) (F = 2 |v| cos(phi) / lambda) puts up to
-(prf / cpi)^2 / (8 F sin^2 theta) low.  A cell counts where that bound is at most ``MAX_BLEND_HZ``.
-On each side of the flight axis the median over its CPIs of each CPI's median residual (cells within a
-CPI share targets and are not independent; CPIs are), with its sigma 1.25 x the CPIs' MAD-sigma /
-sqrt(CPIs) (the median's efficiency for Gaussian spread); the two sides are solved for the offset
-common to both and a pointing error, which changes sign across the axis (:func:`echo_navigation_check`).
+Only point-like peaks count (:func:`_peaks`: no sidelobe of a stronger echo, a single scatterer's
+Doppler width), and only where the Doppler resolves their direction.  Near the flight axis (the
+horizontal velocity's azimuth) the beam's Doppler is flat in angle, and two scatterers in one Doppler
+resolution cell (prf / cpi, an angle (prf / cpi) / |df/dpsi| wide) read at their mean angle and mean
+Doppler, which the curvature of f = F cos(psi) (psi from the flight axis, F = 2 |v| cos(phi) / lambda)
+puts up to (prf / cpi)^2 / (8 F sin^2 psi) low: a cell counts where that bound is at most
+``MAX_BLEND_HZ``.  Where the method's budget leaves range errors, cells whose predicted Doppler they
+would move by more do not count either.  On each side of the flight axis the median over its CPIs of
+each CPI's median residual (cells within a CPI share targets and are not independent; CPIs are), with
+its sigma 1.25 x the CPIs' MAD-sigma / sqrt(CPIs) (the median's efficiency for Gaussian spread); the
+two sides are solved for the offset common to both and a pointing error, which changes sign across
+the axis (:func:`echo_navigation_check`).
 
 What it cannot tell apart: a velocity bias and a time-tag offset read alike along the lines of sight
 (a d against a velocity error); the navigation's own checks tell the first from the second (a bias
-makes the velocities disagree with the positions, a common offset does not).  Without acceleration
-along the lines of sight an offset is a fixed shift of the track, which no echo shows (``delay_s`` is
-then None).  The estimates are what is left after ``processing.navigation_delay_s`` and
-``scan_angle_offset_deg``: the warnings name those settings plus the estimates.
+makes the velocities disagree with the positions, a common offset does not).  With the counted echoes
+on one side of the flight axis only, a pointing error reads as an offset too (the warning says both).
+Without acceleration along the lines of sight an offset is a fixed shift of the track, which no echo
+shows (``delay_s`` is then None).  The estimates are what is left after ``processing.navigation_delay_s``
+and ``scan_angle_offset_deg``: the warnings name those settings plus the estimates.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
 from ..dsp.geometry import C_MPS, azimuth_at_t_ref
+from ..dsp.imaging import median_sample_stride
+from ..dsp.profile_rows import parabola_vertex_rows
 from ..dsp.pulse import weighting
 from ..io.backing import BLOCK_BYTES
 
 MAX_BLEND_HZ = 2.0              # a cell counts where the blind zone's blend bound is at most this (Hz)
-THRESHOLD_DB = 20.0             # a cell's sum power over its CPI's median (the noise floor), as the image
-SHIFT_WARN_SAMPLES = 0.1       # a delay warned where it moves the targets over this many range samples
+THRESHOLD_DB = 20.0             # a peak's sum power over its CPI's median: its Doppler and angle need SNR
+SHIFT_WARN_SAMPLES = 0.1        # a delay warned where it moves the targets over this many range samples
 MAX_DWELL_COLUMNS = 128         # range columns a dwell-imaging chain computes CPI spectra on for the check
-MIN_CPIS = 5                    # CPIs with counted cells needed for an estimate
+MIN_SIDE_CPIS = 5               # CPIs with counted cells a side of the flight axis needs to count
+MAX_DELAY_S = 1.0               # processing.navigation_delay_s's range (scenario/forward.py)
+
+
+class Cells(NamedTuple):
+    """The counted cells of :func:`cell_residuals_hz`."""
+    cpi: np.ndarray             # CPI index
+    residual_hz: np.ndarray     # measured Doppler less 2 v . u / lambda
+    los: np.ndarray             # [n, 3] line-of-sight unit vectors
+    sin_psi: np.ndarray         # sine of the azimuth from the flight axis
+    f_span_hz: np.ndarray       # F = 2 |v_h| cos(depression) / lambda: the Doppler per unit cos(psi)
 
 
 def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_curvature: float, eligible):
     """The point-like Doppler peaks of a block of CPI spectra ``z`` [cpi, doppler, range]: over
     ``threshold_db`` of each CPI's noise floor, the largest power within +-``range_cells`` in range (same
     Doppler cell) and +-``doppler_cells`` in Doppler (same range cell), so that no sidelobe of a stronger
-    echo counts (at steep depression the predicted Doppler moves 3 Hz per metre of range: sidelobe cells
+    echo counts (at 800 m height the predicted Doppler moves 4-5 Hz per metre of range: sidelobe cells
     4-10 m off a target had read +20 Hz, a review), and with the Doppler curvature of a single
     scatterer, (2 p0 - p_lo - p_hi) / p0 at least ``min_curvature`` (a blend of scatterers is wider), in
-    range cells ``eligible`` (their +-``range_cells`` neighbours contiguous samples).  Returns (CPI in the block, Doppler cell, range cell, the sum sample, the powers of the Doppler cells
-    below, at and above, and of the range cells before and after)."""
+    range cells ``eligible`` (their +-``range_cells`` neighbours contiguous samples).  Returns (CPI in
+    the block, Doppler cell, range cell, the sum sample, the powers of the Doppler cells below, at and
+    above, and of the range cells before and after)."""
     power = np.abs(z) ** 2
     n_c, n_z, n_r = power.shape
-    # the CPI's noise floor: the median of every 11th cell (the 20 dB threshold needs no exact median)
-    floor = np.median(power.reshape(n_c, -1)[:, ::11], axis=1)
+    # the CPI's noise floor: the median of a strided sample (the image's stride, sharing no factor with
+    # the range cells, dsp/imaging.py; the threshold needs no exact median)
+    floor = np.median(power.reshape(n_c, -1)[:, ::median_sample_stride(n_r)], axis=1)
     flat = np.flatnonzero(power > floor[:, None, None] * np.float32(10.0 ** (threshold_db / 10.0)))
     jc, rest = np.divmod(flat, n_z * n_r)
     iz, ir = np.divmod(rest, n_r)
@@ -77,94 +97,103 @@ def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_
     return (jc, iz, ir, z[jc, iz, ir], p_lo, p_0, p_hi, power[jc, iz, ir - 1], power[jc, iz, ir + 1])
 
 
+def single_scatterer_curvature(window, step_hz: float, prf_hz: float) -> float:
+    """The least Doppler curvature 2 - (W(d - 1) + W(d + 1)) / W(d) of one scatterer in the zoom of
+    ``window`` (the CPI's slow-time weights at ``prf_hz``) sampled every ``step_hz``: half a cell off
+    (0.93 of the centred one for a rectangular window at 4 cells per resolution cell)."""
+    w = np.asarray(window, dtype=np.float64)
+    n = np.arange(len(w))
+
+    def response(offset_cells):            # the zoom's power response to one scatterer, offset in cells
+        return abs(np.sum(w * np.exp(2j * np.pi * offset_cells * step_hz * n / prf_hz))) ** 2
+
+    return float(2.0 - (response(-0.5) + response(1.5)) / response(0.5))
+
+
+def _eligible_ranges(range_m, range_cells: int) -> np.ndarray:
+    """Range cells whose +-``range_cells`` neighbours are contiguous samples (a dwell chain's strong
+    columns have gaps between their windows)."""
+    gaps = np.diff(np.asarray(range_m, dtype=np.float64))
+    spacing_m = float(np.min(gaps)) if len(gaps) else 1.0
+    run = np.concatenate([[0], np.cumsum(gaps > 1.5 * spacing_m)])
+    idx = np.arange(len(range_m))
+    lo, hi = np.clip(idx - range_cells, 0, len(idx) - 1), np.clip(idx + range_cells, 0, len(idx) - 1)
+    return (idx - range_cells >= 0) & (idx + range_cells < len(idx)) & (run[lo] == run) & (run[hi] == run)
+
+
+def flight_azimuth_deg(velocity_mps) -> np.ndarray:
+    """Azimuth (deg, from +y towards +x) of each horizontal velocity [..., 3]: the flight axis."""
+    v = np.asarray(velocity_mps, dtype=np.float64)
+    return np.degrees(np.arctan2(v[..., 0], v[..., 1]))
+
+
 def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, position_m, range_m, *, fc_hz: float,
                       beamwidth_deg: float, prf_hz: float, cpi: int, offset_of_ratio, diff_gain_db: float = 0.0,
                       diff_phase_deg: float = 0.0, position_ref_m=None, threshold_db: float = THRESHOLD_DB,
-                      range_resolution_m: float | None = None, window=None, range_error_m: float = 0.0):
-    """Per counted cell (the Doppler peaks over ``threshold_db`` of the CPI spectra, module docstring):
-    (CPI index, residual Hz, line-of-sight unit vector [n, 3], sine of the azimuth, F = 2 |v| cos(depression)
-    / lambda, the Doppler per unit cos(azimuth)).  ``sum_z``, ``diff_z``: [cpi, doppler,
-    range] spectra of the Doppler stage with ``doppler_hz`` [cpi, doppler] their true Doppler;
-    ``beam_deg``, ``velocity_mps``, ``position_m``: the CPIs' mean beam angle, velocity and antenna
-    position; ``range_m``: the spectra's slant ranges at t_ref (``position_ref_m``, the antenna there);
-    ``offset_of_ratio``: the calibration's inverse ratio curve (degrees from the beam axis)."""
+                      range_resolution_m: float | None = None, window=None, range_error_m: float = 0.0) -> Cells:
+    """The counted cells (module docstring).  ``sum_z``, ``diff_z``: [cpi, doppler, range] spectra of the
+    Doppler stage with ``doppler_hz`` [cpi, doppler] their true Doppler; ``beam_deg``,
+    ``velocity_mps``, ``position_m``: the CPIs' mean beam angle, velocity and antenna position;
+    ``range_m``: the spectra's slant ranges at t_ref (``position_ref_m``, the antenna there);
+    ``offset_of_ratio``: the calibration's inverse ratio curve (degrees from the beam axis), offsets
+    beyond half a beamwidth not counted (as the image projects them); ``window``: the CPI's slow-time
+    weights (rectangular where None); ``range_error_m``: the range error the method's budget leaves
+    (``plan.method_range_error_m``)."""
     wavelength_m = C_MPS / fc_hz
-    # only CPIs whose beam reaches angles that can count (the bound below at the beam's outer edge, the
-    # largest offset the image projects, half a beamwidth, and the CPI's largest F = 2 |v| / lambda)
-    edge = np.abs(np.asarray(beam_deg, float)) + 0.5 * beamwidth_deg
-    f_top_hz = 2.0 * np.linalg.norm(velocity_mps, axis=1) / wavelength_m
-    usable = np.flatnonzero(np.sin(np.radians(np.minimum(edge, 90.0))) ** 2 * 8.0 * f_top_hz * MAX_BLEND_HZ
-                            >= (prf_hz / cpi) ** 2)
+    beam_deg, velocity_mps = np.asarray(beam_deg, float), np.asarray(velocity_mps, float)
+    flight_deg = flight_azimuth_deg(velocity_mps)
+    # only CPIs whose beam reaches angles that can count (the bound below at the beam's outer edge from
+    # the flight axis, half a beamwidth out, and the CPI's largest F = 2 |v_h| / lambda)
+    edge = np.minimum(np.abs(beam_deg - flight_deg) + 0.5 * beamwidth_deg, 90.0)
+    f_top_hz = 2.0 * np.hypot(velocity_mps[:, 0], velocity_mps[:, 1]) / wavelength_m
+    usable = np.flatnonzero(np.sin(np.radians(edge)) ** 2 * 8.0 * f_top_hz * MAX_BLEND_HZ >= (prf_hz / cpi) ** 2)
     if len(usable) == 0:
         empty = np.zeros(0)
-        return empty.astype(np.int64), empty, np.zeros((0, 3)), empty, empty
-    # blocks of whole CPIs (a file-backed stage's spectra are read a block at a time: README, out of core)
-    per_block = max(1, BLOCK_BYTES // max(1, sum_z[0].nbytes))
+        return Cells(empty.astype(np.int64), empty, np.zeros((0, 3)), empty, empty)
     step_hz = float(np.median(np.diff(np.asarray(doppler_hz)[:, :2], axis=1)))
-    resolution_hz = prf_hz / cpi
-    gaps = np.diff(np.asarray(range_m, float))
-    spacing_m = float(np.min(gaps)) if len(gaps) else 1.0
+    spacing_m = float(np.min(np.diff(np.asarray(range_m, float)))) if len(range_m) > 1 else 1.0
     # a point's first sidelobes lie within 1.5 resolution cells: dominance over 2 of them either way
     range_cells = int(np.ceil(2.0 * (range_resolution_m or spacing_m) / spacing_m))
-    # range cells whose neighbours are contiguous samples (a dwell chain's strong columns have gaps)
-    run = np.concatenate([[0], np.cumsum(gaps > 1.5 * spacing_m)])
-    idx = np.arange(len(range_m))
-    lo, hi = idx - range_cells, idx + range_cells
-    eligible = (lo >= 0) & (hi < len(range_m))
-    eligible[eligible] &= (run[lo[eligible]] == run[idx[eligible]]) & (run[hi[eligible]] == run[idx[eligible]])
-    doppler_cells = int(np.ceil(2.0 * resolution_hz / step_hz))
-    w = np.ones(cpi) if window is None else np.asarray(window, float)
-    n = np.arange(len(w))
-
-    def response(offset_steps):        # the zoom's power response to one scatterer, offset in cells
-        return abs(np.sum(w * np.exp(2j * np.pi * offset_steps * step_hz * n / prf_hz))) ** 2
-    # a single scatterer's curvature 2 - (W(d - 1) + W(d + 1)) / W(d) at its least, half a cell off
-    # (0.84 of the centred one for a rectangular window at 4 cells per resolution cell); 0.8 of that
-    min_curvature = 0.8 * (2.0 - (response(-0.5) + response(1.5)) / response(0.5))
+    doppler_cells = int(np.ceil(2.0 * (prf_hz / cpi) / step_hz))
+    min_curvature = 0.8 * single_scatterer_curvature(np.ones(cpi) if window is None else window, step_hz, prf_hz)
+    eligible = _eligible_ranges(range_m, range_cells)
+    # blocks of whole CPIs (a file-backed stage's spectra are read a block at a time: README, out of core)
+    per_block = max(1, BLOCK_BYTES // max(1, sum_z[0].nbytes))
+    starts = range(0, len(usable), per_block)
     parts = [_peaks(sum_z[usable[i:i + per_block]], threshold_db, range_cells=range_cells,
-                    doppler_cells=doppler_cells, min_curvature=min_curvature, eligible=eligible)
-             for i in range(0, len(usable), per_block)]
-    jc = np.concatenate([part[0] + i for part, i in zip(parts, range(0, len(usable), per_block))])
+                    doppler_cells=doppler_cells, min_curvature=min_curvature, eligible=eligible) for i in starts]
+    jc = np.concatenate([part[0] + i for part, i in zip(parts, starts)])
     iz, ir, z_0, p_lo, p_0, p_hi, r_lo, r_hi = (np.concatenate([part[k] for part in parts]) for k in range(1, 9))
     ic = usable[jc]
     ratio = diff_z[ic, iz, ir] / z_0
     if diff_gain_db or diff_phase_deg:     # the calibration's channel imbalance divided out (as the image)
         ratio = ratio / (10.0 ** (diff_gain_db / 20.0) * np.exp(1j * np.radians(diff_phase_deg)))
-    angle_deg = beam_deg[ic] + offset_of_ratio(np.real(ratio))
-    # the Doppler peak interpolated (parabola through the cell and its neighbours' power)
-    curve = p_lo - 2.0 * p_0 + p_hi
-    shift = np.where(curve < 0, 0.5 * (p_lo - p_hi) / np.where(curve < 0, curve, -1.0), 0.0)
-    cell_step_hz = doppler_hz[ic, 1] - doppler_hz[ic, 0]
-    f_hz = doppler_hz[ic, iz] + np.clip(shift, -0.5, 0.5) * cell_step_hz
+    offset_deg = offset_of_ratio(np.real(ratio))
+    angle_deg = beam_deg[ic] + offset_deg
+    # the Doppler and range peaks interpolated (parabolas through the powers; the predicted Doppler
+    # moves with range at steep depression)
+    f_hz = doppler_hz[ic, iz] + parabola_vertex_rows(p_lo, p_0, p_hi)[0] * (doppler_hz[ic, 1] - doppler_hz[ic, 0])
+    r_m = range_m[ir] + parabola_vertex_rows(r_lo, p_0, r_hi)[0] * spacing_m
     # the ground point at that angle from the CPI's antenna and at the cell's t_ref range (as the image)
     p_ref = position_m[len(position_m) // 2] if position_ref_m is None else np.asarray(position_ref_m, float)
-    # the range peak interpolated too (the predicted Doppler moves with range at steep depression)
-    r_curve = r_lo - 2.0 * p_0 + r_hi
-    r_shift = np.where(r_curve < 0, 0.5 * (r_lo - r_hi) / np.where(r_curve < 0, r_curve, -1.0), 0.0)
-    _, gx, gy = azimuth_at_t_ref(range_m[ir] + np.clip(r_shift, -0.5, 0.5) * spacing_m, angle_deg, position_m[ic],
-                                 p_ref)
+    _, gx, gy = azimuth_at_t_ref(r_m, angle_deg, position_m[ic], p_ref)
     los = np.stack([gx - position_m[ic, 0], gy - position_m[ic, 1], -position_m[ic, 2]], axis=1)
     los /= np.linalg.norm(los, axis=1, keepdims=True)
     v = velocity_mps[ic]
     predicted_hz = 2.0 * np.einsum("ij,ij->i", v, los) / wavelength_m
-    # the Doppler blind zone: two scatterers in one Doppler resolution cell (prf / cpi, an angle
-    # (prf / cpi) / |df/dtheta| wide) read at their mean angle and mean Doppler, and f = F cos(theta) is
-    # curved, so such a cell reads F cos(theta) (1 - cos(width / 2)) ~ (prf / cpi)^2 / (8 F sin^2 theta)
-    # low; a cell counts where that bound is at most MAX_BLEND_HZ
-    speed = np.linalg.norm(v, axis=1)
-    f_span_hz = 2.0 * speed * np.hypot(los[:, 0], los[:, 1]) / wavelength_m          # F
-    sin2 = np.sin(np.radians(angle_deg)) ** 2
-    blend_hz = (prf_hz / cpi) ** 2 / (8.0 * f_span_hz * np.maximum(sin2, 1e-12))
-    # a range error moves the predicted Doppler through the depression: df/dR = 2 |v| |cos(theta)|
-    # sin^2(phi) / (cos(phi) lambda R) (4 Hz per metre at 800 m height and 1.7 km; 0.015 at 50 m); where the
-    # method's own budget leaves ``range_error_m`` (over half a range sample), cells it would move by over
-    # MAX_BLEND_HZ do not count (decimation at 800 m: +16 Hz from its range errors, a review)
+    # the blind zone (module docstring): the blend bound (prf / cpi)^2 / (8 F sin^2 psi) at most MAX_BLEND_HZ
+    psi = np.radians(angle_deg - flight_deg[ic])
     cos_dep = np.hypot(los[:, 0], los[:, 1])
-    dfdr = 2.0 * speed * np.abs(los[:, 1]) * los[:, 2] ** 2 / (np.maximum(cos_dep, 1e-12) ** 2 * wavelength_m
-                                                                * range_m[ir])
-    keep = np.isfinite(predicted_hz) & (blend_hz <= MAX_BLEND_HZ) & (dfdr * range_error_m <= MAX_BLEND_HZ)
-    return (ic[keep], (f_hz - predicted_hz)[keep], los[keep], np.sin(np.radians(angle_deg))[keep],
-            f_span_hz[keep])
+    f_span_hz = 2.0 * np.hypot(v[:, 0], v[:, 1]) * cos_dep / wavelength_m
+    blend_hz = (prf_hz / cpi) ** 2 / (8.0 * f_span_hz * np.maximum(np.sin(psi) ** 2, 1e-12))
+    # a range error moves the predicted Doppler through the depression: df/dR = F |cos(psi)| tan^2(phi) / R
+    # (= 2 |v| |cos psi| sin^2 phi / (cos phi lambda R): 4.3-5.1 Hz per metre at 800 m height, 1.7 km and
+    # 240-290 m/s; 0.015 at 50 m); where the method's budget leaves ``range_error_m``, cells it would move
+    # by over MAX_BLEND_HZ do not count (decimation at 800 m: +16 Hz from its range errors, a review)
+    dfdr = f_span_hz * np.abs(np.cos(psi)) * (los[:, 2] / np.maximum(cos_dep, 1e-12)) ** 2 / r_m
+    keep = (np.isfinite(predicted_hz) & (np.abs(offset_deg) <= 0.5 * beamwidth_deg) & (blend_hz <= MAX_BLEND_HZ)
+            & (dfdr * range_error_m <= MAX_BLEND_HZ))
+    return Cells(ic[keep], (f_hz - predicted_hz)[keep], los[keep], np.sin(psi)[keep], f_span_hz[keep])
 
 
 def _group_medians(groups, values):
@@ -176,59 +205,58 @@ def _group_medians(groups, values):
     return 0.5 * (v[first + (count - 1) // 2] + v[first + count // 2])
 
 
-def _side(residual_hz, sin_angle, f_span_hz, cpi_index, mask):
+def _side(cells: Cells, mask):
     """(median over the side's CPIs of each CPI's median residual, its sigma, the CPIs' median of
-    F sin(theta), CPIs)."""
-    if not mask.any():
+    F sin(psi)), or None where the side has fewer than ``MIN_SIDE_CPIS`` CPIs (one CPI's MAD is 0)."""
+    if len(np.unique(cells.cpi[mask])) < MIN_SIDE_CPIS:
         return None
-    per_cpi = _group_medians(cpi_index[mask], residual_hz[mask])
-    lever_cpi = _group_medians(cpi_index[mask], (f_span_hz * sin_angle)[mask])
+    per_cpi = _group_medians(cells.cpi[mask], cells.residual_hz[mask])
+    lever_cpi = _group_medians(cells.cpi[mask], (cells.f_span_hz * cells.sin_psi)[mask])
     med = float(np.median(per_cpi))
     # 1.4826 MAD: the CPIs' sigma; 1.25 / sqrt(n): the median's sigma for Gaussian spread
     sigma = float(1.25 * 1.4826 * np.median(np.abs(per_cpi - med)) / np.sqrt(len(per_cpi)))
-    return med, sigma, float(np.median(lever_cpi)), len(per_cpi)
+    return med, sigma, float(np.median(lever_cpi))
 
 
-def echo_navigation_check(cpi_index, residual_hz, los, sin_angle, f_span_hz, *, fc_hz: float, accel_mps2,
-                          speed_mps: float) -> dict:
+def echo_navigation_check(cells: Cells, *, fc_hz: float, accel_mps2, speed_mps: float,
+                          range_spacing_m: float) -> dict:
     """The estimate of the module docstring from :func:`cell_residuals_hz`'s cells.  Each side of the
-    flight axis gives the median over its CPIs of each CPI's median residual, m_L and m_R, at g_L < 0 <
-    g_R, the CPIs' median of F sin(theta) (F = 2 |v| cos(depression) / lambda).  Scan angles recorded b
-    (rad) towards +x of where the antenna pointed add g b to a side; the navigation's offset c0 adds the
-    same to both: m = c0 + g b on each side, solved for c0 and b (one side alone: c0 its median, no b;
-    ``sides`` says which).  Returns ``doppler_offset_hz`` c0 and ``sigma_hz``; the line-of-sight velocity
-    error ``velocity_error_mps`` = lambda c0 / 2 (positive: the echoes faster than the record) and its
-    sigma; the acceleration along the lines of sight ``accel_los_mps2``; where it makes an offset visible
-    (above the velocity error's sigma per second), ``delay_s`` (the navigation lagging the radar by it:
-    ``processing.navigation_delay_s``), ``sigma_delay_s`` and ``shift_m`` = ``speed_mps`` x delay, how far
-    it moves the targets; with both sides ``pointing_error_deg`` b and its sigma; ``cells``, ``cpis``, and
-    ``blend_bound_hz`` (the blind zone's bound: c0 may read that much low).  ``doppler_offset_hz`` None
-    where fewer than ``MIN_CPIS`` CPIs hold a counted cell."""
+    flight axis with at least ``MIN_SIDE_CPIS`` CPIs gives the median over its CPIs of each CPI's median
+    residual, m_L and m_R, at g_L < 0 < g_R, the CPIs' median of F sin(psi).  Scan angles recorded b (rad)
+    towards +x of where the antenna pointed add g b to a side; the navigation's offset c0 adds the same to
+    both: m = c0 + g b on each side, solved for c0 and b.  With one side, c0 is its median and b cannot be
+    told from it: ``pointing_alternative_deg`` = c0 / g is the b that would read the same.  Returns
+    ``doppler_offset_hz`` c0 and ``sigma_hz``; the line-of-sight velocity error ``velocity_error_mps`` =
+    lambda c0 / 2 (positive: the echoes faster than the record) and its sigma; the acceleration along the
+    lines of sight ``accel_los_mps2``; where it pins the offset to a range sample's worth of shift
+    (``speed_mps`` x its sigma at most ``range_spacing_m``), ``delay_s`` (the navigation lagging the radar
+    by it), ``sigma_delay_s`` and ``shift_m`` = ``speed_mps`` x delay (how far a lag moves the targets);
+    with both sides ``pointing_error_deg`` b and its sigma; ``cells``, ``cpis``, ``sides`` and
+    ``blend_bound_hz`` (c0 may read that much low).  ``doppler_offset_hz`` None where neither side
+    counts."""
     wavelength_m = C_MPS / fc_hz
-    n_cpis = len(np.unique(cpi_index))
-    out = {"cells": int(len(residual_hz)), "cpis": int(n_cpis), "sides": 0, "doppler_offset_hz": None,
-           "sigma_hz": None, "velocity_error_mps": None, "sigma_velocity_mps": None,
+    out = {"cells": int(len(cells.residual_hz)), "cpis": int(len(np.unique(cells.cpi))), "sides": 0,
+           "doppler_offset_hz": None, "sigma_hz": None, "velocity_error_mps": None, "sigma_velocity_mps": None,
            "accel_los_mps2": None, "delay_s": None, "sigma_delay_s": None, "shift_m": None,
-           "pointing_error_deg": None, "sigma_pointing_deg": None, "blend_bound_hz": MAX_BLEND_HZ}
-    if n_cpis < MIN_CPIS:
+           "pointing_error_deg": None, "sigma_pointing_deg": None, "pointing_alternative_deg": None,
+           "blend_bound_hz": MAX_BLEND_HZ}
+    sides = [side for side in (_side(cells, cells.sin_psi < 0), _side(cells, cells.sin_psi > 0)) if side is not None]
+    if not sides:
         return out
-    sides = [side for side in (_side(residual_hz, sin_angle, f_span_hz, cpi_index, sin_angle < 0),
-                               _side(residual_hz, sin_angle, f_span_hz, cpi_index, sin_angle > 0))
-             if side is not None]
-    if len(sides) == 2:           # m = c0 + (F sin(theta)) x pointing error, one equation per side
-        (m_l, sg_l, g_l, _), (m_r, sg_r, g_r, _) = sides
-        point_rad = (m_r - m_l) / (g_r - g_l)
+    if len(sides) == 2:           # m = c0 + (F sin(psi)) x pointing error, one equation per side
+        (m_l, sg_l, g_l), (m_r, sg_r, g_r) = sides
         offset_hz = (m_l * g_r - m_r * g_l) / (g_r - g_l)
         sigma_hz = float(np.hypot(g_r * sg_l, g_l * sg_r) / (g_r - g_l))
-        out["pointing_error_deg"] = float(np.degrees(point_rad))
+        out["pointing_error_deg"] = float(np.degrees((m_r - m_l) / (g_r - g_l)))
         out["sigma_pointing_deg"] = float(np.degrees(np.hypot(sg_l, sg_r) / (g_r - g_l)))
     else:
-        offset_hz, sigma_hz = sides[0][0], sides[0][1]
-    accel_los = float(np.median(los @ np.asarray(accel_mps2, float)))
+        offset_hz, sigma_hz, lever = sides[0]
+        out["pointing_alternative_deg"] = float(np.degrees(offset_hz / lever))
+    accel_los = float(np.median(cells.los @ np.asarray(accel_mps2, float)))
     out.update(sides=len(sides), doppler_offset_hz=float(offset_hz), sigma_hz=sigma_hz,
                velocity_error_mps=wavelength_m * offset_hz / 2.0, sigma_velocity_mps=wavelength_m * sigma_hz / 2.0,
                accel_los_mps2=accel_los)
-    if abs(accel_los) * 1.0 > out["sigma_velocity_mps"]:
+    if accel_los != 0.0 and speed_mps * out["sigma_velocity_mps"] / abs(accel_los) <= range_spacing_m:
         delay = out["velocity_error_mps"] / accel_los
         out.update(delay_s=delay, sigma_delay_s=out["sigma_velocity_mps"] / abs(accel_los),
                    shift_m=abs(speed_mps * delay))
@@ -236,14 +264,20 @@ def echo_navigation_check(cpi_index, residual_hz, los, sin_angle, f_span_hz, *, 
 
 
 def echo_navigation_of(spectra, calibration, *, fc_hz: float, beamwidth_deg: float, prf_hz: float, cpi: int,
-                       position_ref_m, speed_mps: float, range_resolution_m: float | None = None,
-                       range_error_m: float = 0.0) -> dict:
+                       position_ref_m, speed_mps: float, range_spacing_m: float,
+                       range_resolution_m: float | None = None, range_error_m: float = 0.0, track=None) -> dict:
     """:func:`echo_navigation_check` of the Doppler stage's output ``spectra`` (both channels) with the
-    chain's monopulse ``calibration`` (``forward/calibration.py``); the acceleration is the CPIs' velocity
-    slope (least squares over the CPI times)."""
+    chain's monopulse ``calibration`` (``forward/calibration.py``).  The CPIs' velocities are the
+    recorded track's at their centre times where ``track`` (slow time, velocities) is given (the spectra
+    carry the initial velocity for every CPI under ``processing.doppler_centroid: false``), else the
+    spectra's own; the acceleration is their least-squares slope over the CPI times."""
     t_c = np.asarray(spectra["cpi_time_s"], float)
-    vel = np.asarray(spectra["cpi_velocity_mps"], float)
-    accel = (np.polyfit(t_c - t_c.mean(), vel, 1)[0] if len(t_c) >= 2 else np.zeros(3))
+    if track is None:
+        vel = np.asarray(spectra["cpi_velocity_mps"], float)
+    else:
+        t, v = np.asarray(track[0], float), np.asarray(track[1], float)
+        vel = np.stack([np.interp(t_c, t, v[:, k]) for k in range(3)], axis=1)
+    accel = np.polyfit(t_c - t_c.mean(), vel, 1)[0] if len(t_c) >= 2 else np.zeros(3)
     cells = cell_residuals_hz(spectra["sum_z"], spectra["diff_z"], np.asarray(spectra["doppler_hz"]),
                               np.asarray(spectra["cpi_beam_deg"]), vel, np.asarray(spectra["cpi_position_m"]),
                               np.asarray(spectra["range_m"]), fc_hz=fc_hz, beamwidth_deg=beamwidth_deg,
@@ -252,30 +286,40 @@ def echo_navigation_of(spectra, calibration, *, fc_hz: float, beamwidth_deg: flo
                               position_ref_m=position_ref_m, range_resolution_m=range_resolution_m,
                               window=weighting(spectra.attrs.get("doppler_window", "none"), cpi),
                               range_error_m=range_error_m)
-    return echo_navigation_check(*cells, fc_hz=fc_hz, accel_mps2=accel, speed_mps=speed_mps)
+    return echo_navigation_check(cells, fc_hz=fc_hz, accel_mps2=accel, speed_mps=speed_mps,
+                                 range_spacing_m=range_spacing_m)
 
 
 def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_deg: float,
                              delay_set_s: float = 0.0, scan_offset_set_deg: float = 0.0) -> list[str]:
-    """The warnings of :func:`echo_navigation_check`'s result: a navigation offset that moves the targets
-    over ``SHIFT_WARN_SAMPLES`` of a range sample, and a pointing error over the image's angle step, each
-    only where it stands out of the estimate's noise (3 sigma) and, for the offset, of the blind zone's
-    bound.  The estimates are what the settings in force (``delay_set_s``, ``scan_offset_set_deg``) left:
-    each warning names the setting plus the estimate."""
+    """The warnings of :func:`echo_navigation_check`'s result: an offset that would move the targets over
+    ``SHIFT_WARN_SAMPLES`` of a range sample as a lag, and a pointing error over the image's angle step,
+    each only where it stands out of the estimate's noise (3 sigma) and, for the offset, of the blind
+    zone's bound.  The estimates are what the settings in force (``delay_set_s``, ``scan_offset_set_deg``)
+    left: each warning names the setting plus the estimate (a delay only within the setting's range)."""
     out = []
     if check.get("doppler_offset_hz") is None:
         return out
     off, sig = check["doppler_offset_hz"], check["sigma_hz"]
     if (check["delay_s"] is not None and check["shift_m"] > SHIFT_WARN_SAMPLES * range_spacing_m
             and abs(off) > 3.0 * sig + check["blend_bound_hz"]):
-        out.append(
-            f"the echoes' Doppler sits {off:+.1f} +- {sig:.1f} Hz from the navigation's at their monopulse angles "
-            f"({check['cells']} cells in {check['cpis']} CPIs): the track's velocity is "
-            f"{check['velocity_error_mps']:+.3f} m/s off along the lines of sight; a navigation lagging the radar by "
-            f"{check['delay_s'] * 1e3:.2f} +- {check['sigma_delay_s'] * 1e3:.2f} ms more reads so (acceleration "
-            f"{check['accel_los_mps2']:.1f} m/s^2 along them) and moves the targets about {check['shift_m']:.2f} m: "
-            f"where the navigation agrees with itself, set processing.navigation_delay_s: "
-            f"{delay_set_s + check['delay_s']:.5f} (README, The echoes against the navigation)")
+        delay = delay_set_s + check["delay_s"]
+        line = (f"the echoes' Doppler sits {off:+.1f} +- {sig:.1f} Hz from the navigation's at their monopulse angles "
+                f"({check['cells']} cells in {check['cpis']} CPIs): the track's velocity is "
+                f"{check['velocity_error_mps']:+.3f} m/s off along the lines of sight; a navigation lagging the radar "
+                f"by {check['delay_s'] * 1e3:.2f} +- {check['sigma_delay_s'] * 1e3:.2f} ms more reads so (acceleration "
+                f"{check['accel_los_mps2']:.1f} m/s^2 along them) and would move the targets about "
+                f"{check['shift_m']:.2f} m (a velocity bias moves none: the navigation's own checks tell)")
+        if check["sides"] == 1:
+            line += (f"; so would scan angles {check['pointing_alternative_deg']:+.3f} deg off, as the counted echoes "
+                     f"lie on one side of the flight axis only")
+        if abs(delay) <= MAX_DELAY_S:
+            line += (f": where the navigation agrees with itself{' and the pointing is known' if check['sides'] == 1 else ''}, "
+                     f"set processing.navigation_delay_s: {delay:.5f}")
+        if check["sides"] == 1:
+            line += (f"; where the timing is known, processing.scan_angle_offset_deg: "
+                     f"{scan_offset_set_deg + check['pointing_alternative_deg']:.4f}")
+        out.append(line + " (README, The echoes against the navigation)")
     point = check.get("pointing_error_deg")
     if point is not None and abs(point) > max(3.0 * check["sigma_pointing_deg"], angle_step_deg):
         out.append(

@@ -302,12 +302,15 @@ def with_navigation(cube, mode: str, delay_s: float = 0.0, scan_angle_offset_deg
     (:func:`delayed_track`) and the scan angles by -``processing.scan_angle_offset_deg`` (recorded that
     far towards +x of where the antenna pointed), marked in its ``attrs`` so that a cube already given
     them comes back as it is (``fused`` is not idempotent: the chain plans on the cube it built, a review
-    had found the plan blending it a second time)."""
+    had found the plan blending it a second time); a cube moved with other settings is refused
+    (ValueError: a second delay would compound the first, a review)."""
     delay_s, scan_angle_offset_deg = float(delay_s), float(scan_angle_offset_deg)
     mark = {"navigation": mode, "navigation_delay_s": delay_s, "scan_angle_offset_deg": scan_angle_offset_deg}
-    if (mode == "recorded" and delay_s == 0.0 and scan_angle_offset_deg == 0.0) or all(
-            cube.attrs.get(k, 0.0 if k != "navigation" else "recorded") == v for k, v in mark.items()):
+    held = {k: cube.attrs.get(k, 0.0 if k != "navigation" else "recorded") for k in mark}
+    if held == mark:
         return cube
+    if any(k in cube.attrs for k in mark):     # moved once already: a second move would compound the first
+        raise ValueError(f"with_navigation: this cube already holds {held}; give it the recorded cube for {mark}")
     if mode not in NAVIGATION_MODES:
         raise BadInput(f"processing.navigation = {mode!r}; allowed: {', '.join(NAVIGATION_MODES)}")
     p, v = delayed_track(cube.slow_time_s, cube.position_m, cube.velocity_mps, delay_s)
