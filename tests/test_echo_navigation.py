@@ -19,6 +19,7 @@ import pytest
 
 import fwdlook_cli as fw
 from cli_runner import run_cli
+from fwdlook_cli.dsp.blas import on_one_blas_thread
 from fwdlook_cli.dsp.geometry import C_MPS
 from fwdlook_cli.forward.echo_navigation import MAX_BLEND_HZ, MIN_SIDE_CPIS, Cells, echo_navigation_check
 from fwdlook_cli.io.navigation import delayed_track, with_navigation
@@ -187,6 +188,7 @@ def test_the_echoes_measure_a_navigation_lag_and_a_pointing_error(tmp_path, caps
     assert np.sum((image - clean_image) ** 2) < 1e-10 * np.sum(clean_image ** 2)
 
 
+@on_one_blas_thread          # as process_cube runs the chain (an OpenBLAS pool woken here had slowed later tests)
 def _check_of(scn, *, lag_s=0.0, scan_offset_deg=0.0, **processing):
     """The chain run to its Doppler stage on the simulated cube of ``scn`` (its track lagged by ``lag_s``
     in the closed form, its scan angles moved), and ``echo_navigation_of`` with the chain's own inputs."""

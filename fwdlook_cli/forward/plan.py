@@ -169,23 +169,26 @@ def plan_for_cube(cube, proc: dict, q_candidates=None) -> dict:
     return out
 
 
-def method_range_error_m(plan: dict, proc: dict, subswaths: int = 0, subswath_error_m: float = 0.0) -> float:
-    """The largest range error the plan's budget leaves the method that runs where it misses half a range
-    sample (the lines of :func:`method_budget_warnings`), else 0: what a cell's range may be off by in
-    the stages after the keystone (the echoes' check, ``forward/echo_navigation.py``, reads it)."""
+def _method_budget(plan: dict, proc: dict) -> tuple:
+    """(Q, the residual walk the method's budget leaves or None, its one-depression entry or None) of the
+    method that runs (:func:`method_budget_warnings`, :func:`method_range_error_m`)."""
     method = proc["method"]
     q = int(proc.get("q", 1)) if method == "decimation" else 1
     row = next(r for r in plan["decimation"] if r["q"] == q)
     residual = {"none": plan["range_walk_m"], "bulk": plan["bulk_residual_walk_m"], "traditional": row["residual_walk_m"],
-                "decimation": row["residual_walk_m"]}.get(method) or 0.0
-    if method == "none":
-        dep = 0.0
-    elif subswaths:
-        dep = subswath_error_m
-    else:
-        dep = {"bulk": plan["one_depression"]["shift"], "beam": plan["one_depression"]["shift"],
-               "tracking": plan["one_depression"]["keystone"]}.get(method, row["one_depression"])["error_m"]
-    return float(max((e for e in (residual, dep) if e > plan["half_range_cell_m"]), default=0.0))
+                "decimation": row["residual_walk_m"]}.get(method)
+    dep = None if method == "none" else {"bulk": plan["one_depression"]["shift"], "beam": plan["one_depression"]["shift"],
+                                         "tracking": plan["one_depression"]["keystone"]}.get(method, row["one_depression"])
+    return q, residual, dep
+
+
+def method_range_error_m(plan: dict, proc: dict, subswaths: int = 0, subswath_error_m: float = 0.0) -> float:
+    """The largest range error the plan's budget leaves the method that runs where it misses half a range
+    sample (the lines of :func:`method_budget_warnings`), else 0: what a cell's range may be off by in
+    the stages after the keystone (the echoes' check, ``forward/echo_navigation.py``, reads it)."""
+    _, residual, dep = _method_budget(plan, proc)
+    dep_error = 0.0 if dep is None else subswath_error_m if subswaths else dep["error_m"]
+    return float(max((e for e in (residual or 0.0, dep_error) if e > plan["half_range_cell_m"]), default=0.0))
 
 
 def method_budget_warnings(plan: dict, proc: dict, subswaths: int = 0, subswath_error_m: float = 0.0) -> list[str]:
@@ -196,33 +199,27 @@ def method_budget_warnings(plan: dict, proc: dict, subswaths: int = 0, subswath_
     splits the window (``subswaths`` of them, ``forward/subswath.py``) what they still leave.  One line
     each, for the log; an empty list where the method holds."""
     method = proc["method"]
-    q = int(proc.get("q", 1)) if method == "decimation" else 1
     half = plan["half_range_cell_m"]
-    row = next(r for r in plan["decimation"] if r["q"] == q)
+    q, residual, dep = _method_budget(plan, proc)
     out = []
-    residual = {"none": plan["range_walk_m"], "bulk": plan["bulk_residual_walk_m"], "traditional": row["residual_walk_m"],
-                "decimation": row["residual_walk_m"]}.get(method)
     if residual is not None and residual > half:
         what = {"none": "range walk", "bulk": "residual range walk (its shift follows the motion along +y at one "
                 "depression, not each direction's)"}.get(method, "residual range walk (eq. 19-20: one ambiguity number)")
         out.append(f"processing.method {method}" + (f" (Q = {q})" if method == "decimation" else "")
                    + f": the plan's budget leaves up to {residual:.2f} m of {what} against half a range sample "
                    f"{half:.2f} m (`fwdlook plan` gives each method's)")
-    if method != "none" and subswaths:
+    if dep is not None and subswaths:
         if subswath_error_m > half:
             out.append(f"processing.method {method}: even in {subswaths} range sub-swaths, one reference depression "
                        f"each, the window's Doppler across range leaves up to {subswath_error_m:.2f} m of range error "
                        f"against half a range sample {half:.2f} m (README, steep depression)")
-    elif method != "none":
-        dep = {"bulk": plan["one_depression"]["shift"], "beam": plan["one_depression"]["shift"],
-               "tracking": plan["one_depression"]["keystone"]}.get(method, row["one_depression"])
-        if dep["error_m"] > half:
-            out.append(f"processing.method {method}: the boresight Doppler changes by "
-                       f"{plan['doppler_range_spread_hz']:.0f} Hz across the range window, and one reference "
-                       f"depression ({plan['depression_deg']:.1f} deg at {plan['reference_range_m']:.0f} m) leaves "
-                       f"targets outside {dep['span_m'][0]:.0f}-{dep['span_m'][1]:.0f} m (slant) up to "
-                       f"{dep['error_m']:.2f} m off in range against half a range sample {half:.2f} m; "
-                       "processing.subswaths: auto corrects the window in range sub-swaths (README, steep depression)")
+    elif dep is not None and dep["error_m"] > half:
+        out.append(f"processing.method {method}: the boresight Doppler changes by "
+                   f"{plan['doppler_range_spread_hz']:.0f} Hz across the range window, and one reference "
+                   f"depression ({plan['depression_deg']:.1f} deg at {plan['reference_range_m']:.0f} m) leaves "
+                   f"targets outside {dep['span_m'][0]:.0f}-{dep['span_m'][1]:.0f} m (slant) up to "
+                   f"{dep['error_m']:.2f} m off in range against half a range sample {half:.2f} m; "
+                   "processing.subswaths: auto corrects the window in range sub-swaths (README, steep depression)")
     return out
 
 
