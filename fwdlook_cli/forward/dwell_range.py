@@ -21,11 +21,12 @@ from ..dsp.peaks import oversample_range
 from ..io import backing
 
 
-def flight_axis_deg(velocity_mps) -> float:
+def flight_axis_deg(velocity_mps):
     """Azimuth (deg, from +y towards +x) of the horizontal velocity: the flight axis, the mirror axis of
-    the dwell's twins and the joint fit's region."""
+    the dwell's twins and the joint fit's region (a float for one velocity, an array for [..., 3])."""
     v = np.asarray(velocity_mps, dtype=np.float64)
-    return float(np.degrees(np.arctan2(v[0], v[1])))
+    axis = np.degrees(np.arctan2(v[..., 0], v[..., 1]))
+    return float(axis) if v.ndim == 1 else axis
 
 
 def ground_points(range_m, azimuth_deg, position_ref_m):

@@ -42,6 +42,7 @@ from ..dsp.imaging import median_sample_stride
 from ..dsp.profile_rows import parabola_vertex_rows
 from ..dsp.pulse import weighting
 from ..io.backing import BLOCK_BYTES
+from .dwell_range import flight_axis_deg
 
 MAX_BLEND_HZ = 2.0              # a cell counts where the blind zone's blend bound is at most this (Hz)
 THRESHOLD_DB = 20.0             # a peak's sum power over its CPI's median: its Doppler and angle need SNR
@@ -110,6 +111,13 @@ def single_scatterer_curvature(window, step_hz: float, prf_hz: float) -> float:
     return float(2.0 - (response(-0.5) + response(1.5)) / response(0.5))
 
 
+def _range_cells(range_m, range_resolution_m: float | None) -> tuple[float, int]:
+    """(the range samples' spacing, the samples either side a peak must dominate): a point's first
+    sidelobes lie within 1.5 resolution cells, so 2 resolution cells either way."""
+    spacing_m = float(np.min(np.diff(np.asarray(range_m, float)))) if len(range_m) > 1 else 1.0
+    return spacing_m, int(np.ceil(2.0 * (range_resolution_m or spacing_m) / spacing_m))
+
+
 def _eligible_ranges(range_m, range_cells: int) -> np.ndarray:
     """Range cells whose +-``range_cells`` neighbours are contiguous samples (a dwell chain's strong
     columns have gaps between their windows)."""
@@ -121,15 +129,9 @@ def _eligible_ranges(range_m, range_cells: int) -> np.ndarray:
     return (idx - range_cells >= 0) & (idx + range_cells < len(idx)) & (run[lo] == run) & (run[hi] == run)
 
 
-def flight_azimuth_deg(velocity_mps) -> np.ndarray:
-    """Azimuth (deg, from +y towards +x) of each horizontal velocity [..., 3]: the flight axis."""
-    v = np.asarray(velocity_mps, dtype=np.float64)
-    return np.degrees(np.arctan2(v[..., 0], v[..., 1]))
-
-
 def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, position_m, range_m, *, fc_hz: float,
                       beamwidth_deg: float, prf_hz: float, cpi: int, offset_of_ratio, diff_gain_db: float = 0.0,
-                      diff_phase_deg: float = 0.0, position_ref_m=None, threshold_db: float = THRESHOLD_DB,
+                      position_ref_m, diff_phase_deg: float = 0.0, threshold_db: float = THRESHOLD_DB,
                       range_resolution_m: float | None = None, window=None, range_error_m: float = 0.0) -> Cells:
     """The counted cells (module docstring).  ``sum_z``, ``diff_z``: [cpi, doppler, range] spectra of the
     Doppler stage with ``doppler_hz`` [cpi, doppler] their true Doppler; ``beam_deg``,
@@ -141,7 +143,7 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
     (``plan.method_range_error_m``)."""
     wavelength_m = C_MPS / fc_hz
     beam_deg, velocity_mps = np.asarray(beam_deg, float), np.asarray(velocity_mps, float)
-    flight_deg = flight_azimuth_deg(velocity_mps)
+    flight_deg = flight_axis_deg(velocity_mps)
     # only CPIs whose beam reaches angles that can count (the bound below at the beam's outer edge from
     # the flight axis, half a beamwidth out, and the CPI's largest F = 2 |v_h| / lambda)
     edge = np.minimum(np.abs(beam_deg - flight_deg) + 0.5 * beamwidth_deg, 90.0)
@@ -151,9 +153,7 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
         empty = np.zeros(0)
         return Cells(empty.astype(np.int64), empty, np.zeros((0, 3)), empty, empty)
     step_hz = float(np.median(np.diff(np.asarray(doppler_hz)[:, :2], axis=1)))
-    spacing_m = float(np.min(np.diff(np.asarray(range_m, float)))) if len(range_m) > 1 else 1.0
-    # a point's first sidelobes lie within 1.5 resolution cells: dominance over 2 of them either way
-    range_cells = int(np.ceil(2.0 * (range_resolution_m or spacing_m) / spacing_m))
+    spacing_m, range_cells = _range_cells(range_m, range_resolution_m)
     doppler_cells = int(np.ceil(2.0 * (prf_hz / cpi) / step_hz))
     min_curvature = 0.8 * single_scatterer_curvature(np.ones(cpi) if window is None else window, step_hz, prf_hz)
     eligible = _eligible_ranges(range_m, range_cells)
@@ -175,8 +175,7 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
     f_hz = doppler_hz[ic, iz] + parabola_vertex_rows(p_lo, p_0, p_hi)[0] * (doppler_hz[ic, 1] - doppler_hz[ic, 0])
     r_m = range_m[ir] + parabola_vertex_rows(r_lo, p_0, r_hi)[0] * spacing_m
     # the ground point at that angle from the CPI's antenna and at the cell's t_ref range (as the image)
-    p_ref = position_m[len(position_m) // 2] if position_ref_m is None else np.asarray(position_ref_m, float)
-    _, gx, gy = azimuth_at_t_ref(r_m, angle_deg, position_m[ic], p_ref)
+    _, gx, gy = azimuth_at_t_ref(r_m, angle_deg, position_m[ic], np.asarray(position_ref_m, float))
     los = np.stack([gx - position_m[ic, 0], gy - position_m[ic, 1], -position_m[ic, 2]], axis=1)
     los /= np.linalg.norm(los, axis=1, keepdims=True)
     v = velocity_mps[ic]
@@ -265,18 +264,14 @@ def echo_navigation_check(cells: Cells, *, fc_hz: float, accel_mps2, speed_mps: 
 
 def echo_navigation_of(spectra, calibration, *, fc_hz: float, beamwidth_deg: float, prf_hz: float, cpi: int,
                        position_ref_m, speed_mps: float, range_spacing_m: float,
-                       range_resolution_m: float | None = None, range_error_m: float = 0.0, track=None) -> dict:
+                       range_resolution_m: float | None = None, range_error_m: float = 0.0) -> dict:
     """:func:`echo_navigation_check` of the Doppler stage's output ``spectra`` (both channels) with the
-    chain's monopulse ``calibration`` (``forward/calibration.py``).  The CPIs' velocities are the
-    recorded track's at their centre times where ``track`` (slow time, velocities) is given (the spectra
-    carry the initial velocity for every CPI under ``processing.doppler_centroid: false``), else the
-    spectra's own; the acceleration is their least-squares slope over the CPI times."""
+    chain's monopulse ``calibration`` (``forward/calibration.py``).  The CPIs' velocities are the spectra's
+    own, the mean of the chain's track over each CPI (eq. 25; under ``processing.doppler_centroid: false``
+    the initial velocity for every CPI, which ``process`` does not read); the acceleration is their
+    least-squares slope over the CPI times."""
     t_c = np.asarray(spectra["cpi_time_s"], float)
-    if track is None:
-        vel = np.asarray(spectra["cpi_velocity_mps"], float)
-    else:
-        t, v = np.asarray(track[0], float), np.asarray(track[1], float)
-        vel = np.stack([np.interp(t_c, t, v[:, k]) for k in range(3)], axis=1)
+    vel = np.asarray(spectra["cpi_velocity_mps"], float)
     accel = np.polyfit(t_c - t_c.mean(), vel, 1)[0] if len(t_c) >= 2 else np.zeros(3)
     cells = cell_residuals_hz(spectra["sum_z"], spectra["diff_z"], np.asarray(spectra["doppler_hz"]),
                               np.asarray(spectra["cpi_beam_deg"]), vel, np.asarray(spectra["cpi_position_m"]),
@@ -333,8 +328,7 @@ def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_
 
 def echo_margin_cells(range_m, range_resolution_m: float) -> int:
     """The range samples either side a counted cell's dominance test reads (:func:`_peaks`), plus one."""
-    spacing_m = float(np.min(np.diff(np.asarray(range_m, float)))) if len(range_m) > 1 else range_resolution_m
-    return int(np.ceil(2.0 * range_resolution_m / spacing_m)) + 1
+    return _range_cells(range_m, range_resolution_m)[1] + 1
 
 
 def strong_columns(compensated, max_columns: int = MAX_DWELL_COLUMNS, over_db: float = 10.0,

@@ -280,23 +280,19 @@ def _strong_column_spectra(compensated, geo, bandwidth_hz: float):
 
 def _echo_navigation(spectra, cube, proc, geo) -> dict:
     """metrics.json's ``echo_navigation`` of the CPI Doppler spectra, its warnings logged."""
-    from ..io.navigation import navigation_of, with_navigation
     from .echo_navigation import echo_navigation_of, echo_navigation_warnings
 
     if not proc["doppler_centroid"]:      # the CPI bands then follow the initial velocity: the echoes' Doppler
         # falls outside them and aliases by whole PRFs (-5 kHz on the paper cube), so there is nothing to read
         return {"cells": 0, "doppler_offset_hz": None,
                 "not_read": "processing.doppler_centroid false: the CPI Doppler bands do not follow the track"}
-    track = with_navigation(cube, *navigation_of(proc))     # the track the chain took (the cube's if none moved)
     check = echo_navigation_of(spectra, geo["calibration"], fc_hz=float(cube.radar["fc_hz"]),
                                beamwidth_deg=float(cube.radar["beamwidth_3db_deg"]), prf_hz=float(cube.radar["prf_hz"]),
                                cpi=int(proc["cpi"]), position_ref_m=geo["p_ref"],
                                speed_mps=float(np.linalg.norm(geo["v_ref"])),
                                range_spacing_m=float(cube.range_spacing_m),
                                range_resolution_m=C_MPS / (2.0 * float(cube.radar["bandwidth_hz"])),
-                               range_error_m=float(geo.get("range_error_m", 0.0)),
-                               track=(track.slow_time_s, track.velocity_mps))
-    del track
+                               range_error_m=float(geo.get("range_error_m", 0.0)))
     for line in echo_navigation_warnings(check, range_spacing_m=float(cube.range_spacing_m),
                                          angle_step_deg=float(proc["angle_step_deg"]),
                                          delay_set_s=float(proc.get("navigation_delay_s", 0.0)),
