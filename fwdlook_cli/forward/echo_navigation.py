@@ -77,25 +77,30 @@ def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_
     # the range cells, dsp/imaging.py; the threshold needs no exact median)
     floor = np.median(power.reshape(n_c, -1)[:, ::median_sample_stride(n_r)], axis=1)
     flat = np.flatnonzero(power > floor[:, None, None] * np.float32(10.0 ** (threshold_db / 10.0)))
+    iz, ir = np.divmod(flat % (n_z * n_r), n_r)
+    inner = (iz > 0) & (iz < n_z - 1) & eligible[ir]
+    flat, iz = flat[inner], iz[inner]
+    # the neighbours by flat index (a Doppler cell n_r samples on, a range cell 1: one take each, not
+    # a 3-index gather); an eligible cell's +-range_cells lie in its own row, so no clamp in range
+    pf = power.reshape(-1)
+    p_0 = pf.take(flat)
+    # local maxima first (cheap: one neighbour each way), then the wider dominance on those few
+    first = ((p_0 > pf.take(flat - n_r)) & (p_0 >= pf.take(flat + n_r)) & (p_0 >= pf.take(flat - 1))
+             & (p_0 >= pf.take(flat + 1)))
+    flat, iz, p_0 = flat[first], iz[first], p_0[first]
+    keep = np.ones(len(flat), bool)
+    for k in range(2, range_cells + 1):
+        keep &= (p_0 >= pf.take(flat - k)) & (p_0 >= pf.take(flat + k))
+    for k in range(2, doppler_cells + 1):     # clamped to the CPI's first and last Doppler cells
+        keep &= ((p_0 >= pf.take(flat + (np.maximum(iz - k, 0) - iz) * n_r))
+                 & (p_0 >= pf.take(flat + (np.minimum(iz + k, n_z - 1) - iz) * n_r)))
+    flat, p_0 = flat[keep], p_0[keep]
+    p_lo, p_hi = pf.take(flat - n_r), pf.take(flat + n_r)
+    single = (2.0 * p_0 - p_lo - p_hi) >= min_curvature * p_0
+    flat, p_0, p_lo, p_hi = flat[single], p_0[single], p_lo[single], p_hi[single]
     jc, rest = np.divmod(flat, n_z * n_r)
     iz, ir = np.divmod(rest, n_r)
-    inner = (iz > 0) & (iz < n_z - 1) & eligible[ir]
-    jc, iz, ir = jc[inner], iz[inner], ir[inner]
-    p_0 = power[jc, iz, ir]
-    # local maxima first (cheap: one neighbour each way), then the wider dominance on those few
-    first = ((p_0 > power[jc, iz - 1, ir]) & (p_0 >= power[jc, iz + 1, ir]) & (p_0 >= power[jc, iz, ir - 1])
-             & (p_0 >= power[jc, iz, ir + 1]))
-    jc, iz, ir, p_0 = jc[first], iz[first], ir[first], p_0[first]
-    keep = np.ones(len(jc), bool)
-    for k in range(2, range_cells + 1):
-        keep &= (p_0 >= power[jc, iz, np.maximum(ir - k, 0)]) & (p_0 >= power[jc, iz, np.minimum(ir + k, n_r - 1)])
-    for k in range(2, doppler_cells + 1):
-        keep &= (p_0 >= power[jc, np.maximum(iz - k, 0), ir]) & (p_0 >= power[jc, np.minimum(iz + k, n_z - 1), ir])
-    jc, iz, ir, p_0 = jc[keep], iz[keep], ir[keep], p_0[keep]
-    p_lo, p_hi = power[jc, iz - 1, ir], power[jc, iz + 1, ir]
-    single = (2.0 * p_0 - p_lo - p_hi) >= min_curvature * p_0
-    jc, iz, ir, p_0, p_lo, p_hi = jc[single], iz[single], ir[single], p_0[single], p_lo[single], p_hi[single]
-    return (jc, iz, ir, z[jc, iz, ir], p_lo, p_0, p_hi, power[jc, iz, ir - 1], power[jc, iz, ir + 1])
+    return (jc, iz, ir, z.reshape(-1).take(flat), p_lo, p_0, p_hi, pf.take(flat - 1), pf.take(flat + 1))
 
 
 def single_scatterer_curvature(window, step_hz: float, prf_hz: float) -> float:
@@ -160,8 +165,14 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
     # blocks of whole CPIs (a file-backed stage's spectra are read a block at a time: README, out of core)
     per_block = max(1, BLOCK_BYTES // max(1, sum_z[0].nbytes))
     starts = range(0, len(usable), per_block)
-    parts = [_peaks(sum_z[usable[i:i + per_block]], threshold_db, range_cells=range_cells,
-                    doppler_cells=doppler_cells, min_curvature=min_curvature, eligible=eligible) for i in starts]
+    consecutive = usable[-1] - usable[0] == len(usable) - 1     # (the paper's scan: every CPI)
+
+    def block(i):           # CPIs usable[i:i + per_block]: a view of the spectra where they are consecutive
+        picked = usable[i:i + per_block]
+        return sum_z[picked[0]:picked[-1] + 1] if consecutive else sum_z[picked]
+
+    parts = [_peaks(block(i), threshold_db, range_cells=range_cells, doppler_cells=doppler_cells,
+                    min_curvature=min_curvature, eligible=eligible) for i in starts]
     jc = np.concatenate([part[0] + i for part, i in zip(parts, starts)])
     iz, ir, z_0, p_lo, p_0, p_hi, r_lo, r_hi = (np.concatenate([part[k] for part in parts]) for k in range(1, 9))
     ic = usable[jc]
