@@ -490,6 +490,42 @@ def test_peak_rss_sees_a_temporary_allocation():
     assert max(seen) >= 60 * 2**20, seen
 
 
+def test_the_scaling_series_fits_the_chains_with_and_without_stage_files_apart(monkeypatch):
+    """``fwdlook bench --scaling`` times every point twice, as ``process`` runs it and with
+    ``--keep-stages none``, and fits each set of wall times on its own: chains whose stage grows as
+    N^1.5 with its files and as N without give those exponents (least squares in log-log is exact
+    for a power law), and the user-CPU fit its own N^0.5."""
+    from pathlib import Path
+
+    from fwdlook_cli.report import benchtools
+    from fwdlook_cli.scenario.loader import load_scenario
+
+    calls = []
+
+    def fake_time_chain(cube, scn, repeats=3, rss=True, keep_stages="all"):
+        n = float(cube.sum.shape[0] * cube.sum.shape[1])      # the series' size: pulses or range bins
+        calls.append(keep_stages)
+        power = 1.5 if keep_stages == "all" else 1.0
+        stage = {"doppler_spectra": 1e-9 * n ** power, "range_fft": 1e-8 * n}
+        return {"stages_s": stage, "total_s": sum(stage.values()), "stages_user_cpu_s": {
+                    "doppler_spectra": 1e-5 * n ** 0.5, "range_fft": 1e-8 * n},
+                "user_cpu_s": 1.0, "stages_system_cpu_s": stage, "system_cpu_s": 1e-3}
+
+    monkeypatch.setattr(benchtools, "time_chain", fake_time_chain)
+    paper = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "paper_fig6_a50.yaml")
+    result = benchtools.scaling_series(paper, methods=("tracking",), pulses=(1250, 5000), range_bins=(128, 256))
+    assert calls == ["all", "none"] * 4
+    for key in ("pulses_tracking", "range_bins_tracking"):
+        assert abs(result["exponents"][key]["doppler_spectra"] - 1.5) < 1e-9
+        assert abs(result["exponents_keep_none"][key]["doppler_spectra"] - 1.0) < 1e-9
+        assert abs(result["exponents_user_cpu"][key]["doppler_spectra"] - 0.5) < 1e-9
+        assert abs(result["exponents_keep_none"][key]["range_fft"] - 1.0) < 1e-9
+    calls.clear()
+    alone = benchtools.scaling_series(paper, methods=("tracking",), pulses=(1250, 5000), range_bins=(128, 256),
+                                      keep_none=False)
+    assert calls == ["all"] * 4 and alone["exponents_keep_none"] == {}
+
+
 def test_scaling_scenario_has_the_requested_shape():
     from fwdlook_cli.forward.simulate import simulate_scenario
     from fwdlook_cli.report.benchtools import scaling_scenario

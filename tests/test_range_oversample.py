@@ -110,7 +110,7 @@ def test_the_scaling_series_holds_the_doppler_cells_fixed(monkeypatch):
     paper = load_scenario(root / "scenarios" / "paper_fig6_a50.yaml")
     seen = []
 
-    def fake_time_chain(cube, scn, repeats=3, rss=True):
+    def fake_time_chain(cube, scn, repeats=3, rss=True, keep_stages="all"):
         _, _, geo = build_forward_stages(cube, scn["processing"])
         seen.append((cube.n_pulses, geo["n_doppler"], geo["range_oversample"]))
         stage = {"range_fft": 1e-3}

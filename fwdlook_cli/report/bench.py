@@ -289,6 +289,9 @@ def print_bench(as_json: bool = False, scaling: bool = False, plot_path=None, re
             print("the same, fitted to each stage's user CPU time (the kernel's page work left out):")
             for key, exps in result["exponents_user_cpu"].items():
                 print(f"{key:<22s} " + ", ".join(f"{k} {v:.2f}" for k, v in exps.items()))
+            print("the same chains without stage files (--keep-stages none: no file written beside a stage):")
+            for key, exps in result["exponents_keep_none"].items():
+                print(f"{key:<22s} " + ", ".join(f"{k} {v:.2f}" for k, v in exps.items()))
         return
     if backend == "gpu":                       # gpu_bench.py: the GPU stages against a device fft2
         from .gpu_bench import run_gpu_bench

@@ -353,7 +353,7 @@ RANGE_BINS = (256, 512, 1024, 2048, 4096)
 SCALING_POINTS_M = [[-100.0, 1700.0], [0.0, 1730.0], [100.0, 1680.0]]
 
 
-NOT_STAGES = ("shape", "user_cpu", "system_cpu")      # a scaling row's keys that are not stage times
+NOT_STAGES = ("shape", "user_cpu", "system_cpu", "keep_none")     # a scaling row's keys that are not stage times
 
 
 SCALING_NEAR_MIN_M = 400.0   # the nearest slant range of a scaling window (the 1024-bin window's, 425 m)
@@ -402,7 +402,7 @@ def nlogn_exponent(sizes) -> float:
 
 
 def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int = 3, plot_path=None,
-                   pulses=PULSES, range_bins=RANGE_BINS, progress=None) -> dict:
+                   pulses=PULSES, range_bins=RANGE_BINS, progress=None, keep_none: bool = True) -> dict:
     """Stage times over pulses (range bins fixed at 280) and range bins (pulses fixed at 2500); fitted
     exponents per stage and in total; a log-log plot when ``plot_path`` is given.  The Doppler cells
     per CPI are held at ``SCALING_N_DOPPLER``, and the keystone's window at one reference depression
@@ -413,11 +413,15 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
     which leaves out the kernel's work for the process.  The two differ where a machine charges much
     for memory touched the first time: arrays above glibc's mmap threshold (32 MiB at most) get fresh
     pages on every allocation, smaller ones reuse the heap, so the wall time's cost per byte changes
-    within the series (README, Speed: "Scaling")."""
+    within the series (README, Speed: "Scaling").  With ``keep_none`` every point is timed a second
+    time without stage files (``--keep-stages none``; the row's ``keep_none``) and
+    ``exponents_keep_none`` fit those wall times: a stage's time in the chain includes the file of the
+    stage before it, written beside it by the writer thread, so the two fits tell a stage's own growth
+    from that of the file written meanwhile."""
     from ..forward.simulate import simulate_scenario
 
     result = {"pulses": list(pulses), "range_bins": list(range_bins), "series": {}, "exponents": {},
-              "exponents_user_cpu": {},
+              "exponents_user_cpu": {}, "exponents_keep_none": {},
               "nlogn_exponent": {"pulses": nlogn_exponent(pulses), "range_bins": nlogn_exponent(range_bins)}}
     for axis, sizes in (("pulses", pulses), ("range_bins", range_bins)):
         for method in methods:
@@ -432,8 +436,12 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
                 rows.append({"shape": list(cube.sum.shape), **t["stages_s"], "total": t["total_s"],
                              "user_cpu": {**t["stages_user_cpu_s"], "total": t["user_cpu_s"]},
                              "system_cpu": {**t["stages_system_cpu_s"], "total": t["system_cpu_s"]}})
+                if keep_none:        # the same chain without stage files (what the stages alone cost)
+                    bare = time_chain(cube, scn, repeats=repeats, rss=False, keep_stages="none")
+                    rows[-1]["keep_none"] = {**bare["stages_s"], "total": bare["total_s"]}
                 if progress:
-                    progress(f"scaling {axis} {method} {cube.sum.shape}: {t['total_s']:.2f} s")
+                    progress(f"scaling {axis} {method} {cube.sum.shape}: {t['total_s']:.2f} s"
+                             + (f" ({rows[-1]['keep_none']['total']:.2f} s without stage files)" if keep_none else ""))
             key = f"{axis}_{method}"
             result["series"][key] = rows
             stages = [k for k in rows[0] if k not in NOT_STAGES]
@@ -444,6 +452,10 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
                 k: fit_exponent(sizes, [r["user_cpu"][k] for r in rows]) for k in stages
                 if all(r["user_cpu"].get(k) is not None for r in rows)
                 and min(r["user_cpu"][k] for r in rows) > 1e-3}
+            if keep_none:
+                result["exponents_keep_none"][key] = {
+                    k: fit_exponent(sizes, [r["keep_none"][k] for r in rows]) for k in stages
+                    if all(k in r["keep_none"] for r in rows) and min(r["keep_none"][k] for r in rows) > 1e-4}
     if plot_path is not None:
         _plot_scaling(result, Path(plot_path))
         result["plot"] = str(plot_path)
@@ -452,8 +464,9 @@ def scaling_series(paper: dict, methods=("decimation", "tracking"), repeats: int
 
 
 def _plot_scaling(result: dict, path: Path) -> None:
-    """Log-log stage times per series: wall time (top row) and user CPU time (bottom row), one colour
-    per stage in every panel, the fitted exponent in each label, N log N dashed."""
+    """Log-log stage times per series: wall time (top row), the wall time without stage files (middle
+    row, where the series measured it) and user CPU time (bottom row), one colour per stage in every
+    panel, the fitted exponent in each label, N log N dashed."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -463,21 +476,29 @@ def _plot_scaling(result: dict, path: Path) -> None:
     keys = list(result["series"])
     stages = [k for k in result["series"][keys[0]][0] if k not in NOT_STAGES]
     colour = {stage: f"C{i}" for i, stage in enumerate(stages)}
-    fig, axes = plt.subplots(2, len(keys), figsize=(4.2 * len(keys), 7.6), squeeze=False)
+    panels = [("wall", "wall time (s)", "exponents")]
+    if result.get("exponents_keep_none"):
+        panels.append(("keep_none", "wall time, no stage files (s)", "exponents_keep_none"))
+    panels.append(("user_cpu", "user CPU time (s)", "exponents_user_cpu"))
+
+    def times(r, what, stage):
+        return r[stage] if what == "wall" else r[what][stage]
+
+    fig, axes = plt.subplots(len(panels), len(keys), figsize=(4.2 * len(keys), 3.8 * len(panels)), squeeze=False)
     for col, key in enumerate(keys):
         rows = result["series"][key]
         axis = "pulses" if key.startswith("pulses") else "range_bins"
         n = np.asarray(result[axis], float)
-        for row, (what, label) in enumerate((("wall", "wall time (s)"), ("user_cpu", "user CPU time (s)"))):
+        for row, (what, label, fits) in enumerate(panels):
             ax = axes[row][col]
-            exps = result["exponents" if what == "wall" else "exponents_user_cpu"][key]
+            exps = result[fits][key]
             for stage in stages:
                 if stage not in exps:
                     continue
-                t = np.asarray([r[stage] if what == "wall" else r[what][stage] for r in rows])
+                t = np.asarray([times(r, what, stage) for r in rows])
                 ax.loglog(n, t, "o-", ms=3, lw=1, color=colour[stage], label=f"{stage} ({exps[stage]:.2f})")
             ref = n * np.log(n)
-            top = max(r["total"] if what == "wall" else r[what]["total"] for r in rows)
+            top = max(times(r, what, "total") for r in rows)
             ax.loglog(n, ref / ref[-1] * top, "k--", lw=0.8,
                       label=f"N log N ({result['nlogn_exponent'][axis]:.2f})")
             ax.set_xticks(n)
@@ -485,7 +506,7 @@ def _plot_scaling(result: dict, path: Path) -> None:
             ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_xlabel(axis.replace("_", " "))
             ax.set_ylabel(label)
-            ax.set_title(f"{key.replace('_', ' ')}: {what.replace('_', ' ')}", fontsize=9)
+            ax.set_title(f"{key.replace('_', ' ')}: {label.rsplit(' (', 1)[0]}", fontsize=9)
             ax.legend(fontsize=6)
     fig.tight_layout()
     from ..io.extra_outputs import BENCH_PNG_SOFTWARE
@@ -493,7 +514,7 @@ def _plot_scaling(result: dict, path: Path) -> None:
 
     try:
         with atomic_path(path) as tmp:    # (its folder checked by the command before the series: bench_png_path)
-            fig.savefig(tmp, dpi=80, metadata={"Software": BENCH_PNG_SOFTWARE})
+            fig.savefig(tmp, dpi=64, metadata={"Software": BENCH_PNG_SOFTWARE})
     finally:
         plt.close(fig)
 
