@@ -8,6 +8,7 @@ the cube).  Where that is not available (not Linux) the figure is None, never a 
 """
 from __future__ import annotations
 
+import os
 import statistics
 import tempfile
 import time
@@ -45,6 +46,13 @@ def environment() -> dict:
     workers = fft_workers()
     env["fft_workers"] = "unknown" if workers is None else str(workers)
     env["fft_backend"] = scipy_fft_backend()
+    # the commands' timings (command_runs) include compiling fwdlook's modules where no bytecode is
+    # cached (a shell with PYTHONDONTWRITEBYTECODE and no `make bytecode`: 0.13-0.15 s a command)
+    import sys
+
+    ours = [m for name, m in list(sys.modules.items()) if name.startswith("fwdlook_cli") and getattr(m, "__file__", None)]
+    cached = sum(1 for m in ours if getattr(m, "__cached__", None) and os.path.exists(m.__cached__))
+    env["fwdlook_bytecode"] = f"{cached} of {len(ours)} modules compiled"
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
             models = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
