@@ -27,7 +27,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP) ## create .venv and install fwdlook (editable) with its test, xarray and dask extras
 
 # fwdlook's own modules byte-compiled where they lie (io/painter's child and every command import them): a shell
-# with PYTHONDONTWRITEBYTECODE set (this project's CI and sandboxes) had every command compile them from source,
+# with PYTHONDONTWRITEBYTECODE set (this project's sandboxes set it) had every command compile them from source,
 # 0.13-0.15 s of a `fwdlook process` of the paper cube (README, Speed); only changed files are compiled again
 bytecode: $(STAMP) ## byte-compile fwdlook's modules (run, test, bench and reproduce do it first)
 	@$(BIN)/python -m compileall -q fwdlook_cli

@@ -526,6 +526,32 @@ def test_the_scaling_series_fits_the_chains_with_and_without_stage_files_apart(m
     assert calls == ["all"] * 4 and alone["exponents_keep_none"] == {}
 
 
+def test_the_bench_says_whether_fwdlooks_modules_were_compiled(tmp_path):
+    """``environment()["fwdlook_bytecode"]``: none of the loaded modules compiled where no bytecode is cached
+    and none may be written (``PYTHONDONTWRITEBYTECODE``, as this project's sandboxes set it), all of them once
+    ``python -m compileall`` (``make bytecode``) has written it (into a cache prefix of the test's own here)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", PYTHONPYCACHEPREFIX=str(tmp_path / "pycache"))
+    probe = ("import fwdlook_cli.cli; from fwdlook_cli.report.benchtools import environment; "
+             "print(environment()['fwdlook_bytecode'])")
+
+    def reported():
+        out = subprocess.run([sys.executable, "-c", probe], env=env, cwd=root, capture_output=True, text=True,
+                             check=True).stdout.split()
+        return int(out[0]), int(out[2])
+
+    cached, loaded = reported()
+    assert cached == 0 and loaded > 5
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(root / "fwdlook_cli")], env=env, check=True,
+                   capture_output=True)
+    assert reported() == (loaded, loaded)
+
+
 def test_scaling_scenario_has_the_requested_shape():
     from fwdlook_cli.forward.simulate import simulate_scenario
     from fwdlook_cli.report.benchtools import scaling_scenario
