@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from fwdlook_cli.forward.chain import cpi_doppler_band_hz, doppler_spectra
-from fwdlook_cli.dsp.geometry import C_MPS
-from fwdlook_cli.forward.motion import unit_vector
+from fwdlook_cli.dsp.geometry import C_MPS, unit_vector
 from fwdlook_cli.io.stagefile import StageData
 
 FC, PRF, CPI, BW = 18.0e9, 2500.0, 32, 6.0

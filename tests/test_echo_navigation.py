@@ -284,12 +284,19 @@ def test_one_side_of_the_flight_axis_says_both_readings():
     assert "and the pointing is known" in line
 
 
-def test_without_the_doppler_centroid_the_echoes_are_not_read(tiny_raw, tmp_path, capsys):
+@pytest.mark.parametrize("imaging", ["cpi", "dwell"])
+def test_without_the_doppler_centroid_the_echoes_are_not_read(tiny_raw, tmp_path, capsys, monkeypatch, imaging):
     """processing.doppler_centroid: false keeps the initial velocity's band for every CPI: the echoes'
     Doppler falls outside it and aliases by whole PRFs (-5 kHz on the paper cube), so the check says it
-    read nothing, and warns nothing."""
+    read nothing, and warns nothing; under dwell imaging the strong columns' spectra are not formed."""
+    from fwdlook_cli.forward import process
+
+    def not_wanted(*args, **kwargs):
+        raise AssertionError("spectra formed for a check that reads none")
+
+    monkeypatch.setattr(process, "_strong_column_spectra", not_wanted)
     code, _, err = run_cli(["process", tiny_raw, "-o", tmp_path / "run", "--set", "processing.doppler_centroid=false",
-                            "--set", "processing.imaging=cpi"], capsys)
+                            "--set", f"processing.imaging={imaging}"], capsys)
     assert code == 0, err
     check = json.loads((tmp_path / "run" / "metrics.json").read_text())["echo_navigation"]
     assert check["doppler_offset_hz"] is None and "doppler_centroid" in check["not_read"]

@@ -26,7 +26,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import scipy.fft
 
-from ..dsp.geometry import C_MPS, ambiguity_number
+from ..dsp.geometry import C_MPS, ambiguity_number, unit_vector
 from .keystone_fast import keystone_both, keystone_both_blocked
 from ..dsp.blas import batched_matmul, batched_matmul_each, worker_threads
 from ..dsp.imaging import auto_range_oversample, image_angle_grid
@@ -34,7 +34,7 @@ from ..dsp.keystone_common import cis_outer, cis_rad as _cis, outer_grid
 from .motion import (DopplerPhaseHistory, auto_doppler_cells, beam_range_history_m, boresight_doppler_spread_hz,
                      bulk_range_history_m, cpi_doppler_band_hz, cpi_means, doppler_band_depressions, fit_motion,
                      keystone_residual_envelope_m, position_at, reference_depression_deg, t_ref_seconds,
-                     tracked_depression_deg, unit_vector, widest_cpi_band_hz)
+                     tracked_depression_deg, widest_cpi_band_hz)
 from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData

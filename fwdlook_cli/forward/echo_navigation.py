@@ -42,6 +42,7 @@ from ..dsp.imaging import median_sample_stride
 from ..dsp.profile_rows import parabola_vertex_rows
 from ..dsp.pulse import weighting
 from ..io.backing import BLOCK_BYTES
+from ..scenario.forward import MAX_NAVIGATION_DELAY_S
 from .dwell_range import flight_axis_deg
 
 MAX_BLEND_HZ = 2.0              # a cell counts where the blind zone's blend bound is at most this (Hz)
@@ -49,7 +50,6 @@ THRESHOLD_DB = 20.0             # a peak's sum power over its CPI's median: its 
 SHIFT_WARN_SAMPLES = 0.1        # a delay warned where it moves the targets over this many range samples
 MAX_DWELL_COLUMNS = 128         # range columns a dwell-imaging chain computes CPI spectra on for the check
 MIN_SIDE_CPIS = 5               # CPIs with counted cells a side of the flight axis needs to count
-MAX_DELAY_S = 1.0               # processing.navigation_delay_s's range (scenario/forward.py)
 
 
 class Cells(NamedTuple):
@@ -319,7 +319,7 @@ def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_
         if check["sides"] == 1:
             line += (f"; so would scan angles {check['pointing_alternative_deg']:+.3f} deg off, as the counted echoes "
                      f"lie on one side of the flight axis only")
-        if abs(delay) <= MAX_DELAY_S:
+        if abs(delay) <= MAX_NAVIGATION_DELAY_S:     # (a setting the schema takes)
             line += (f": where the navigation agrees with itself{' and the pointing is known' if check['sides'] == 1 else ''}, "
                      f"set processing.navigation_delay_s: {delay:.5f}")
         if check["sides"] == 1:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..dsp.geometry import C_MPS, unit_vector   # noqa: F401 (motion.unit_vector: its callers')
+from ..dsp.geometry import C_MPS, unit_vector
 from ..dsp.spline import UniformSplineAntiderivative
 
 

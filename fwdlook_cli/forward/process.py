@@ -278,15 +278,16 @@ def _strong_column_spectra(compensated, geo, bandwidth_hz: float):
         compensated["range_m"], C_MPS / (2.0 * bandwidth_hz))), channels=("sum", "diff"))
 
 
-def _echo_navigation(spectra, cube, proc, geo) -> dict:
-    """metrics.json's ``echo_navigation`` of the CPI Doppler spectra, its warnings logged."""
+def _echo_navigation(spectra_of, cube, proc, geo) -> dict:
+    """metrics.json's ``echo_navigation`` of the CPI Doppler spectra ``spectra_of()`` (formed only where
+    they are read), its warnings logged."""
     from .echo_navigation import echo_navigation_of, echo_navigation_warnings
 
     if not proc["doppler_centroid"]:      # the CPI bands then follow the initial velocity: the echoes' Doppler
         # falls outside them and aliases by whole PRFs (-5 kHz on the paper cube), so there is nothing to read
         return {"cells": 0, "doppler_offset_hz": None,
                 "not_read": "processing.doppler_centroid false: the CPI Doppler bands do not follow the track"}
-    check = echo_navigation_of(spectra, geo["calibration"], fc_hz=float(cube.radar["fc_hz"]),
+    check = echo_navigation_of(spectra_of(), geo["calibration"], fc_hz=float(cube.radar["fc_hz"]),
                                beamwidth_deg=float(cube.radar["beamwidth_3db_deg"]), prf_hz=float(cube.radar["prf_hz"]),
                                cpi=int(proc["cpi"]), position_ref_m=geo["p_ref"],
                                speed_mps=float(np.linalg.norm(geo["v_ref"])),
@@ -325,10 +326,11 @@ def _outputs(cube, scn, proc, run_dir, final, geo, timings, keys, names, capture
     echo_nav = None
     if spectra_of is not None:
         held = [spectra_of()]
-        echo_nav, spectra_of = _echo_navigation(held[0], cube, proc, geo), held.pop
+        echo_nav, spectra_of = _echo_navigation(lambda: held[0], cube, proc, geo), held.pop
     elif compensated_of is not None:
         held = [compensated_of()]
-        echo_nav = _echo_navigation(_strong_column_spectra(held[0], geo, float(cube.radar["bandwidth_hz"])), cube, proc, geo)
+        echo_nav = _echo_navigation(lambda: _strong_column_spectra(held[0], geo, float(cube.radar["bandwidth_hz"])),
+                                    cube, proc, geo)
         compensated_of = held.pop
     held = None
     rows, islr_from = target_rows(cube, final, proc, geo, spectra_of=spectra_of, compensated_of=compensated_of)

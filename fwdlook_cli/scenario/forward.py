@@ -18,6 +18,9 @@ from .fields import folder_name, _show, Field, calibration_setting, amplitude, a
 # ----------------------------------------------------------------------------------------------
 # The schema: every key, its default and meaning (the one documented place for defaults)
 # ----------------------------------------------------------------------------------------------
+MAX_NAVIGATION_DELAY_S = 1.0     # processing.navigation_delay_s's range, seconds either way (echo_navigation's
+                                 # suggested settings stay inside it)
+
 FORWARD_SCHEMA: dict[str, Any] = {
     "name": Field(folder_name, "scenario", "scenario name, copied into outputs"),
     "kind": Field(choice("forward", "isar"), "forward",
@@ -153,7 +156,7 @@ FORWARD_SCHEMA: dict[str, Any] = {
                             "biased, lagging or logged at a lower rate); fused, one track blending the positions' "
                             "low frequencies with the velocities' high ones (io/navigation.py; the reader's "
                             "warnings; README, Raw cube files)"),
-        "navigation_delay_s": Field(num(-1.0, 1.0), 0.0,
+        "navigation_delay_s": Field(num(-MAX_NAVIGATION_DELAY_S, MAX_NAVIGATION_DELAY_S), 0.0,
                                     "time by which the navigation lags the radar (its record tagged t holds the "
                                     "platform at t - delay): both records are read at t + delay before "
                                     "processing.navigation (io/navigation.py::delayed_track); metrics.json's "
