@@ -301,3 +301,38 @@ def test_without_the_doppler_centroid_the_echoes_are_not_read(tiny_raw, tmp_path
     check = json.loads((tmp_path / "run" / "metrics.json").read_text())["echo_navigation"]
     assert check["doppler_offset_hz"] is None and "doppler_centroid" in check["not_read"]
     assert "echoes' Doppler" not in err
+
+
+def _suggested_settings(lines):
+    """Every ``processing.<key>: <value>`` a warning suggests, as --set overrides."""
+    return [f"processing.{k}={v}" for line in lines for k, v in re.findall(r"processing\.(\w+): (-?[0-9.]+)", line)]
+
+
+@pytest.mark.parametrize("sides,estimate_deg,set_deg", [(2, 0.7, 0.0), (2, 4.0, 8.5), (2, -12.5, 0.0),
+                                                        (1, 0.3, 0.0), (1, 3.0, -9.0), (1, 11.0, 0.0)])
+def test_every_setting_a_warning_suggests_is_one_the_schema_takes(sides, estimate_deg, set_deg):
+    """The warnings name a setting plus the estimate (processing.scan_angle_offset_deg, navigation_delay_s);
+    where that total lies outside the setting's range (+-10 deg, +-1 s), a warning that named it had sent
+    the user to a value the scenario loader refuses (the fifty-sixth round noticed the one-sided form; the
+    two-sided one did the same). Each suggestion here is loaded as an override: none is refused, and a
+    pointing estimate beyond the range is still said, with the recorded scan angles to check instead."""
+    from fwdlook_cli.forward.echo_navigation import echo_navigation_warnings
+
+    check = {"doppler_offset_hz": 40.0, "sigma_hz": 1.0, "blend_bound_hz": MAX_BLEND_HZ, "delay_s": 0.9,
+             "sigma_delay_s": 0.01, "shift_m": 200.0, "velocity_error_mps": 0.3, "accel_los_mps2": 50.0,
+             "cells": 300, "cpis": 60, "sides": sides,
+             "pointing_alternative_deg": estimate_deg if sides == 1 else None,
+             "pointing_error_deg": estimate_deg if sides == 2 else None,
+             "sigma_pointing_deg": 0.01 if sides == 2 else None}
+    lines = echo_navigation_warnings(check, range_spacing_m=2.5, angle_step_deg=0.05, delay_set_s=0.3,
+                                     scan_offset_set_deg=set_deg)
+    settings = _suggested_settings(lines)
+    total = set_deg + estimate_deg
+    scan = [s for s in settings if "scan_angle_offset_deg" in s]
+    assert len(scan) == (1 if abs(total) <= 10.0 else 0), lines
+    assert not any("navigation_delay_s" in s for s in settings), lines      # 0.3 + 0.9 s: beyond +-1 s
+    for setting in settings:
+        fw.load_scenario(ROOT / "scenarios" / "tiny.yaml", overrides=[setting])
+    if sides == 2:
+        (line,) = [x for x in lines if "pointing error" in x]
+        assert (f"{total:.4f}" in line) and (("check the recorded scan angles" in line) == (abs(total) > 10.0))

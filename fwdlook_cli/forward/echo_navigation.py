@@ -42,7 +42,7 @@ from ..dsp.imaging import median_sample_stride
 from ..dsp.profile_rows import parabola_vertex_rows
 from ..dsp.pulse import weighting
 from ..io.backing import BLOCK_BYTES
-from ..scenario.forward import MAX_NAVIGATION_DELAY_S
+from ..scenario.forward import MAX_NAVIGATION_DELAY_S, MAX_SCAN_ANGLE_OFFSET_DEG
 from .dwell_range import flight_axis_deg
 
 MAX_BLEND_HZ = 2.0              # a cell counts where the blind zone's blend bound is at most this (Hz)
@@ -322,18 +322,21 @@ def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_
         if abs(delay) <= MAX_NAVIGATION_DELAY_S:     # (a setting the schema takes)
             line += (f": where the navigation agrees with itself{' and the pointing is known' if check['sides'] == 1 else ''}, "
                      f"set processing.navigation_delay_s: {delay:.5f}")
-        if check["sides"] == 1:
-            line += (f"; where the timing is known, processing.scan_angle_offset_deg: "
-                     f"{scan_offset_set_deg + check['pointing_alternative_deg']:.4f}")
+        alternative = scan_offset_set_deg + (check["pointing_alternative_deg"] or 0.0)
+        if check["sides"] == 1 and abs(alternative) <= MAX_SCAN_ANGLE_OFFSET_DEG:     # (a setting the schema takes)
+            line += f"; where the timing is known, processing.scan_angle_offset_deg: {alternative:.4f}"
         out.append(line + " (README, The echoes against the navigation)")
     point = check.get("pointing_error_deg")
     if point is not None and abs(point) > max(3.0 * check["sigma_pointing_deg"], angle_step_deg):
+        offset = scan_offset_set_deg + point
+        setting = (f"set processing.scan_angle_offset_deg: {offset:.4f}" if abs(offset) <= MAX_SCAN_ANGLE_OFFSET_DEG
+                   else f"{offset:.4f} deg in all, beyond what processing.scan_angle_offset_deg takes "
+                        f"(+-{MAX_SCAN_ANGLE_OFFSET_DEG:g} deg): check the recorded scan angles")
         out.append(
             f"the echoes' Doppler agrees with their monopulse angles only with the scan angles moved by "
             f"{-point:+.3f} +- {check['sigma_pointing_deg']:.3f} deg more: a pointing error of the antenna (or scan "
-            f"angles recorded that far off) puts the targets that far off in azimuth: set "
-            f"processing.scan_angle_offset_deg: {scan_offset_set_deg + point:.4f} (README, The echoes against "
-            f"the navigation)")
+            f"angles recorded that far off) puts the targets that far off in azimuth: {setting} (README, The "
+            f"echoes against the navigation)")
     return out
 
 

@@ -20,6 +20,7 @@ from .fields import folder_name, _show, Field, calibration_setting, amplitude, a
 # ----------------------------------------------------------------------------------------------
 MAX_NAVIGATION_DELAY_S = 1.0     # processing.navigation_delay_s's range, seconds either way (echo_navigation's
                                  # suggested settings stay inside it)
+MAX_SCAN_ANGLE_OFFSET_DEG = 10.0  # processing.scan_angle_offset_deg's range, degrees either way (likewise)
 
 FORWARD_SCHEMA: dict[str, Any] = {
     "name": Field(folder_name, "scenario", "scenario name, copied into outputs"),
@@ -161,7 +162,7 @@ FORWARD_SCHEMA: dict[str, Any] = {
                                     "platform at t - delay): both records are read at t + delay before "
                                     "processing.navigation (io/navigation.py::delayed_track); metrics.json's "
                                     "echo_navigation.delay_s estimates it from the echoes"),
-        "scan_angle_offset_deg": Field(num(-10.0, 10.0), 0.0,
+        "scan_angle_offset_deg": Field(num(-MAX_SCAN_ANGLE_OFFSET_DEG, MAX_SCAN_ANGLE_OFFSET_DEG), 0.0,
                                        "degrees by which the recorded scan angles lie towards +x of where the "
                                        "antenna pointed (a pointing error of the whole antenna): subtracted before "
                                        "processing; metrics.json's echo_navigation.pointing_error_deg estimates it"),
