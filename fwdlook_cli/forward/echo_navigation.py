@@ -123,11 +123,10 @@ def _range_cells(range_m, range_resolution_m: float | None) -> tuple[float, int]
     return spacing_m, int(np.ceil(2.0 * (range_resolution_m or spacing_m) / spacing_m))
 
 
-def _eligible_ranges(range_m, range_cells: int) -> np.ndarray:
+def _eligible_ranges(range_m, range_cells: int, spacing_m: float) -> np.ndarray:
     """Range cells whose +-``range_cells`` neighbours are contiguous samples (a dwell chain's strong
-    columns have gaps between their windows)."""
+    columns have gaps between their windows; ``spacing_m``: the samples' spacing, :func:`_range_cells`)."""
     gaps = np.diff(np.asarray(range_m, dtype=np.float64))
-    spacing_m = float(np.min(gaps)) if len(gaps) else 1.0
     run = np.concatenate([[0], np.cumsum(gaps > 1.5 * spacing_m)])
     idx = np.arange(len(range_m))
     lo, hi = np.clip(idx - range_cells, 0, len(idx) - 1), np.clip(idx + range_cells, 0, len(idx) - 1)
@@ -161,7 +160,7 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
     spacing_m, range_cells = _range_cells(range_m, range_resolution_m)
     doppler_cells = int(np.ceil(2.0 * (prf_hz / cpi) / step_hz))
     min_curvature = 0.8 * single_scatterer_curvature(np.ones(cpi) if window is None else window, step_hz, prf_hz)
-    eligible = _eligible_ranges(range_m, range_cells)
+    eligible = _eligible_ranges(range_m, range_cells, spacing_m)
     # blocks of whole CPIs (a file-backed stage's spectra are read a block at a time: README, out of core)
     per_block = max(1, BLOCK_BYTES // max(1, sum_z[0].nbytes))
     starts = range(0, len(usable), per_block)
@@ -322,7 +321,7 @@ def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_
         if abs(delay) <= MAX_NAVIGATION_DELAY_S:     # (a setting the schema takes)
             line += (f": where the navigation agrees with itself{' and the pointing is known' if check['sides'] == 1 else ''}, "
                      f"set processing.navigation_delay_s: {delay:.5f}")
-        alternative = scan_offset_set_deg + (check["pointing_alternative_deg"] or 0.0)
+        alternative = scan_offset_set_deg + (check["pointing_alternative_deg"] if check["sides"] == 1 else 0.0)
         if check["sides"] == 1 and abs(alternative) <= MAX_SCAN_ANGLE_OFFSET_DEG:     # (a setting the schema takes)
             line += f"; where the timing is known, processing.scan_angle_offset_deg: {alternative:.4f}"
         out.append(line + " (README, The echoes against the navigation)")

@@ -273,8 +273,8 @@ def delayed_track(slow_time_s, position_m, velocity_mps, delay_s: float) -> tupl
     t = np.asarray(slow_time_s, dtype=np.float64)
     p = np.asarray(position_m, dtype=np.float64)
     v = np.asarray(velocity_mps, dtype=np.float64)
-    if delay_s == 0.0 or len(t) < 2:
-        return p.copy(), v.copy()
+    if delay_s == 0.0 or len(t) < 2:       # the records as they are (no caller writes into them)
+        return p, v
     tq = t + delay_s
     k = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, len(t) - 2)      # the interval [t_k, t_k+1]
     h = t[k + 1] - t[k]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -48,8 +49,6 @@ def environment() -> dict:
     env["fft_backend"] = scipy_fft_backend()
     # the commands' timings (command_runs) include compiling fwdlook's modules where no bytecode is
     # cached (a shell with PYTHONDONTWRITEBYTECODE and no `make bytecode`: 0.13-0.15 s a command)
-    import sys
-
     ours = [m for name, m in list(sys.modules.items()) if name.startswith("fwdlook_cli") and getattr(m, "__file__", None)]
     cached = sum(1 for m in ours if getattr(m, "__cached__", None) and os.path.exists(m.__cached__))
     env["fwdlook_bytecode"] = f"{cached} of {len(ours)} modules compiled"
@@ -209,7 +208,6 @@ def chain_peak_rss(cube, scn: dict) -> dict:
     high-water mark as the base of the same command on the paper cube)."""
     import json
     import subprocess
-    import sys
 
     from ..io.raw import write_raw
 
@@ -237,7 +235,6 @@ def chain_peak_rss(cube, scn: dict) -> dict:
 def _rss_probe() -> None:
     """Child of :func:`chain_peak_rss`: argv = RAW.h5 SCENARIO.json TMPDIR; prints {base, tiny_peak, hwm}."""
     import json
-    import sys
 
     from ..forward.process import process_cube
     from ..io.raw import read_raw
@@ -295,7 +292,6 @@ def clean_process_fft2(x, repeats: int = 21, processes: int = 1) -> dict:
     a child that fails adds nothing."""
     import json
     import subprocess
-    import sys
 
     from ..dsp.blas import plain_environment     # (not fwdlook's one BLAS thread: a plain interpreter's)
 
@@ -327,7 +323,6 @@ def command_runs(cube, settings: dict, repeats: int = 3) -> dict:
     where no run succeeded)."""
     import json
     import subprocess
-    import sys
 
     from ..io.raw import write_raw
 
