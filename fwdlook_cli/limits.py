@@ -18,6 +18,37 @@ DEFAULT_MAX_CUBE_BYTES = 4 * 2**30       # 4 GiB of echo: the simulator's peak i
 MAX_PULSES = 10_000_000                 # as radar.n_pulses's own schema bound
 ENV_VAR = "FWDLOOK_MAX_CUBE_BYTES"
 SHOW_CHARS = 60
+# The radar's and the channel imbalance's ranges, one rule for a scenario's keys (scenario/forward.py,
+# scenario/isar.py) and a cube's attributes (io/raw.py): a recorded cube had taken any positive carrier
+# (1e300 Hz went on to a ZeroDivisionError in the chain, exit 1) and any finite imbalance (1e5 dB: an
+# OverflowError)
+FC_HZ_RANGE = (1e6, 1e12)                # radar.fc_hz: 1 MHz (HF) to 1 THz
+MIN_PRF_HZ = 1.0                         # radar.prf_hz: a pulse a second at the least (at 1e-300 Hz two
+                                         # pulses spanned 1e300 s, and the scene's extent overflowed to NaN)
+MAX_DIFF_GAIN_DB = 40.0                  # antenna.diff_gain_db within +-40 dB
+MAX_DIFF_PHASE_DEG = 180.0               # antenna.diff_phase_deg within +-180 deg
+MAX_MONOPULSE_SLOPE_PER_DEG = 100.0      # a slope processing.monopulse_calibration takes, and a cube's
+                                         # /antenna monopulse_slope_per_deg (1e300 had run, every angle NaN)
+# a cube's attribute -> (lowest, highest, unit, the scenario key whose range it keeps)
+CUBE_ATTRIBUTE_RANGES = {
+    "fc_hz": (*FC_HZ_RANGE, "Hz", "radar.fc_hz"),
+    "prf_hz": (MIN_PRF_HZ, math.inf, "Hz", "radar.prf_hz"),
+    "diff_gain_db": (-MAX_DIFF_GAIN_DB, MAX_DIFF_GAIN_DB, "dB", "antenna.diff_gain_db"),
+    "diff_phase_deg": (-MAX_DIFF_PHASE_DEG, MAX_DIFF_PHASE_DEG, "deg", "antenna.diff_phase_deg"),
+    "monopulse_slope_per_deg": (0.0, MAX_MONOPULSE_SLOPE_PER_DEG, "per degree", "processing.monopulse_calibration"),
+}
+
+
+def outside_scenario_range(key: str, value: float) -> str | None:
+    """What a cube's attribute ``key`` may be, where ``value`` lies outside the range the scenario's own key
+    takes (:data:`CUBE_ATTRIBUTE_RANGES`), for a one-line message; None where it is inside or unbounded."""
+    if key not in CUBE_ATTRIBUTE_RANGES:
+        return None
+    lo, hi, unit, scenario_key = CUBE_ATTRIBUTE_RANGES[key]
+    if lo <= value <= hi:
+        return None
+    allowed = f"at least {lo:g} {unit}" if hi == math.inf else f"{lo:g} to {hi:g} {unit}"
+    return f"allowed: {allowed} (as {scenario_key})"
 
 
 def gib(n_bytes: float) -> str:

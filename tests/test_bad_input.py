@@ -131,8 +131,8 @@ SCENARIO_CASES = [
     ("yaml11-yes-for-number", _text_edit("speed_mps: 150.0", "speed_mps: yes"), [],
      ["platform.speed_mps", "expected a number"]),
     ("float-for-integer", _set("noise.seed", 1.5), [], ["noise.seed", "1.5", "integer"]),
-    ("negative-prf", _set("radar.prf_hz", -2000), [], ["radar.prf_hz", "-2000", "> 0"]),
-    ("zero-prf", _set("radar.prf_hz", 0), [], ["radar.prf_hz", "= 0", "> 0"]),
+    ("negative-prf", _set("radar.prf_hz", -2000), [], ["radar.prf_hz", "-2000", ">= 1"]),
+    ("zero-prf", _set("radar.prf_hz", 0), [], ["radar.prf_hz", "= 0", ">= 1"]),
     ("nan-value", _text_edit("snr_db: 30.0", "snr_db: .nan"), [], ["noise.snr_db", "finite"]),
     ("fs-below-bandwidth", _set("radar.fs_hz", 10.0e6), [],
      ["radar.fs_hz", "1e+07", "radar.bandwidth_hz", "2e+07"]),
@@ -184,6 +184,17 @@ SCENARIO_CASES = [
     ("name-with-a-slash", _set("name", "../mine"), [], ["name", "one folder", "no '/'"]),
     ("pulse-longer-than-its-interval", _set("radar.pulse_width_s", 1.0e-3), [],
      ["radar.pulse_width_s", "0.001", "duty cycle", "1 / radar.prf_hz = 0.0005"]),
+    # a fuzz of the command line (fifty-eighth round): a window from 0 m passed validate and ended the chain
+    # in a ZeroDivisionError (exit 1); a lone surrogate in a name was a UnicodeEncodeError in every command;
+    # a PRF of 1e-300 Hz printed numpy's overflow warnings and a NaN extent under the error
+    ("range-window-from-0-m", _set("radar.range_window_m", [0.0, 1100.0]), [],
+     ["radar.range_window_m", "[0.0, 1100.0]", "> 0"]),
+    ("name-a-lone-surrogate", _text_edit("name: tiny", 'name: "\\ud800"'), [],
+     ["name", "UTF-8", "lone surrogate"]),
+    ("pattern-file-a-lone-surrogate", _text_edit("  beamwidth_3db_deg: 6.0\n", '  beamwidth_3db_deg: 6.0\n'
+                                                 '  pattern: table\n  pattern_file: "a\\udc80.csv"\n'), [],
+     ["antenna.pattern_file", "UTF-8"]),
+    ("prf-1e-300-hz", _set("radar.prf_hz", 1.0e-300), [], ["radar.prf_hz", "1e-300", ">= 1"]),
 ]
 
 
@@ -362,6 +373,18 @@ CUBE_CASES = [
      ["/platform/velocity_mps", "contradicts /platform/position_m", "allowed: within 0.1 of the speed"]),
     ("range-axis-jittered", _h5_edit(lambda f: f["axes/range_m"].__setitem__(3, f["axes/range_m"][3] + 1e-3)),
      ["/axes/range_m", "not uniformly increasing", "float64"]),
+    # the scenario's own ranges (fifty-eighth round's fuzz: a carrier of 1e300 Hz and an imbalance of 1e5 dB
+    # passed validate and stopped process with a ZeroDivisionError and an OverflowError, exit 1; a slope of
+    # 1e300 per degree ran, every angle NaN)
+    ("carrier-1e300-hz", _h5_edit(_attr("radar", "fc_hz", 1e300)), ["/radar", "fc_hz", "1e+300", "1e+12"]),
+    ("carrier-1e13-hz", _h5_edit(_attr("radar", "fc_hz", 1e13)), ["/radar", "fc_hz", "1e+13", "1e+06 to 1e+12"]),
+    ("prf-half-a-hz", _h5_edit(_attr("radar", "prf_hz", 0.5)), ["/radar", "prf_hz", "0.5", "at least 1 Hz"]),
+    ("imbalance-1e5-db", _h5_edit(_attr("antenna", "diff_gain_db", 1e5)),
+     ["/antenna", "diff_gain_db", "100000.0", "-40 to 40 dB"]),
+    ("imbalance-phase-1e6-deg", _h5_edit(_attr("antenna", "diff_phase_deg", -1e6)),
+     ["/antenna", "diff_phase_deg", "-180 to 180 deg"]),
+    ("slope-1e6-per-degree", _h5_edit(_attr("antenna", "monopulse_slope_per_deg", 1e6)),
+     ["/antenna", "monopulse_slope_per_deg", "0 to 100 per degree"]),
     ("truncated-file", _truncated, ["truncated"]),
     ("text-file-named-h5", _text_file, ["HDF5"]),
     ("missing-cube-file", _missing_cube, ["not found"]),
@@ -464,6 +487,39 @@ def test_info_lists_foreign_hdf5(good_cube, tmp_path, capsys):
     assert code == 0, err
     assert "format: netcdf-radar" in out and "/echo/sum" in out
     assert "fwdlook raw cube" not in out
+
+
+def test_a_point_beneath_the_platform_leaves_a_cube_its_own_reader_takes(tmp_path, capsys):
+    """A target within the pulse's reach of the antenna (here beneath it, 50 m down; behind the scan, so it
+    returns nothing): the automatic range axis begins one range step out, as no echo comes from a slant
+    range at or below 0 m, and still holds the far targets' whole kernels.  It had begun at -150 m: the
+    cube was written, then refused by its own reader, and processing the scenario divided by its 0 m sample
+    (numpy's RuntimeWarning on the user's terminal)."""
+    import warnings
+
+    from fwdlook_cli.dsp.geometry import C_MPS
+
+    raw = yaml.safe_load(TINY_TEXT)
+    raw["scene"]["points_m"] = [[0.0, 0.0], [0.0, 1030.0], [120.0, 990.0]]
+    scenario = tmp_path / "beneath.yaml"
+    scenario.write_text(yaml.safe_dump(raw), encoding="utf-8")
+    cube = tmp_path / "beneath.h5"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code, _, err = run_cli(["simulate", scenario, "-o", cube, "-q"], capsys)
+        assert code == 0, err
+        code, out, err = run_cli(["validate", cube], capsys)
+        assert code == 0, err
+        code, _, err = run_cli(["process", scenario, "-o", tmp_path / "run", "-q"], capsys)
+        assert code == 0, err
+    assert [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)] == []
+    radar = load_scenario(scenario)["radar"]
+    step_m = C_MPS / (2.0 * radar["fs_hz"])
+    with h5py.File(cube, "r") as f:
+        range_m = f["axes/range_m"][()]
+    assert range_m[0] == pytest.approx(step_m, rel=1e-12)
+    reach_m = C_MPS * radar["pulse_width_s"] / 2.0
+    assert range_m[-1] >= 1030.0 + reach_m                  # the farthest target's kernel (its closest range)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -21,3 +21,24 @@ def test_an_empty_raster_keeps_its_axes():
     x, y = np.arange(12.0), np.arange(10.0)
     out, extent = _display_raster(db, x, y, -40.0)
     assert out.shape == (10, 12) and extent == [-0.5, 11.5, -0.5, 9.5]
+
+
+def test_a_title_the_font_cannot_draw_warns_no_one(tmp_path):
+    """A scenario name in a script the font lacks (CJK, an emoji, a tab) is drawn as boxes without
+    matplotlib's UserWarning for each character, whoever draws it: the quick look and the report's
+    figures (the warning's two lines had reached the terminal of a run that succeeded)."""
+    import warnings
+
+    from fwdlook_cli.io.quicklook import draw_image_png
+    from fwdlook_cli.report.plots import image_panels
+
+    power = np.ones((20, 30), np.float32)
+    power[10, 15] = 100.0
+    x, y = np.arange(30.0), np.arange(20.0)
+    title = "中文 😀\tname"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        draw_image_png(tmp_path / "a.png", power, x, y, xlabel="x", ylabel="y", title=title)
+        image_panels(tmp_path / "b.png", [{"power": power, "x": x, "y": y, "title": title}], suptitle=title)
+    assert (tmp_path / "a.png").stat().st_size > 0 and (tmp_path / "b.png").stat().st_size > 0
+    assert [str(w.message) for w in caught if "Glyph" in str(w.message)] == []

@@ -754,7 +754,7 @@ SIZE_CASES = {
     "point-at-1e9-m": (["scene.points_m=[[0.0, 1000.0], [0.0, 1.0e9]]"],
                        ["radar.range_window_m = auto", "1e+09 m", "GiB of echo", "max_cube_bytes"]),
     "lone-point-at-1e9-m": (["scene.points_m=[[0.0, 1.0e9]]"], ["scene.points_m", "unambiguous range"]),
-    "window-1e9-m": (["radar.range_window_m=[0.0, 1.0e9]"], ["radar.range_window_m = [0, 1e+09]", "GiB"]),
+    "window-1e9-m": (["radar.range_window_m=[1.0, 1.0e9]"], ["radar.range_window_m = [1, 1e+09]", "GiB"]),
     "fs-1e15": (["radar.fs_hz=1.0e15"], ["radar.fs_hz = 1e+15", "range samples"]),
     "huge-lattice": (["scene.kind=lattice", "scene.lattice.nx=10000", "scene.lattice.ny=10000",
                       "scene.lattice.spacing_m=0.01"],

@@ -120,11 +120,17 @@ def lfm_compressed_closed_form(tau_s, bandwidth_hz, pulse_width_s):
     return shrink * np.sinc(bandwidth_hz * tau * shrink)
 
 
-def auto_range_axis_m(range_min_m, range_max_m, fs_hz, pulse: CompressedPulse):
-    """Range axis holding every target's whole kernel over the scan, length a fast FFT size."""
+def auto_range_axis_m(range_min_m, range_max_m, fs_hz, pulse: CompressedPulse, *, positive: bool = False):
+    """Range axis holding every target's whole kernel over the scan, length a fast FFT size.
+    ``positive``: it begins one range step out at the nearest, the kernel of a target within the pulse's
+    reach of the antenna cut there (no echo is received from a slant range at or below 0 m: a forward scene
+    with a point beneath the platform had been simulated on an axis from -150 m, a cube its own reader
+    refuses)."""
     dr = C_MPS / (2.0 * fs_hz)
     reach = C_MPS * pulse.support_s / 2.0 + RANGE_GUARD_SAMPLES * dr
     near = np.floor((range_min_m - reach) / dr) * dr
+    if positive:
+        near = max(near, dr)
     import scipy.fft
 
     n = scipy.fft.next_fast_len(int(np.ceil((range_max_m + reach - near) / dr)) + 1)

@@ -162,7 +162,7 @@ def simulate_scenario(scn: dict, *, in_memory_x_cube: float | None = None, doing
     antenna = antenna_from_scenario(ant)
     beam_deg = scan_angle_deg(slow_time_s, ant["scan_start_deg"], ant["scan_rate_dps"])
     if radar["range_window_m"] == "auto":
-        range_m = auto_range_axis_m(*range_extent_m(position_m, targets_m), radar["fs_hz"], pulse)
+        range_m = auto_range_axis_m(*range_extent_m(position_m, targets_m), radar["fs_hz"], pulse, positive=True)
     else:
         near, far = radar["range_window_m"]
         dr = C_MPS / (2.0 * radar["fs_hz"])

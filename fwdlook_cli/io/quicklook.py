@@ -3,12 +3,26 @@ from __future__ import annotations
 
 import contextlib
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .outputs import _unlink_quietly, atomic_path, make_parent, mapped_os_errors, partial_path
 from .partial import claim_partial
+
+
+MISSING_GLYPH = r"Glyph \d+ .*missing from font"     # matplotlib's UserWarning for a character its font lacks
+
+
+@contextlib.contextmanager
+def quiet_missing_glyphs():
+    """matplotlib's warning for a character its font lacks left out while a figure is drawn: a scenario name
+    in a script the font does not cover (CJK, emoji, control characters) is drawn as boxes, and the warning's
+    two lines for each such character had reached the user's terminal from a run that succeeded."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=MISSING_GLYPH, category=UserWarning)
+        yield
 
 
 def _plt():
@@ -167,8 +181,8 @@ def draw_image_png(path, power, x_axis, y_axis, *, xlabel, ylabel, title, dynami
     if not isinstance(path, (str, os.PathLike)):     # a file object (the painter's warm-up)
         fig.savefig(path, format="png")
         return
-    with atomic_path(path, rename=rename, tmp=partial) as tmp:    # partial removed, OSError one line on failure
-        fig.savefig(tmp, format="png")
+    with atomic_path(path, rename=rename, tmp=partial) as tmp, quiet_missing_glyphs():   # partial removed,
+        fig.savefig(tmp, format="png")                                                # OSError one line
 
 
 DISPLAY_PIXELS = (420, 640)     # (rows, columns) of a quick look's axes, about what the figure shows
@@ -214,9 +228,10 @@ def _uniform_extent(x_axis, y_axis):
 
 def _save(fig, path):
     plt = _plt()
-    fig.tight_layout()
     try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp)
+        with quiet_missing_glyphs():
+            fig.tight_layout()
+            with atomic_path(path) as tmp:
+                fig.savefig(tmp)
     finally:
         plt.close(fig)

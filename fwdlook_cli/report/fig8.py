@@ -65,9 +65,11 @@ def _save(fig, path):
 
     from ..io.outputs import atomic_path
 
+    from ..io.quicklook import quiet_missing_glyphs
+
     try:
-        with atomic_path(path) as tmp:       # the partial name claimed (io/partial.py), renamed on success
-            fig.savefig(tmp, format="png")
+        with atomic_path(path) as tmp, quiet_missing_glyphs():   # the partial name claimed (io/partial.py),
+            fig.savefig(tmp, format="png")                      # renamed on success
     finally:
         plt.close(fig)
 

@@ -205,9 +205,10 @@ def image_panels(path, panels, *, ncols=None, dynamic_range_db=40.0, suptitle=No
     if suptitle:
         fig.suptitle(suptitle, fontsize=10)
     from ..io.outputs import atomic_path
+    from ..io.quicklook import quiet_missing_glyphs
 
     try:
-        with atomic_path(path) as tmp:
+        with atomic_path(path) as tmp, quiet_missing_glyphs():
             fig.savefig(tmp, bbox_inches="tight")
     finally:
         plt.close(fig)

@@ -46,7 +46,7 @@ def run_one(n_scatterers: int, seed: int = 0, **kwargs) -> dict:
     beam = scan_angle_deg(t, ant["scan_start_deg"], ant["scan_rate_dps"])
     t0 = time.perf_counter()
     c0 = time.process_time()
-    rm = auto_range_axis_m(*range_extent_m(pos, tg), radar["fs_hz"], pulse)
+    rm = auto_range_axis_m(*range_extent_m(pos, tg), radar["fs_hz"], pulse, positive=True)
     es, ed, st = simulate_scene_echo(t, pos, beam, rm, tg, amps, fc_hz=radar["fc_hz"], pulse=pulse,
                                      antenna=antenna, gain_threshold_db=scn["simulation"]["gain_threshold_db"],
                                      **kwargs)

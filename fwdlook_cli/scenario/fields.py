@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import json
 from typing import Any, Callable
 
+from ..limits import MAX_MONOPULSE_SLOPE_PER_DEG
+
 
 # ----------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
@@ -113,6 +115,11 @@ def choice(*allowed: str) -> Callable[[Any], str]:
 def text(value: Any) -> str:
     if not isinstance(value, str) or not value.strip():
         raise ValueError("expected a non-empty string")
+    try:            # YAML's "\ud800" is a lone surrogate: no file name, HDF5 attribute or terminal takes it
+        value.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raise ValueError(f"expected text that UTF-8 can encode (a lone surrogate {value[exc.start]!r} at "
+                         f"character {exc.start})") from None
     return value
 
 
@@ -157,13 +164,15 @@ def calibration_setting(value: Any):
     if value in ("auto", "cube", "data"):
         return value
     try:
-        return num(0.0, 100.0, lo_open=True)(value)
+        return num(0.0, MAX_MONOPULSE_SLOPE_PER_DEG, lo_open=True)(value)
     except ValueError:
         raise ValueError("allowed: auto, cube, data, or a slope per degree > 0") from None
 
 
 def range_window(value: Any):
-    out = vector(2, num(0.0))(value)
+    # slant ranges > 0: one at 0 m had passed the scenario's check, then stopped the chain (a division by
+    # the reference range, exit 1) and made a cube the reader refuses
+    out = vector(2, num(0.0, lo_open=True))(value)
     if out[1] <= out[0]:
         raise ValueError("expected [near, far] with far > near")
     return out

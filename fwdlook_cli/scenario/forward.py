@@ -12,6 +12,7 @@ from ..dsp.geometry import platform_state, range_extent_m
 from ..dsp.keystone_common import carrier_floor_text
 from ..dsp.pulse import WEIGHTINGS, scenario_pulse_rule_text
 from ..errors import BadInput
+from ..limits import FC_HZ_RANGE, MAX_DIFF_GAIN_DB, MAX_DIFF_PHASE_DEG, MIN_PRF_HZ
 from .fields import folder_name, _show, Field, calibration_setting, amplitude, auto_or, boolean, choice, integer, num, optional, points_list, range_window, text, vector
 
 
@@ -27,11 +28,11 @@ FORWARD_SCHEMA: dict[str, Any] = {
     "kind": Field(choice("forward", "isar"), "forward",
                   "forward: forward-looking scanning monopulse radar; isar: stationary radar, moving object"),
     "radar": {
-        "fc_hz": Field(num(1e6, 1e12), 18.0e9, "carrier frequency"),
+        "fc_hz": Field(num(*FC_HZ_RANGE), 18.0e9, "carrier frequency"),
         "bandwidth_hz": Field(num(0.0, lo_open=True), 50.0e6, "transmitted LFM bandwidth"),
         "pulse_width_s": Field(num(0.0, 1e-3, lo_open=True), 1.0e-6,
                                "LFM pulse width; the compressed pulse spans +-pulse_width"),
-        "prf_hz": Field(num(0.0, lo_open=True), 2500.0, "pulse repetition frequency"),
+        "prf_hz": Field(num(MIN_PRF_HZ), 2500.0, "pulse repetition frequency"),
         "fs_hz": Field(num(0.0, lo_open=True), 60.0e6,
                        "complex sampling rate of the range-compressed data (range sample c/(2 fs))"),
         "range_window_m": Field(auto_or(range_window), "auto",
@@ -53,9 +54,9 @@ FORWARD_SCHEMA: dict[str, Any] = {
         "pattern_file": Field(optional(text), None,
                               "antenna.pattern table: CSV (offset_deg, sum, diff voltage gains) or HDF5 "
                               "(datasets offset_deg, sum, diff); relative to the scenario file"),
-        "diff_gain_db": Field(num(-40.0, 40.0), 0.0,
+        "diff_gain_db": Field(num(-MAX_DIFF_GAIN_DB, MAX_DIFF_GAIN_DB), 0.0,
                               "difference/sum channel gain imbalance (the difference channel is x 10^(g/20))"),
-        "diff_phase_deg": Field(num(-180.0, 180.0), 0.0,
+        "diff_phase_deg": Field(num(-MAX_DIFF_PHASE_DEG, MAX_DIFF_PHASE_DEG), 0.0,
                                 "difference/sum channel phase imbalance (the difference channel is x exp(j phi))"),
         "scan_start_deg": Field(num(-89.0, 89.0), -15.0, "beam azimuth at the first pulse"),
         "scan_stop_deg": Field(num(-89.0, 89.0), 15.0, "beam azimuth at the end of the scan"),

@@ -13,6 +13,7 @@ from ..dsp.geometry import C_MPS
 from ..dsp.keystone_common import carrier_floor_text
 from ..dsp.pulse import WEIGHTINGS, scenario_pulse_rule_text
 from ..errors import BadInput
+from ..limits import FC_HZ_RANGE, MIN_PRF_HZ
 from .fields import folder_name, REQUIRED, Field, amplitude, auto_or, choice, integer, num, optional, range_window, vector
 
 CORRECTIONS = ("none", "keystone1", "keystone2", "keystone2_n0", "keystone2_n0_est")
@@ -31,11 +32,11 @@ ISAR_SCHEMA: dict = {
     "name": Field(folder_name, "isar", "scenario name, copied into outputs"),
     "kind": Field(choice("isar"), REQUIRED, "isar: stationary radar at the origin, moving object"),
     "radar": {
-        "fc_hz": Field(num(1e6, 1e12), 3.0e9, "carrier frequency f0"),
+        "fc_hz": Field(num(*FC_HZ_RANGE), 3.0e9, "carrier frequency f0"),
         "bandwidth_hz": Field(num(0.0, lo_open=True), 300.0e6, "transmitted LFM bandwidth"),
         "pulse_width_s": Field(num(0.0, 1e-3, lo_open=True), 0.1e-6,
                                "LFM pulse width; the compressed pulse spans +-pulse_width"),
-        "prf_hz": Field(num(0.0, lo_open=True), 3000.0, "pulse repetition frequency F_p"),
+        "prf_hz": Field(num(MIN_PRF_HZ), 3000.0, "pulse repetition frequency F_p"),
         "fs_hz": Field(num(0.0, lo_open=True), 360.0e6,
                        "complex sampling rate of the range-compressed data (range cell c/(2 fs))"),
         "range_window_m": Field(auto_or(range_window), "auto",
