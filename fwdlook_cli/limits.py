@@ -111,6 +111,26 @@ def check_processing_sizes(*, n_range: int, range_oversample: int, n_angle: int,
                        f"{limit_source(None)} = {gib(limit)}; allowed: fewer cells (auto) or --out-of-core")
 
 
+SUBSWATH_WORK_FACTOR = 4   # the keystone stage's peak over one sub-swath's padded input (both channels, complex64):
+                           # measured 7.8 GiB of peak RSS for 2.07 GiB of padded rows (tiny at PRF 1 Hz, 16 sub-swaths)
+
+
+def check_subswath_sizes(*, n_subswaths: int, widest_samples: int, n_pulses: int, walk_m: float,
+                         limit: int | None = None) -> None:
+    """The keystone stage's range sub-swaths (steep depression, ``forward/subswath.py``), each corrected on its
+    own, its samples padded each side by the range walk: refused before the chain where one sub-swath's keystone
+    would take more than the size limit (in memory; out of core its rows are file-backed).  A scene whose
+    walk is longer than its window (tiny at PRF 1 Hz: 1060 km in a 400 s scan) had run for minutes to 7.8 GiB."""
+    limit = max_cube_bytes() if limit is None else limit
+    need = SUBSWATH_WORK_FACTOR * 2 * 8.0 * n_pulses * widest_samples
+    if need > limit:
+        raise BadInput(f"processing.subswaths = auto: the range window is corrected in {n_subswaths} sub-swaths "
+                       f"(steep depression), each padded by the range walk of {walk_m:.6g} m to up to "
+                       f"{widest_samples:,} range samples x {n_pulses:,} pulses; their keystone needs about "
+                       f"{gib(need)}, over {limit_source(None)} = {gib(limit)}; allowed: processing.subswaths: none "
+                       f"(one reference depression for the window: `fwdlook plan` gives what it leaves), or --out-of-core")
+
+
 def check_declared_dataset(source: str, name: str, shape, itemsize: int, limit: int | None = None) -> None:
     """A dataset whose declared shape would need more than the limit is refused before it is read."""
     limit = max_cube_bytes() if limit is None else limit

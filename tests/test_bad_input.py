@@ -841,3 +841,39 @@ def test_a_refused_set_value_names_the_setting_and_a_yaml_boolean_says_so(tmp_pa
     code, out, err = run_cli(["validate", str(TINY), "--set", "processing.keystone=off"], capsys)
     assert code == 2 and "allowed: czt, dft, sinc (YAML reads off, on, no and yes as true/false" in err, err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_a_sub_swath_keystone_over_the_size_limit_is_refused_before_the_chain(tmp_path, monkeypatch):
+    """Steep depression corrects the window in range sub-swaths, each padded by the range walk
+    (forward/subswath.py); a scene whose walk outruns its window (tiny at a PRF of 1 Hz: 1060 km in a 400 s
+    scan) had run for minutes to 7.8 GiB of RSS.  One sub-swath's keystone, ``SUBSWATH_WORK_FACTOR`` x its
+    padded rows (both channels, complex64), is now held to the size limit when the stages are built, in one
+    line naming the setting and its alternatives; at the limit exactly it is built, and out of core (the rows
+    file-backed) it is not held to it."""
+    from fwdlook_cli.forward.chain import build_forward_stages
+    from fwdlook_cli.io import backing
+    from fwdlook_cli.limits import SUBSWATH_WORK_FACTOR
+    from fwdlook_cli.testing import tiny_scenario
+
+    base = tiny_scenario()
+    scn = tiny_scenario(antenna=dict(base["antenna"], scan_rate_dps=25.0),
+                        platform=dict(base["platform"], height_m=3000.0),
+                        scene={"kind": "points", "points_m": [[300.0, 2000.0], [0.0, 2800.0]], "amplitude": 1.0})
+    cube, _ = simulate_scenario(scn)
+    proc = dict(scn["processing"], method="tracking", q=1, imaging="cpi", cpi=32, n_doppler=32)   # (spectra: 4 MB)
+    _, stages, geo = build_forward_stages(cube, proc)
+    subswaths = next(st for st in stages if st.name == "keystone").params["subswaths"]
+    assert geo["subswaths"] == len(subswaths) > 1
+    need = SUBSWATH_WORK_FACTOR * 2 * 8 * cube.n_pulses * max(sw["hi"] - sw["lo"] for sw in subswaths)
+    monkeypatch.setenv("FWDLOOK_MAX_CUBE_BYTES", str(need))
+    build_forward_stages(cube, proc)
+    monkeypatch.setenv("FWDLOOK_MAX_CUBE_BYTES", str(need - 1))
+    with pytest.raises(BadInput) as exc:
+        build_forward_stages(cube, proc)
+    line = str(exc.value)
+    assert "\n" not in line and f"in {len(subswaths)} sub-swaths" in line and "range walk" in line
+    for fragment in ("processing.subswaths = auto", "$FWDLOOK_MAX_CUBE_BYTES", "processing.subswaths: none",
+                     "--out-of-core"):
+        assert fragment in line, line
+    with backing.file_backed(tmp_path):
+        build_forward_stages(cube, proc)

@@ -112,6 +112,30 @@ def test_ground_image_in_blocks_of_cells_is_the_one_block_image(finished, monkey
     np.testing.assert_array_equal(gy, gy1)
 
 
+def test_a_ground_image_wider_than_its_bin_budget_takes_a_coarser_whole_step(finished, monkeypatch):
+    """Cells spread over more ground than ``GROUND_MAX_BINS`` bins of the step (a scene 800 km across had
+    asked for 23e9 bins: an 85.7 GiB allocation, a traceback): the step grows by the smallest whole factor
+    that fits, the axes say it, and every cell's power is still binned, as the float64 bincount on that step
+    gives it; within the budget the step is the one asked for."""
+    import fwdlook_cli.forward.process as process
+
+    _, final, _, _ = finished
+    x, y, w = final["cell_x_m"], final["cell_y_m"], final["cell_power"]
+    fine, gx, _ = ground_image(x, y, w, step_m=0.5)
+    assert gx[1] - gx[0] == pytest.approx(0.5)
+    monkeypatch.setattr(process, "GROUND_MAX_BINS", fine.size // 10)
+    img, gx, gy = ground_image(x, y, w, step_m=0.5)
+    step = float(gx[1] - gx[0])
+    factor = step / 0.5
+    assert img.size <= fine.size // 10 and factor == pytest.approx(round(factor)) and round(factor) in (4, 5)
+    ix, iy = np.rint((x - gx[0]) / step).astype(int), np.rint((y - gy[0]) / step).astype(int)
+    ok = (ix >= 0) & (ix < len(gx)) & (iy >= 0) & (iy < len(gy))
+    ref = np.bincount(iy[ok] * len(gx) + ix[ok], weights=w[ok], minlength=img.size).reshape(img.shape)
+    np.testing.assert_allclose(img, ref, rtol=2e-6, atol=1e-6 * float(w.max()))
+    assert ok.mean() > 0.99 and img.sum(dtype=np.float64) == pytest.approx(float(w[ok].sum(dtype=np.float64)), rel=1e-6)
+    assert img.sum(dtype=np.float64) >= fine.sum(dtype=np.float64) * (1 - 1e-6)   # its box holds the fine one's
+
+
 def test_best_ratio_rows_is_the_sequential_rule_per_segment():
     """The peak loss's CPI choice for every dwell at once against the one-dwell rule, on segments of
     ratios with ties, with no positive ratio (the rule then takes the last CPI) and of one element."""

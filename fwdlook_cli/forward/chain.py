@@ -39,7 +39,7 @@ from ..runner import Stage
 from ..io import backing
 from ..io.stagefile import StageData
 from ..io.navigation import navigation_of, with_navigation
-from ..limits import check_processing_sizes
+from ..limits import check_processing_sizes, check_subswath_sizes
 from .monopulse import monopulse_image   # noqa: F401 (stage 7, forward/monopulse.py; chain.monopulse_image)
 
 log = logging.getLogger(__name__)
@@ -419,6 +419,9 @@ def build_forward_stages(cube, proc: dict):
         walk_m=plan["range_walk_m"], bandwidth_hz=cube.radar["bandwidth_hz"], implementation=proc["keystone"],
         fastest_velocity_mps=cube.velocity_mps[int(np.argmax(np.linalg.norm(cube.velocity_mps, axis=1)))])
     geo["subswaths"] = len(subswaths) if subswaths else 1
+    if subswaths and not backing.active():        # one sub-swath's padded keystone, before the chain (limits.py)
+        check_subswath_sizes(n_subswaths=len(subswaths), widest_samples=max(sw["hi"] - sw["lo"] for sw in subswaths),
+                             n_pulses=cube.n_pulses, walk_m=float(plan["range_walk_m"]))
     if subswaths:
         log.info(f"steep depression: the keystone stage corrects the range window in {len(subswaths)} sub-swaths, "
                  "one reference depression each (README, steep depression)")

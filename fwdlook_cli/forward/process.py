@@ -70,17 +70,23 @@ def _grid_index(coord_m, origin_m, step_m):
 
 
 GROUND_BLOCK_CELLS = 1 << 16     # cells per block of the ground image's binning
+GROUND_MAX_BINS = 1 << 24        # the ground grid's most bins (64 MiB of float32); a wider scene gets a coarser step
 
 
 def ground_image(cell_x_m, cell_y_m, cell_power, step_m):
-    """Bin the projected cells' power on a ground (x, y) grid."""
+    """Bin the projected cells' power on a ground (x, y) grid of ``step_m``, coarsened by a whole factor where
+    the cells span more than ``GROUND_MAX_BINS`` bins (a scene 800 km across had asked for 23e9 bins, an
+    85.7 GiB allocation and a traceback); the axes returned give the step used."""
     if len(cell_x_m) == 0:
         return np.zeros((1, 1), np.float32), np.zeros(1), np.zeros(1)
-    x0, x1 = tail_percentiles(cell_x_m, 0.1, 99.9)
-    y0, y1 = tail_percentiles(cell_y_m, 0.1, 99.9)
-    x0, y0 = np.floor(x0 / step_m) * step_m - 5 * step_m, np.floor(y0 / step_m) * step_m - 5 * step_m
-    nx = int(np.ceil((x1 - x0) / step_m)) + 10
-    ny = int(np.ceil((y1 - y0) / step_m)) + 10
+    x_lo, x_hi = tail_percentiles(cell_x_m, 0.1, 99.9)
+    y_lo, y_hi = tail_percentiles(cell_y_m, 0.1, 99.9)
+    bins = ((x_hi - x_lo) / step_m + 11) * ((y_hi - y_lo) / step_m + 11)
+    if bins > GROUND_MAX_BINS:
+        step_m *= float(np.ceil(np.sqrt(bins / GROUND_MAX_BINS)))
+    x0, y0 = np.floor(x_lo / step_m) * step_m - 5 * step_m, np.floor(y_lo / step_m) * step_m - 5 * step_m
+    nx = int(np.ceil((x_hi - x0) / step_m)) + 10
+    ny = int(np.ceil((y_hi - y0) / step_m)) + 10
     # accumulated in float32, the image's own precision (np.add.at: no grid-sized float64 temporary,
     # whose fresh pages cost more than the sums here), in blocks of cells taken in order (the same
     # sums): the bins' float64 temporaries of a block, not of every cell, while the outputs still hold
