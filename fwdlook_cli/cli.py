@@ -495,8 +495,9 @@ def _main(argv):
     try:
         _early(argv)
         rv = _run(argv)
-    except BadInput as exc:
-        click.echo(f"fwdlook: error: {exc}", err=True)
+    except BadInput as exc:     # (a lone surrogate, a file name's undecodable byte, written as its escape
+        # whatever stream stderr is: a caller's strict one had turned the one line into a UnicodeEncodeError)
+        click.echo(f"fwdlook: error: {exc}".encode("utf-8", "backslashreplace").decode("utf-8"), err=True)
         sys.exit(2)
     except Terminated:
         click.echo("fwdlook: terminated (SIGTERM)", err=True)

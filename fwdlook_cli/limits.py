@@ -27,14 +27,16 @@ MIN_PRF_HZ = 1.0                         # radar.prf_hz: a pulse a second at the
                                          # pulses spanned 1e300 s, and the scene's extent overflowed to NaN)
 MAX_DIFF_GAIN_DB = 40.0                  # antenna.diff_gain_db within +-40 dB
 MAX_DIFF_PHASE_DEG = 180.0               # antenna.diff_phase_deg within +-180 deg
-MAX_MONOPULSE_SLOPE_PER_DEG = 100.0      # a slope processing.monopulse_calibration takes, and a cube's
-                                         # /antenna monopulse_slope_per_deg (1e300 had run, every angle NaN)
+MAX_MONOPULSE_SLOPE_PER_DEG = 100.0      # a slope processing.monopulse_calibration takes, a table antenna's, and a
+                                         # cube's /antenna monopulse_slope_per_deg (1e6 and 1e300 had run to exit 0,
+                                         # numpy's overflow warnings on the terminal)
 # a cube's attribute -> (lowest, highest, unit, the scenario key whose range it keeps)
 CUBE_ATTRIBUTE_RANGES = {
     "fc_hz": (*FC_HZ_RANGE, "Hz", "radar.fc_hz"),
     "prf_hz": (MIN_PRF_HZ, math.inf, "Hz", "radar.prf_hz"),
     "diff_gain_db": (-MAX_DIFF_GAIN_DB, MAX_DIFF_GAIN_DB, "dB", "antenna.diff_gain_db"),
-    "diff_phase_deg": (-MAX_DIFF_PHASE_DEG, MAX_DIFF_PHASE_DEG, "deg", "antenna.diff_phase_deg"),
+    # one turn either way: antenna.diff_phase_deg's +-180 deg, or a recorder's 0-360 deg convention
+    "diff_phase_deg": (-2 * MAX_DIFF_PHASE_DEG, 2 * MAX_DIFF_PHASE_DEG, "deg", "antenna.diff_phase_deg, or 0 to 360"),
     "monopulse_slope_per_deg": (0.0, MAX_MONOPULSE_SLOPE_PER_DEG, "per degree", "processing.monopulse_calibration"),
 }
 

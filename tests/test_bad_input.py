@@ -382,7 +382,7 @@ CUBE_CASES = [
     ("imbalance-1e5-db", _h5_edit(_attr("antenna", "diff_gain_db", 1e5)),
      ["/antenna", "diff_gain_db", "100000.0", "-40 to 40 dB"]),
     ("imbalance-phase-1e6-deg", _h5_edit(_attr("antenna", "diff_phase_deg", -1e6)),
-     ["/antenna", "diff_phase_deg", "-180 to 180 deg"]),
+     ["/antenna", "diff_phase_deg", "-360 to 360 deg"]),
     ("slope-1e6-per-degree", _h5_edit(_attr("antenna", "monopulse_slope_per_deg", 1e6)),
      ["/antenna", "monopulse_slope_per_deg", "0 to 100 per degree"]),
     ("truncated-file", _truncated, ["truncated"]),
@@ -877,3 +877,86 @@ def test_a_sub_swath_keystone_over_the_size_limit_is_refused_before_the_chain(tm
         assert fragment in line, line
     with backing.file_backed(tmp_path):
         build_forward_stages(cube, proc)
+
+
+@pytest.mark.parametrize("slope_per_deg, accepted", [(50.0, True), (150.0, False)])
+def test_a_table_antenna_the_scenario_takes_makes_a_cube_its_reader_takes(tmp_path, capsys, slope_per_deg, accepted):
+    """A measured pattern (``antenna.pattern: table``) of a 0.1 deg beam whose ratio is tanh(k d): its slope
+    through boresight k is held to the bound a cube's /antenna is held to (up to 100 per degree, as
+    ``processing.monopulse_calibration``), so what the scenario takes, its cube's reader takes (an
+    independent review: k = 150 was simulated, exit 0, and the cube then refused by ``validate``)."""
+    d = np.linspace(-0.5, 0.5, 2001)
+    sum_v = np.exp(-2.0 * np.log(2.0) * (d / 0.1) ** 2)          # one-way 3 dB width 0.1 deg
+    np.savetxt(tmp_path / "pat.csv", np.column_stack([d, sum_v, sum_v * np.tanh(slope_per_deg * d)]),
+               delimiter=",", header="offset_deg,sum,diff", comments="")
+    raw = yaml.safe_load(TINY_TEXT)
+    raw["antenna"].update(beamwidth_3db_deg=0.1, pattern="table", pattern_file="pat.csv")
+    raw["antenna"].pop("squint_deg", None)
+    scenario = tmp_path / "table.yaml"
+    scenario.write_text(yaml.safe_dump(raw), encoding="utf-8")
+    cube = tmp_path / "table.h5"
+    code, out, err = run_cli(["simulate", scenario, "-o", cube, "-q"], capsys)
+    if not accepted:
+        assert_bad_input(code, out, err, scenario, ["antenna.pattern_file", "slope through boresight", "up to 100"])
+        assert not cube.exists()
+        return
+    assert code == 0, err
+    code, out, err = run_cli(["validate", cube], capsys)
+    assert code == 0, err
+    with h5py.File(cube, "r") as f:
+        assert f["antenna"].attrs["monopulse_slope_per_deg"] == pytest.approx(slope_per_deg, rel=1e-3)
+
+
+def test_a_path_under_a_folder_whose_name_is_not_utf8_is_refused_in_one_line(tmp_path, capsys):
+    """A relative ``antenna.pattern_file`` resolved against the scenario's folder, whose name holds a byte
+    that is not UTF-8 (Python keeps it as a lone surrogate): the resolved path cannot be written into the
+    outputs, so it is refused by ``validate`` and ``simulate`` alike, in one line (an independent review: it
+    passed ``validate`` and ended ``simulate`` in a UnicodeEncodeError, exit 1)."""
+    folder = Path(os.fsdecode(os.path.join(os.fsencode(tmp_path), b"d\xff")))
+    folder.mkdir()
+    d = np.linspace(-20.0, 20.0, 2001)
+    sum_v = np.exp(-2.0 * np.log(2.0) * (d / 6.0) ** 2)
+    np.savetxt(folder / "pat.csv", np.column_stack([d, sum_v, sum_v * np.tanh(0.3 * d)]), delimiter=",",
+               header="offset_deg,sum,diff", comments="")
+    raw = yaml.safe_load(TINY_TEXT)
+    raw["antenna"].update(pattern="table", pattern_file="pat.csv")
+    raw["antenna"].pop("squint_deg", None)
+    scenario = folder / "table.yaml"
+    scenario.write_text(yaml.safe_dump(raw), encoding="utf-8")
+    for command in (["validate", scenario], ["simulate", scenario, "-o", tmp_path / "raw.h5"]):
+        code, out, err = run_cli(command, capsys)
+        assert code == 2 and "Traceback" not in err, err
+        lines = err.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("fwdlook: error:"), lines
+        assert "antenna.pattern_file" in lines[0] and "not UTF-8" in lines[0], lines[0]
+    assert not (tmp_path / "raw.h5").exists() and list(tmp_path.rglob("*.partial")) == []
+
+
+def test_a_recorded_phase_imbalance_in_0_to_360_deg_is_the_same_as_in_plus_minus_180(good_cube, tmp_path, capsys):
+    """A recorder's channel phase imbalance in the 0-360 deg convention (270 deg) is one turn from the
+    scenario's +-180 deg (-90 deg): with the difference channel rotated by it, both process to the metrics of
+    the cube without the imbalance (exp(j phi) is all the chain takes of it); beyond one turn either way it is
+    refused (the fifty-eighth round's bound, which had first refused 270 deg)."""
+    import json
+
+    def metrics_of(name, phase_deg):
+        path = tmp_path / f"{name}.h5"
+        shutil.copyfile(good_cube, path)
+        if phase_deg is not None:
+            with h5py.File(path, "r+") as f:
+                f["echo/diff"][...] = (f["echo/diff"][()] * np.exp(1j * np.radians(phase_deg))).astype(np.complex64)
+                f["antenna"].attrs["diff_phase_deg"] = phase_deg
+        code, _, err = run_cli(["process", path, "-o", tmp_path / name, "-q"], capsys)
+        assert code == 0, err
+        return json.loads((tmp_path / name / "metrics.json").read_text())["targets"]
+
+    plain = metrics_of("plain", None)
+    for phase_deg in (270.0, -90.0):
+        rotated = metrics_of(f"phase{phase_deg:g}", phase_deg)
+        for a, b in zip(plain, rotated):
+            assert (a["meas_range_m"] is None) == (b["meas_range_m"] is None)
+            if a["meas_range_m"] is not None:
+                assert b["meas_range_m"] == pytest.approx(a["meas_range_m"], abs=1e-6)
+                assert b["meas_azimuth_deg"] == pytest.approx(a["meas_azimuth_deg"], abs=1e-6)
+    path = _h5_edit(_attr("antenna", "diff_phase_deg", 361.0))(good_cube, tmp_path)
+    assert_bad_input(*run_cli(["validate", path], capsys), path, ["/antenna", "diff_phase_deg", "-360 to 360 deg"])

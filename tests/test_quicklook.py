@@ -25,8 +25,9 @@ def test_an_empty_raster_keeps_its_axes():
 
 def test_a_title_the_font_cannot_draw_warns_no_one(tmp_path):
     """A scenario name in a script the font lacks (CJK, an emoji, a tab) is drawn as boxes without
-    matplotlib's UserWarning for each character, whoever draws it: the quick look and the report's
-    figures (the warning's two lines had reached the terminal of a run that succeeded)."""
+    matplotlib's UserWarning for each character: the quick look (``draw_image_png``, which its painter runs)
+    and the report's image panels (``report.plots.image_panels``); the warning's two lines had reached the
+    terminal of a run that succeeded."""
     import warnings
 
     from fwdlook_cli.io.quicklook import draw_image_png

@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..limits import MAX_MONOPULSE_SLOPE_PER_DEG
+
 PATTERNS = ("gaussian2", "sinc2", "table")
 DEFAULT_CROSSOVER_DB = -3.0
 TEXTBOOK_CROSSOVER_DB = -10.0 * np.log10(2.0)
@@ -387,6 +389,10 @@ class TableAntenna(_RatioInverse):
         if not self.slope_per_deg > 0:
             raise AntennaDesignError(f"{source}: the difference gain does not rise through boresight "
                                      f"(slope {self.slope_per_deg:g} /deg); allowed: positive towards +x", key)
+        if self.slope_per_deg > MAX_MONOPULSE_SLOPE_PER_DEG:   # a cube's /antenna is held to it too (io/raw.py)
+            raise AntennaDesignError(f"{source}: the ratio's slope through boresight is {self.slope_per_deg:.4g} per "
+                                     f"degree; allowed: up to {MAX_MONOPULSE_SLOPE_PER_DEG:g} (as "
+                                     f"processing.monopulse_calibration)", key)
         self.squint_deg = float("nan")
         self.crossover_db = float("nan")
 

@@ -81,12 +81,19 @@ def ground_image(cell_x_m, cell_y_m, cell_power, step_m):
         return np.zeros((1, 1), np.float32), np.zeros(1), np.zeros(1)
     x_lo, x_hi = tail_percentiles(cell_x_m, 0.1, 99.9)
     y_lo, y_hi = tail_percentiles(cell_y_m, 0.1, 99.9)
-    bins = ((x_hi - x_lo) / step_m + 11) * ((y_hi - y_lo) / step_m + 11)
-    if bins > GROUND_MAX_BINS:
-        step_m *= float(np.ceil(np.sqrt(bins / GROUND_MAX_BINS)))
-    x0, y0 = np.floor(x_lo / step_m) * step_m - 5 * step_m, np.floor(y_lo / step_m) * step_m - 5 * step_m
-    nx = int(np.ceil((x_hi - x0) / step_m)) + 10
-    ny = int(np.ceil((y_hi - y0) / step_m)) + 10
+
+    def grid(step):                          # (x0, y0, nx, ny) of the box, 5 margin bins each side
+        x0, y0 = np.floor(x_lo / step) * step - 5 * step, np.floor(y_lo / step) * step - 5 * step
+        return x0, y0, int(np.ceil((x_hi - x0) / step)) + 10, int(np.ceil((y_hi - y0) / step)) + 10
+
+    x0, y0, nx, ny = grid(step_m)
+    # the smallest whole factor that fits: none below the root of the excess can (each axis shrinks by at most
+    # the factor); a thin box, whose short axis is mostly margin, needs up to the excess itself
+    base, factor = step_m, max(2, int(np.sqrt(nx * ny / GROUND_MAX_BINS)))
+    while nx * ny > GROUND_MAX_BINS:
+        step_m = base * factor
+        x0, y0, nx, ny = grid(step_m)
+        factor += 1
     # accumulated in float32, the image's own precision (np.add.at: no grid-sized float64 temporary,
     # whose fresh pages cost more than the sums here), in blocks of cells taken in order (the same
     # sums): the bins' float64 temporaries of a block, not of every cell, while the outputs still hold

@@ -133,6 +133,7 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, chec
             CROSS_CHECKS[kind](resolved, source, check_pulses=check_pulses)
         else:
             CROSS_CHECKS[kind](resolved, source)
+        _check_text_encodes(resolved, "", source)
     except BadInput as exc:
         raise _with_the_setting(exc, source, overrides) from None
     if kind == "forward":
@@ -145,6 +146,26 @@ def resolve_scenario(raw: Any, source: str = "<scenario>", overrides=(), *, chec
                 set_keys |= set(scene_value)
         warn_unused_scene_keys(raw.get("scene"), set_keys, source)      # a valid scenario only (one line else)
     return resolved
+
+
+def _check_text_encodes(node, path: str, source: str) -> None:
+    """Every string of a resolved scenario is written into the outputs (scenario.yaml, image.h5, metrics.json):
+    a path made absolute from a folder whose name holds bytes that are not UTF-8 (Python keeps each as a lone
+    surrogate) is refused here, in one line; it had passed ``validate`` and then ended ``simulate`` in a
+    UnicodeEncodeError, exit 1 (the scenario's own strings are checked by ``fields.text``)."""
+    if isinstance(node, dict):
+        for key, value in node.items():
+            _check_text_encodes(value, f"{path}.{key}" if path else str(key), source)
+    elif isinstance(node, (list, tuple)):
+        for value in node:
+            _check_text_encodes(value, path, source)
+    elif isinstance(node, str):
+        try:
+            node.encode("utf-8")
+        except UnicodeEncodeError:
+            raise BadInput(f"{source}: {path} = {_show(node)}: not UTF-8 text (a folder's name the file system "
+                           f"holds as bytes), and every output records it; allowed: a path whose names are "
+                           f"UTF-8") from None
 
 
 def _with_the_setting(exc: BadInput, source: str, overrides) -> BadInput:
