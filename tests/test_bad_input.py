@@ -519,7 +519,8 @@ def test_a_point_beneath_the_platform_leaves_a_cube_its_own_reader_takes(tmp_pat
         range_m = f["axes/range_m"][()]
     assert range_m[0] == pytest.approx(step_m, rel=1e-12)
     reach_m = C_MPS * radar["pulse_width_s"] / 2.0
-    assert range_m[-1] >= 1030.0 + reach_m                  # the farthest target's kernel (its closest range)
+    farthest_m = float(np.hypot(1030.0, raw["platform"]["height_m"]))   # at the first pulse, before it closes in
+    assert range_m[-1] >= farthest_m + reach_m              # the farthest target's whole kernel
 
 
 # ----------------------------------------------------------------------------------------------
