@@ -255,8 +255,8 @@ def _read_raw_open(f: h5py.File, source: str) -> RawCube:
                            f"text, a boolean or a complex value)") from None
         if not np.isfinite(value) or value <= 0:
             raise BadInput(f"{source}: /radar attribute {key} = {shown(value)}: must be a positive number")
-        if outside_scenario_range(key, value):
-            raise BadInput(f"{source}: /radar attribute {key} = {value:.9g}; {outside_scenario_range(key, value)}")
+        if why := outside_scenario_range(key, value):       # (limits.CUBE_ATTRIBUTE_RANGES)
+            raise BadInput(f"{source}: /radar attribute {key} = {value:.9g}; {why}")
         radar[key] = value
     # (h5py's items() holds its global lock while the loop's body runs: an exception raised in a comprehension's
     # body (its iterator a local of its own frame before Python 3.12), its traceback kept by the caller, left
@@ -507,8 +507,8 @@ def _read_antenna(f: h5py.File, source: str) -> dict:
             if not np.isfinite(value) and not (np.isnan(value) and key in ANTENNA_MAY_BE_NAN):
                 raise BadInput(f"{source}: /antenna attribute {key} = {value!r}: must be a finite number"
                                + (" (or NaN: not given)" if key in ANTENNA_MAY_BE_NAN else ""))
-            if np.isfinite(value) and outside_scenario_range(key, value):   # (limits.CUBE_ATTRIBUTE_RANGES)
-                raise BadInput(f"{source}: /antenna attribute {key} = {value!r}; {outside_scenario_range(key, value)}")
+            if why := outside_scenario_range(key, value):   # (a ranged key is finite here: refused above)
+                raise BadInput(f"{source}: /antenna attribute {key} = {value!r}; {why}")
             antenna[key] = value
     return antenna
 
