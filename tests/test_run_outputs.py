@@ -418,11 +418,14 @@ def test_a_float32_track_whose_rounding_reaches_the_phases_is_restored(tmp_path,
     dwell image -0.5 dB from the float64 one with its peaks 10.9-13.6 dB lower, and the CPI image -29.5
     dB off. The reader restores what the recording holds besides the rounding (io/track.py: the
     velocities' integral through the positions, the least-squares pulse train), and says so: the same
-    noiseless cube stored both ways gives images -30 dB (positions, dwell imaging) and -90 dB (times,
-    CPI imaging) apart, the peaks within 0.3 dB."""
+    noiseless cube stored both ways gives images -30 dB (positions, dwell imaging) and -60 dB (times,
+    CPI imaging) apart, the peaks within 0.3 dB, and (times) Doppler spectra -90 dB apart.  The train is
+    within 3 ns of the true times, and the spectra agree to -108 dB; the image is not a continuous map of
+    them (a cell over the threshold or not, its angle rounded to a bin), so a cell on an edge can flip
+    between the two: -75.7 dB on an AVX-512 host, where the image had been held to -90 dB."""
     src = tmp_path / "src.h5"
     fw.write_raw(src, fw.simulate_cube(fw.load_scenario(ROOT / "scenarios" / "isolated_a50.yaml", ["noise.snr_db=null"])))
-    images = {}
+    images, spectra = {}, {}
     for dtype in (np.float64, np.float32):
         name = np.dtype(dtype).name
         dst = tmp_path / f"{name}.h5"
@@ -441,10 +444,16 @@ def test_a_float32_track_whose_rounding_reaches_the_phases_is_restored(tmp_path,
         assert ("is float32, rounded to" in err) == (dtype is np.float32), err
         with h5py.File(tmp_path / name / "image.h5") as f:
             images[name] = f["image"][()]
+        if stored == "times":
+            with h5py.File(tmp_path / name / "stages" / "06_doppler_spectra.h5") as f:
+                spectra[name] = f["sum_z"][()].astype(np.complex128)
     a, b = images["float64"], images["float32"]
     apart_db = 10 * np.log10(np.sum((a - b) ** 2) / np.sum(a**2))
-    assert apart_db < (-30.0 if stored == "positions" else -90.0), apart_db
+    assert apart_db < (-30.0 if stored == "positions" else -60.0), apart_db
     assert abs(10 * np.log10(b.max() / a.max())) < 0.3
+    if stored == "times":
+        x, y = spectra["float64"], spectra["float32"]
+        assert 10 * np.log10(np.sum(np.abs(x - y) ** 2) / np.sum(np.abs(x) ** 2)) < -90.0
 
 
 def test_a_ratio_table_is_checked_by_its_own_slope(tmp_path):
