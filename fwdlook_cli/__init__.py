@@ -4,7 +4,7 @@
 arrays; see :mod:`fwdlook_cli.api`), each name imported on first use so that the CLI starts fast.
 """
 
-__version__ = "0.4.1"
+__version__ = "0.4.2"
 
 
 def __getattr__(name):

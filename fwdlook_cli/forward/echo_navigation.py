@@ -47,6 +47,7 @@ from .dwell_range import flight_axis_deg
 
 MAX_BLEND_HZ = 2.0              # a cell counts where the blind zone's blend bound is at most this (Hz)
 THRESHOLD_DB = 20.0             # a peak's sum power over its CPI's median: its Doppler and angle need SNR
+DYNAMIC_RANGE_DB = 60.0         # and at most this far under the strongest peak (the images' own dynamic range)
 SHIFT_WARN_SAMPLES = 0.1        # a delay warned where it moves the targets over this many range samples
 MAX_DWELL_COLUMNS = 128         # range columns a dwell-imaging chain computes CPI spectra on for the check
 MIN_SIDE_CPIS = 5               # CPIs with counted cells a side of the flight axis needs to count
@@ -61,14 +62,17 @@ class Cells(NamedTuple):
     f_span_hz: np.ndarray       # F = 2 |v_h| cos(depression) / lambda: the Doppler per unit cos(psi)
 
 
-def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_curvature: float, eligible):
+def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_curvature: float, eligible,
+           envelopes=None):
     """The point-like Doppler peaks of a block of CPI spectra ``z`` [cpi, doppler, range]: over
     ``threshold_db`` of each CPI's noise floor, the largest power within +-``range_cells`` in range (same
     Doppler cell) and +-``doppler_cells`` in Doppler (same range cell), so that no sidelobe of a stronger
     echo counts (at 800 m height the predicted Doppler moves 4-5 Hz per metre of range: sidelobe cells
     4-10 m off a target had read +20 Hz, a review), and with the Doppler curvature of a single
     scatterer, (2 p0 - p_lo - p_hi) / p0 at least ``min_curvature`` (a blend of scatterers is wider), in
-    range cells ``eligible`` (their +-``range_cells`` neighbours contiguous samples).  Returns (CPI in
+    range cells ``eligible`` (their +-``range_cells`` neighbours contiguous samples), and, with
+    ``envelopes`` (:func:`sidelobe_envelopes`), over the sidelobes of every stronger peak of its CPI by
+    :data:`SIDELOBE_MARGIN_DB` (:func:`_clear_of_far_sidelobes`).  Returns (CPI in
     the block, Doppler cell, range cell, the sum sample, the powers of the Doppler cells below, at and
     above, and the sum samples within +-``range_cells`` in range, [n, 2 range_cells + 1])."""
     power = np.abs(z) ** 2
@@ -100,8 +104,58 @@ def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_
     flat, p_0, p_lo, p_hi = flat[single], p_0[single], p_lo[single], p_hi[single]
     jc, rest = np.divmod(flat, n_z * n_r)
     iz, ir = np.divmod(rest, n_r)
+    if envelopes is not None and len(flat):
+        clear = _clear_of_far_sidelobes(jc, iz, ir, p_0, *envelopes, doppler_cells, range_cells)
+        flat, p_0, p_lo, p_hi, jc, iz, ir = (a[clear] for a in (flat, p_0, p_lo, p_hi, jc, iz, ir))
     around = z.reshape(-1).take(flat[:, None] + np.arange(-range_cells, range_cells + 1))   # its range row
     return (jc, iz, ir, z.reshape(-1).take(flat), p_lo, p_0, p_hi, around)
+
+
+SIDELOBE_MARGIN_DB = 6.0         # a peak counts where it stands this far over a stronger peak's far sidelobes
+
+
+def _clear_of_far_sidelobes(jc, iz, ir, p_0, doppler_envelope, range_envelope, doppler_cells: int,
+                            range_cells: int):
+    """Which peaks (CPI ``jc``, Doppler cell ``iz``, range cell ``ir``, power ``p_0``) stand
+    :data:`SIDELOBE_MARGIN_DB` over the sidelobes every stronger peak of their CPI puts there: its power
+    times the Doppler response's envelope at their Doppler cells apart times the compressed pulse's at
+    their range cells apart (a point's CPI spectrum is the product of the two; ``doppler_envelope``,
+    ``range_envelope`` by whole cells apart, :func:`sidelobe_envelopes`).  Pairs within the dominance
+    tests' reach (``doppler_cells``, ``range_cells``) are left to them."""
+    margin = 10.0 ** (SIDELOBE_MARGIN_DB / 10.0)
+    order = np.argsort(jc, kind="stable")
+    bounds = np.flatnonzero(np.r_[True, jc[order][1:] != jc[order][:-1], True])
+    clear = np.ones(len(jc), bool)
+    for a, b in zip(bounds[:-1], bounds[1:]):            # one CPI's peaks: tens, pairwise
+        k = order[a:b]
+        dz = np.abs(iz[k][:, None] - iz[k][None, :])
+        dr = np.abs(ir[k][:, None] - ir[k][None, :])
+        lobes = p_0[k][None, :] * doppler_envelope[np.minimum(dz, len(doppler_envelope) - 1)] \
+            * range_envelope[np.minimum(dr, len(range_envelope) - 1)]
+        lobes[(dz <= doppler_cells) & (dr <= range_cells)] = 0.0          # (itself, and the dominance's reach)
+        lobes[p_0[k][None, :] <= p_0[k][:, None]] = 0.0                   # only stronger peaks' sidelobes
+        clear[k] = p_0[k] >= margin * lobes.max(axis=1)
+    return clear
+
+
+def sidelobe_envelopes(window, step_hz: float, prf_hz: float, n_doppler: int, range_m, range_resolution_m: float):
+    """The sidelobes :func:`_clear_of_far_sidelobes` compares with: the power response of one scatterer
+    in the CPI's zoom (slow-time weights ``window`` at ``prf_hz``, cells ``step_hz`` apart) and, in range,
+    of an unweighted compressed pulse (sinc^2 of the offset over the resolution: the highest sidelobes
+    any range weighting has), each as its running maximum outwards (an envelope, 1 at 0) at whole cells
+    apart, taken half a cell nearer (a peak between two cells).  Strong echoes' sidelobes are point-like
+    peaks over the threshold too: a noiseless cube of eleven points, whose CPI floor is its sidelobes, read
+    +72 Hz and a 0.76 deg pointing error from them (fifty-ninth round)."""
+    w = np.asarray(window, dtype=np.float64)
+    n = np.arange(len(w))
+    fine = np.linspace(0.0, float(n_doppler + 1), 16 * (n_doppler + 1) + 1)
+    resp = np.abs(np.exp(2j * np.pi * fine[:, None] * step_hz * n[None, :] / prf_hz) @ w) ** 2 / np.sum(w) ** 2
+    tail = np.maximum.accumulate(resp[::-1])[::-1]                          # the largest response at or beyond
+    doppler = np.interp(np.arange(n_doppler + 1) - 0.5, fine, tail, left=1.0)
+    spacing_m = float(np.min(np.diff(np.asarray(range_m, float)))) if len(range_m) > 1 else 1.0
+    apart = (np.arange(len(range_m) + 1) - 0.5) * spacing_m / max(float(range_resolution_m), 1e-12)
+    pulse = np.minimum(1.0, 1.0 / np.maximum(np.pi * apart, 1e-12) ** 2)    # sinc^2's envelope
+    return doppler, pulse
 
 
 RANGE_FINE_STEP = 1.0 / 32.0     # the fine grid of :func:`range_peak_offsets`, in range samples
@@ -199,10 +253,16 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
         picked = usable[i:i + per_block]
         return sum_z[picked[0]:picked[-1] + 1] if consecutive else sum_z[picked]
 
+    envelopes = sidelobe_envelopes(np.ones(cpi) if window is None else window, step_hz, prf_hz, sum_z.shape[1],
+                                   range_m, range_resolution_m or spacing_m)
     parts = [_peaks(block(i), threshold_db, range_cells=range_cells, doppler_cells=doppler_cells,
-                    min_curvature=min_curvature, eligible=eligible) for i in starts]
+                    min_curvature=min_curvature, eligible=eligible, envelopes=envelopes) for i in starts]
     jc = np.concatenate([part[0] + i for part, i in zip(parts, starts)])
     iz, ir, z_0, p_lo, p_0, p_hi, around = (np.concatenate([part[k] for part in parts]) for k in range(1, 8))
+    # within the image's dynamic range of the strongest peak: a noiseless cube's CPIs that see no target
+    # have a floor of rounding, and their residues stood 20 dB over it (fifty-ninth round)
+    strong = p_0 >= float(p_0.max(initial=0.0)) * 10.0 ** (-DYNAMIC_RANGE_DB / 10.0)
+    jc, iz, ir, z_0, p_lo, p_0, p_hi, around = (a[strong] for a in (jc, iz, ir, z_0, p_lo, p_0, p_hi, around))
     ic = usable[jc]
     ratio = diff_z[ic, iz, ir] / z_0
     if diff_gain_db or diff_phase_deg:     # the calibration's channel imbalance divided out (as the image)
