@@ -45,8 +45,8 @@ range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
 5. **Projection.**  Cells above ``threshold_db`` over the image's median power (the noise floor),
    within ``dynamic_range_db`` of its peak and with |eps| under half a beamwidth put |S'|^2 at the
    azimuth theta + eps seen from the dwell's mean antenna position, moved to the t_ref frame exactly
-   (``dsp.geometry.azimuth_at_t_ref``): one target's resolved cell lands on one angle bin.  Each cell's
-   power is divided by the image's response to a point at its bin (``dwell_radiometry.py``).
+   (``dsp.geometry.azimuth_at_t_ref``): one target's resolved cell lands on one angle bin.
+
 6. **Joint fit near the flight axis** (``processing.dwell_fit: joint``, ``dwell_fit.py``).  Within
    ``FIT_REGION_BEAMS`` dwell half-widths of the flight axis (4.8 deg) the mirror pairs and the
    neighbours closer than 1/T_dwell still mix in steps 3-4; there the range cells around every range
@@ -56,10 +56,11 @@ range history R_P(t) = |P - p(t)| comes from the INS positions ``position_m``.
 Cost (``fwdlook bench``, paper cube, idle machine, without step 6): the ``dwell_image`` stage is about
 40 plain 2-D FFTs of one channel (2 x 62 FFTs of 320 x 280, then per sub-aperture x direction x range,
 8.8 k x 280 cells, one interpolated read, the phase, the rotation and one sparse sum over the dwell),
-run over blocks of sub-apertures on the stage thread pool (bounded memory).  Step 6 (the tracking
-preset's default) adds 130-150 ms on the paper lattice (started on forked workers before this stage
-projects its own cells); the chain 2.5 x ``chain_tracking_s`` (README, "Imaging over each direction's
-whole dwell"; ``dwell_fit.py`` says where it goes).
+run over blocks of sub-apertures on the stage thread pool (bounded memory); the whole chain 1.12-1.17 x
+``chain_tracking_s`` (issue 11's twenty-fourth round).  Step 6 (the tracking preset's default) adds
+130-150 ms on the paper lattice (started on forked workers before this stage projects its own
+cells), the whole chain 1.88-2.01 x ``chain_tracking_s`` then, 2.8 x now (README, "Imaging over each
+direction's whole dwell"; ``dwell_fit.py`` says where it goes).
 """
 from __future__ import annotations
 
@@ -82,7 +83,6 @@ from ..io.stagefile import StageData
 from .calibration import Calibration, check_slope_forms_a_beam, pattern_beta_per_deg2
 from .dwell_fit import start_fit_region
 from .dwell_fit_plan import fit_cell_model_holds, fit_models_antenna
-from .dwell_radiometry import point_response
 from .dwell_grid import check_focus_sizes, focus_directions, focus_per_bin, pattern_weight, subaperture_windows
 from .dwell_range import (auto_focus_range_oversample, dwell_duration_s, dwell_stage_params, flight_axis_deg,
                           ground_points, iso_doppler_range, oversample_focus_input)
@@ -94,6 +94,7 @@ SUB_APERTURE_DEG = 0.48          # scan per sub-aperture: its rotation and weigh
 DWELL_HALF_WIDTH_BEAMS = 0.75    # dwell of a direction: offsets within 0.75 two-way widths (3.2 deg, paper)
 FIT_REGION_BEAMS = 1.5           # dwell_fit: the joint fit owns directions within 1.5 dwell half-widths of the
                                  # flight axis (4.8 deg: the mirror pairs closer than the dwell window and beyond)
+
 
 
 def dwell_focus(sum_rt, diff_rt, *, slow_time_s, scan_angle_deg, position_m, velocity_mps, range_m, angle_deg,
@@ -338,17 +339,16 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
                 dwell_half_width_deg: float = 3.2, twin_null: bool = True, twin_orders: int = 1,
                 twin_max_corr2: float = 0.9, max_offset_beamwidths: float = 0.5, diff_gain_db: float = 0.0,
                 diff_phase_deg: float = 0.0, boresight_offset_deg: float = 0.0,
-                fit_half_width_deg: float = 0.0, iso_doppler_resolution_m: float = 0.0, dwell_s: float = 0.0,
-                focus_oversample: int = 1, response_half_width_deg: float = 0.0) -> StageData:
+                fit_half_width_deg: float = 0.0, iso_doppler_resolution_m: float = 0.0,
+                dwell_s: float = 0.0, focus_oversample: int = 1) -> StageData:
     """Stage ``dwell_image``: the monopulse image from whole-dwell sums (module docstring).
     ``iso_doppler_resolution_m`` > 0 (the range resolution c / 2B; ``processing.dwell_range:
     iso_doppler``): each projected cell's range is moved along its iso-Doppler line as well
     (:func:`iso_doppler_range`, ``dwell_s`` the dwell time). ``focus_oversample`` > 1: the dwell focused
     on the range grid oversampled that many times (:func:`dwell_range.focus_range_oversample`).
-    ``response_half_width_deg``: within it of the flight axis the image's response to a point is divided
-    out (``dwell_radiometry.py``).  Same output variables and grid conventions as ``chain.monopulse_image``
-    (range at t_ref oversampled x ``range_oversample``, azimuth at t_ref on ``angle_step_deg`` bins,
-    real-beam image, ground cells).
+
+    Same output variables and grid conventions as ``chain.monopulse_image`` (range at t_ref oversampled
+    x ``range_oversample``, azimuth at t_ref on ``angle_step_deg`` bins, real-beam image, ground cells).
     """
     range_m = data["range_m"]
     beam = data["scan_angle_deg"]
@@ -428,15 +428,6 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
         az, _, _ = azimuth_at_t_ref(range_os[i_r], az_dw + np.arctanh(ratio_kept) / slope_per_deg
                                     + boresight_offset_deg, p_dw, p_ref)
         az = np.where(np.isfinite(az), az, dirs[looked][i_dir])
-        # near the axis the image's response to a point divided out: its peak one direction's power there
-        response = point_response(
-            angle_deg=angle_deg, dirs=dirs, dir_weight=dir_weight, first_dir=first_dir, range_m=range_m,
-            focus=dwell_focus, slow_time_s=data["slow_time_s"], scan_angle_deg=beam, position_m=data["position_m"],
-            velocity_mps=vel, position_ref_m=p_ref, fc_hz=fc_hz, prf_hz=prf_hz, slope_per_deg=slope_per_deg,
-            beta_per_deg2=beta_per_deg2, sub_pulses=sub_pulses, dwell_half_width_deg=dwell_half_width_deg,
-            twin_axis_deg=twin_axis, max_ratio=max_ratio, half_width_deg=response_half_width_deg,
-            focus_kwargs=dict(twin_null=twin_null, twin_orders=twin_orders, twin_max_corr2=twin_max_corr2))
-        w = w / response[np.clip(np.rint((az - angle_deg[0]) / angle_step_deg).astype(np.int64), 0, len(angle_deg) - 1)]
         if iso_doppler_resolution_m > 0:       # processing.dwell_range: iso_doppler (steep depression)
             r_new = iso_doppler_range(range_os[i_r], dirs[looked][i_dir], az, p_dw, p_ref,
                                       vel[m_ref], lam_m=C_MPS / fc_hz, resolution_m=iso_doppler_resolution_m,
@@ -450,13 +441,15 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     fit_done = None if finish_fit is None else finish_fit()
     if fit_done is not None:
         fit_theta, fit_prof, fitted = fit_done
-        # in the fitted range cells the fit replaces the region's directions and what lands in it
+        # in the fitted range cells the fit replaces the region's directions and what lands in the
+        # region (elsewhere the dwell's cells stay)
         fitted_os = np.repeat(fitted, range_oversample)[:n_os]
         out_fit = (~(in_fit[i_dir] & fitted_os[i_r])
                    & ((np.abs(az - twin_axis) > fit_half_width_deg) | ~fitted_os[i_r]))
         az, w, i_r = az[out_fit], w[out_fit], i_r[out_fit]
-        # fitted amplitudes at one direction's power (S' = c L gain), the gain before the twin null: the fit
-        # has parted the twins, so none of the null's loss (up to 10 dB for x = +-30 m) is theirs
+        # fitted amplitudes on the dwell image's scale (a point on the imaged direction: S' = c L gain),
+        # the gain before the twin null: the fit has parted the twins, so none of the null's loss (up to
+        # 10 dB for x = +-30 m) is theirs
         col = np.clip(np.rint((fit_theta - angle_deg[0]) / angle_step_deg).astype(np.int64), 0, len(angle_deg) - 1)
         prof = oversample_range(fit_prof * (sub_pulses * plain_gain[first_dir[col]])[:, None].astype(np.float32),
                                 range_oversample)
@@ -484,8 +477,6 @@ def dwell_image(data: StageData, *, fc_hz: float, prf_hz: float, slope_per_deg: 
     out.add("dwell_gain", gain[first_dir], ("angle_deg",), "1", "matched-filter gain sum w^2 of each direction's dwell")
     out.add("focus_directions", per_bin.astype(np.int16), ("angle_deg",), "1",
             "directions focused per angle bin (dwell_grid.py: the dwell's angle lobe sampled)")
-    out.add("point_response_db", 10.0 * np.log10(response), ("angle_deg",), "dB",
-            "the image's peak response to a point over one direction's power, divided out (dwell_radiometry.py)")
     out.add("cell", np.arange(int(inside.sum()), dtype=np.int32), ("cell",), "1", "projected cell")
     out.add("cell_x_m", ground[:, 0].astype(np.float32), ("cell",), "m", "ground x of each projected cell")
     out.add("cell_y_m", ground[:, 1].astype(np.float32), ("cell",), "m", "ground y of each projected cell")
@@ -530,9 +521,8 @@ def dwell_stages(cube, proc: dict, geo: dict):
     geo["resolution_angle_gate_deg"] = 2.0 * DWELL_HALF_WIDTH_BEAMS * two_way_deg
     fit = (proc.get("dwell_fit", "none") == "joint" and fit_models_antenna(cube)
            and fit_cell_model_holds(cube, geo, (FIT_REGION_BEAMS + 1.0) * DWELL_HALF_WIDTH_BEAMS * two_way_deg))
-    region_deg = FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg    # the fit's, and the response's
-    fit_half_width_deg = region_deg if fit else 0.0
-    if fit:                                           # the fit's own resolution (dwell_resolution.fit_resolved_flags)
+    fit_half_width_deg = FIT_REGION_BEAMS * DWELL_HALF_WIDTH_BEAMS * two_way_deg if fit else 0.0
+    if fit:                                               # the fit's own resolution (dwell_resolution.fit_resolved_flags)
         geo["fit_region"] = {"half_width_deg": fit_half_width_deg,
                              "dwell_half_width_deg": DWELL_HALF_WIDTH_BEAMS * two_way_deg,
                              "fc_hz": cube.radar["fc_hz"], "slope_per_deg": float(cal.slope_per_deg),
@@ -546,5 +536,5 @@ def dwell_stages(cube, proc: dict, geo: dict):
         "beta_per_deg2": pattern_beta_per_deg2(cube), "beamwidth_deg": cube.radar["beamwidth_3db_deg"],
         "angle_step_deg": proc["angle_step_deg"], "range_oversample": geo["range_oversample"],
         "threshold_db": proc["threshold_db"], "dynamic_range_db": 60.0,
-        "position_ref_m": [float(v) for v in geo["p_ref"]], "fit_half_width_deg": fit_half_width_deg,
-        "response_half_width_deg": region_deg, **dwell_stage_params(cube, proc, geo)})]
+        "position_ref_m": [float(v) for v in geo["p_ref"]],
+        "fit_half_width_deg": fit_half_width_deg, **dwell_stage_params(cube, proc, geo)})]
