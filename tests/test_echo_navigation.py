@@ -333,23 +333,40 @@ def test_no_strong_range_column_reads_nothing_and_says_nothing():
     assert len(cells.residual_hz) == 0
 
 
-def test_a_noiseless_cube_reads_only_its_targets_own_peaks():
-    """Equal noiseless points 0-12.8 deg off the flight axis (one side), `tracking`: the CPIs whose beam
-    sees no target have a floor of rounding, and their residues stood 20 dB over it at the band's edges
-    (+60 to +79 Hz read, a warned 0.76 deg pointing error in the dwell chain).  Each CPI's floor now
-    counts as at least the median CPI's: the offset within 3 sigma of 0 with no blend allowance."""
+@pytest.mark.parametrize("angles_deg", [[0.0, 0.5, 1.1, 1.6, 2.2, 3.2, 4.3, 6.5, 8.6, 10.7, 12.8], [12.8], [10.7, 12.8]])
+def test_a_noiseless_cube_reads_only_its_targets_own_peaks(angles_deg):
+    """Equal noiseless points off the flight axis (one side), `tracking`: in the CPIs whose beam is aimed
+    away from every target the spectra hold only the processing's residue, 80-150 dB under the targets,
+    with a monopulse ratio all the same, and a target's range cells in CPIs that see it only far off the
+    beam's axis hold it tens of dB down: these had read +60 to +79 Hz (eleven points; a warned 0.76 deg
+    pointing error in the dwell chain), a lone point -59.5 Hz and 0.37 deg (a review, against a first
+    version's gate at each CPI's median floor).  Counted now: peaks within 12 dB of the strongest at their
+    range over the scan and within 100 dB of the strongest of all; the offset within 3 sigma + the blend
+    bound of 0, the warning's own test (a lone point reads -0.27 +- 0.06 Hz: noiseless sigmas are tiny)."""
     import math
 
     from fwdlook_cli.scenario.overlay import resolve_with_config
 
-    angles = [0.0, 0.5, 1.1, 1.6, 2.2, 3.2, 4.3, 6.5, 8.6, 10.7, 12.8]
     points = [[round((1500 + 40 * k) * math.sin(math.radians(a)), 2), round((1500 + 40 * k) * math.cos(math.radians(a)), 2)]
-              for k, a in enumerate(angles)]
+              for k, a in enumerate(angles_deg)]
     spec = yaml.safe_load((ROOT / "scenarios" / "isolated_a50.yaml").read_text())
     spec["scene"]["points_m"], spec["noise"]["snr_db"] = points, None
     scn = resolve_with_config(spec, "noiseless", str(ROOT / "configs" / "tracking.yaml"), [])
     check, _, _ = _check_of(scn, method="tracking", q=1)
-    assert check["cells"] >= 25 and abs(check["doppler_offset_hz"]) <= 3 * check["sigma_hz"], check
+    assert check["cells"] >= 10 and abs(check["doppler_offset_hz"]) <= 3 * check["sigma_hz"] + MAX_BLEND_HZ, check
+
+
+def test_beside_a_very_strong_point_the_others_still_count():
+    """One point 80 dB over the others (amplitude 1e4, the scene's bound), the others at 20 dB of SNR, lagged
+    5 ms: a gate at 60 dB under the strongest peak had left 6 cells on one side (a review); the main-beam
+    gate counts by range, so the weak points at their own ranges count and both sides read the lag within
+    the bounds."""
+    amplitudes = [1.0] * 11
+    amplitudes[5] = 1e4
+    scn = fw.load_scenario(ROOT / "scenarios" / "isolated_a50.yaml",
+                           overrides=["noise.snr_db=100", f"scene.amplitude={amplitudes}"])
+    check, _, cube = _check_of(scn, method="decimation", q=25, lag_s=0.005)
+    assert check["sides"] == 2 and check["cells"] > 100 and _within(check, 0.005, cube.radar["fc_hz"]), check
 
 
 def test_a_strong_points_sidelobes_are_not_read_as_echoes():

@@ -39,6 +39,7 @@ import numpy as np
 
 from ..dsp.geometry import C_MPS, azimuth_at_t_ref
 from ..dsp.imaging import median_sample_stride
+from ..dsp.neighbours import running_max
 from ..dsp.profile_rows import parabola_vertex_rows
 from ..dsp.pulse import weighting
 from ..io.backing import BLOCK_BYTES
@@ -47,6 +48,8 @@ from .dwell_range import flight_axis_deg
 
 MAX_BLEND_HZ = 2.0              # a cell counts where the blind zone's blend bound is at most this (Hz)
 THRESHOLD_DB = 20.0             # a peak's sum power over its CPI's median: its Doppler and angle need SNR
+MAIN_BEAM_DB = 12.0             # and within this of the strongest peak at its range over the scan: main-beam echoes
+NUMERIC_FLOOR_DB = 100.0        # and within this of the strongest peak of all: over float32 processing's residue
 SHIFT_WARN_SAMPLES = 0.1        # a delay warned where it moves the targets over this many range samples
 MAX_DWELL_COLUMNS = 128         # range columns a dwell-imaging chain computes CPI spectra on for the check
 MIN_SIDE_CPIS = 5               # CPIs with counted cells a side of the flight axis needs to count
@@ -74,8 +77,7 @@ def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_
     ``envelopes`` (:func:`sidelobe_envelopes`), over the sidelobes of every stronger peak of its CPI by
     :data:`SIDELOBE_MARGIN_DB` (:func:`_clear_of_far_sidelobes`).  Returns (CPI in
     the block, Doppler cell, range cell, the sum sample, the powers of the Doppler cells below, at and
-    above, the sum samples within +-:func:`interp_cells` in range, [n, 2 interp_cells + 1], and each CPI's
-    floor)."""
+    above, and the sum samples within +-:func:`interp_cells` in range, [n, 2 interp_cells + 1])."""
     power = np.abs(z) ** 2
     n_c, n_z, n_r = power.shape
     # the CPI's noise floor: the median of a strided sample (the image's stride, sharing no factor with
@@ -110,10 +112,27 @@ def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_
         flat, p_0, p_lo, p_hi, jc, iz, ir = (a[clear] for a in (flat, p_0, p_lo, p_hi, jc, iz, ir))
     k_interp = interp_cells(range_cells)
     around = z.reshape(-1).take(flat[:, None] + np.arange(-k_interp, k_interp + 1))   # its range row
-    return (jc, iz, ir, z.reshape(-1).take(flat), p_lo, p_0, p_hi, around, floor)
+    return (jc, iz, ir, z.reshape(-1).take(flat), p_lo, p_0, p_hi, around)
 
 
 SIDELOBE_MARGIN_DB = 6.0         # a peak counts where it stands this far over a stronger peak's far sidelobes
+
+
+def main_beam_peaks(ir, p_0, n_range: int, range_cells: int):
+    """Which peaks (range cell ``ir``, power ``p_0``, over every CPI) lie within :data:`MAIN_BEAM_DB` of the
+    strongest peak within +-``range_cells`` of their range over the scan.  A target seen through the
+    beam's far sidelobes lies at its own range tens of dB under its main-beam peak there, and its
+    monopulse ratio gives an angle within the beam all the same: a noiseless cube's such echoes, and its
+    residues in CPIs aimed away from every target, had read +47 to +79 Hz, a lone point's -59.5 Hz and a
+    0.37 deg pointing error (fifty-ninth round).  A counted echo is within half a beamwidth of the beam's
+    axis, 6 dB of two-way pattern; 12 dB leaves noise and the Doppler cells' straddle room.  (A floor
+    gate at each CPI's median floor had dropped real peaks of the dwell chain's strong columns and the
+    extended scene, whose CPIs' floors differ by 17-19 dB: a review.)"""
+    ir = np.asarray(ir, dtype=np.int64)
+    strongest = np.zeros(max(int(n_range), 1))
+    np.maximum.at(strongest, ir, p_0)
+    near = running_max(strongest, 2 * int(range_cells) + 1)
+    return p_0 >= near[ir] * 10.0 ** (-MAIN_BEAM_DB / 10.0)
 
 
 def _clear_of_far_sidelobes(jc, iz, ir, p_0, doppler_envelope, range_envelope, doppler_cells: int,
@@ -269,12 +288,12 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
                     min_curvature=min_curvature, eligible=eligible, envelopes=envelopes) for i in starts]
     jc = np.concatenate([part[0] + i for part, i in zip(parts, starts)])
     iz, ir, z_0, p_lo, p_0, p_hi, around = (np.concatenate([part[k] for part in parts]) for k in range(1, 8))
-    # a CPI's floor is at least the median CPI's: the receiver's noise does not leave one CPI (a noiseless
-    # cube's CPIs that see no target have a floor of rounding, and their residues stood 20 dB over it,
-    # fifty-ninth round); a noisy cube's floors are its noise, alike
-    floors = np.concatenate([part[8] for part in parts])
-    over = p_0 > float(np.median(floors)) * np.float32(10.0 ** (threshold_db / 10.0)) if len(floors) else p_0 > 0
-    jc, iz, ir, z_0, p_lo, p_0, p_hi, around = (a[over] for a in (jc, iz, ir, z_0, p_lo, p_0, p_hi, around))
+    # through the main beam only: within MAIN_BEAM_DB of the strongest peak at its range over the scan
+    # (a target's far-sidelobe echoes carry no monopulse angle; a noiseless cube's had read +47 to +79 Hz),
+    # and over the float32 processing's own floor, NUMERIC_FLOOR_DB under the strongest peak of all
+    main = main_beam_peaks(ir, p_0, len(range_m), range_cells)
+    main &= p_0 >= float(p_0.max(initial=0.0)) * 10.0 ** (-NUMERIC_FLOOR_DB / 10.0)
+    jc, iz, ir, z_0, p_lo, p_0, p_hi, around = (a[main] for a in (jc, iz, ir, z_0, p_lo, p_0, p_hi, around))
     ic = usable[jc]
     ratio = diff_z[ic, iz, ir] / z_0
     if diff_gain_db or diff_phase_deg:     # the calibration's channel imbalance divided out (as the image)
@@ -388,9 +407,10 @@ def echo_navigation_check(cells: Cells, *, fc_hz: float, accel_mps2, speed_mps: 
         out["sigma_pointing_deg"] = float(np.degrees(np.hypot(sg_l, sg_r) / (g_r - g_l)))
     else:
         offset_hz, sigma_hz, lever = sides[0]
-        out["pointing_alternative_deg"] = float(np.degrees(offset_hz / lever))
     if cells.prf_hz:                  # the offset within half a PRF, as the residuals are
         offset_hz = float(wrapped_hz(offset_hz, cells.prf_hz))
+    if len(sides) == 1:
+        out["pointing_alternative_deg"] = float(np.degrees(offset_hz / lever))
     accel_los = float(np.median(cells.los @ np.asarray(accel_mps2, float)))
     out.update(sides=len(sides), doppler_offset_hz=float(offset_hz), sigma_hz=sigma_hz,
                velocity_error_mps=wavelength_m * offset_hz / 2.0, sigma_velocity_mps=wavelength_m * sigma_hz / 2.0,
@@ -470,8 +490,8 @@ def echo_navigation_warnings(check: dict, *, range_spacing_m: float, angle_step_
 
 
 def echo_margin_cells(range_m, range_resolution_m: float) -> int:
-    """The range samples either side a counted cell's dominance test reads (:func:`_peaks`), plus one."""
-    return _range_cells(range_m, range_resolution_m)[1] + 1
+    """The range samples either side a counted cell's tests and its range peak read (:func:`_peaks`), plus one."""
+    return interp_cells(_range_cells(range_m, range_resolution_m)[1]) + 1
 
 
 def strong_columns(compensated, max_columns: int = MAX_DWELL_COLUMNS, over_db: float = 10.0,

@@ -18,7 +18,7 @@ import numpy as np
 
 from .. import __version__
 from . import h5native, signals
-from .partial import claim_partial
+from .partial import claim_partial_into
 
 _SCALAR = None
 _TYPES: dict = {}
@@ -78,12 +78,14 @@ def atomic_h5(path: str | Path, *, own_partial: bool = False):
 
     path = Path(path)
     make_parent(path)
-    tmp = None
-    try:
-        tmp = claim_partial(path.with_name(path.name + ".partial"), replace_regular=own_partial)
+    claimed: list = []
+    try:           # claimed with signals held, so that one arriving meanwhile finds the name to remove
+        tmp = signals.call_held(claim_partial_into, claimed, path.with_name(path.name + ".partial"),
+                                replace_regular=own_partial)
+        signals.raise_pending()
         sink = FailSafeSink(tmp)
     except BaseException as exc:       # (a signal included) the claimed name removed again
-        _discard(path, tmp, exc)
+        _discard(path, claimed[0] if claimed else None, exc)
     done = False
     f = None
     try:
@@ -126,13 +128,14 @@ def atomic_write_text(path: str | Path, text: str) -> None:
 
     path = Path(path)
     make_parent(path)
-    tmp = None
+    claimed: list = []
     try:
-        tmp = claim_partial(path.with_name(path.name + ".partial"))
+        tmp = signals.call_held(claim_partial_into, claimed, path.with_name(path.name + ".partial"))
+        signals.raise_pending()
         tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, path)
     except BaseException as exc:       # (a signal included) no partial file left
-        _discard(path, tmp, exc)
+        _discard(path, claimed[0] if claimed else None, exc)
 
 
 def _discard(path, tmp, exc: BaseException):

@@ -7,8 +7,7 @@ A command's outputs are checked BEFORE any work is done (:func:`prepare_file`, :
   whose root attribute ``format`` is ``fwdlook-raw``; a run directory holding fwdlook's stage files,
   ``metrics.json`` with ``fwdlook_version``, a fwdlook ``image.h5`` or ``raw.h5``; a report directory
   whose ``report.md`` fwdlook wrote), or ``--overwrite`` is given;
-* an output that is one of the command's inputs (same inode, whatever the spelling) is refused even
-  with ``--overwrite``;
+* an output that is one of the command's inputs (same inode, whatever the spelling) is refused always;
 * the parent folders are created and a probe file is written and removed, so that a path under a
   regular file, on a read-only file system or in a folder without write permission fails at once;
 * every ``OSError`` becomes :class:`BadInput` ``cannot write PATH: <strerror>`` (exit 2).
@@ -31,7 +30,7 @@ from pathlib import Path
 from ..errors import BadInput
 from ..limits import shown
 from . import signals
-from .partial import claim_partial
+from .partial import claim_partial_into
 from .pending import STAGED_PREFIX
 
 RAW_FORMAT = "fwdlook-raw"
@@ -135,20 +134,21 @@ def atomic_path(path, *, rename: bool = True, tmp=None):
     ``OSError`` becomes one BadInput line."""
     path = Path(path)
     make_parent(path)
-    if tmp is None:
-        with mapped_os_errors(path):
-            tmp = claim_partial(partial_path(path))
-    tmp = Path(tmp)
+    claimed: list = [] if tmp is None else [Path(tmp)]
     try:
-        yield tmp
+        if tmp is None:     # claimed with signals held: one arriving meanwhile finds the name to remove
+            with mapped_os_errors(path):
+                signals.call_held(claim_partial_into, claimed, partial_path(path))
+        signals.raise_pending()
+        yield claimed[0]
         if rename:
             with mapped_os_errors(path):
-                os.replace(tmp, path)
-    except OSError as exc:
-        _unlink_quietly(tmp)
-        raise write_error(path, exc) from None
-    except BaseException:
-        _unlink_quietly(tmp)
+                os.replace(claimed[0], path)
+    except BaseException as exc:
+        for name in claimed:
+            _unlink_quietly(name)
+        if isinstance(exc, OSError):
+            raise write_error(path, exc) from None
         raise
 
 

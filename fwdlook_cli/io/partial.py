@@ -54,3 +54,13 @@ def claim_partial(tmp, *, replace_regular: bool = False) -> Path:
                         f"or one a killed run left): left as it is; writing through {other.name} instead")
             return other
     raise FileExistsError(f"no free partial name beside {tmp}")
+
+
+def claim_partial_into(claimed: list, tmp, *, replace_regular: bool = False) -> Path:
+    """:func:`claim_partial`, its result appended to ``claimed`` before it returns: called through
+    ``signals.call_held``, a Ctrl-C or SIGTERM arriving meanwhile is raised only once the caller can see
+    the name it must remove (a SIGTERM just after the file was created had left ``NAME.partial`` behind
+    the command: ``tests/test_reliability.py``, under load)."""
+    claimed.append(claim_partial(tmp, replace_regular=replace_regular))
+    return claimed[-1]
+

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .outputs import _unlink_quietly, atomic_path, make_parent, mapped_os_errors, partial_path
+from . import signals
 from .partial import claim_partial
 
 
@@ -58,9 +59,9 @@ def start_image_png(path, power, x_axis, y_axis, **kwargs) -> "PendingPng":
     child, tmp = painter.active(), None
     if child is not None:
         make_parent(path)
-        with mapped_os_errors(path):           # the partial name claimed here, drawn there (io/partial.py)
-            tmp = claim_partial(partial_path(path))
-        _UNCLAIMED.add(str(tmp))
+        with mapped_os_errors(path):           # the partial name claimed here, drawn there (io/partial.py),
+            tmp = signals.call_held(_claim_for_painter, path)     # with signals held until it is known
+        signals.raise_pending()
         try:       # by name: the child's own draw_image_png, left partial (renamed by finish)
             child.submit("fwdlook_cli.io.quicklook:draw_image_png", *args, rename=False, partial=str(tmp), **kwargs)
         except painter.PainterGone:
@@ -69,6 +70,14 @@ def start_image_png(path, power, x_axis, y_axis, **kwargs) -> "PendingPng":
 
 
 _UNCLAIMED: set = set()     # the painter's drawings (partial_path) begun and not yet renamed or discarded by their command
+
+
+def _claim_for_painter(path) -> Path:
+    """The drawing's partial name claimed and entered in :data:`_UNCLAIMED` (whose names a stopped command
+    removes) in one step: called with signals held, none can come between the two."""
+    tmp = claim_partial(partial_path(path))
+    _UNCLAIMED.add(str(tmp))
+    return tmp
 
 
 @contextlib.contextmanager
