@@ -63,4 +63,3 @@ def claim_partial_into(claimed: list, tmp, *, replace_regular: bool = False) -> 
     the command: ``tests/test_reliability.py``, under load)."""
     claimed.append(claim_partial(tmp, replace_regular=replace_regular))
     return claimed[-1]
-
