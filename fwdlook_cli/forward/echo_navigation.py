@@ -164,9 +164,10 @@ def sidelobe_envelopes(window, step_hz: float, prf_hz: float, n_doppler: int, ra
     in the CPI's zoom (slow-time weights ``window`` at ``prf_hz``, cells ``step_hz`` apart) and, in range,
     of an unweighted compressed pulse (sinc^2 of the offset over the resolution: the highest sidelobes
     any range weighting has), each as its running maximum outwards (an envelope, 1 at 0) at whole cells
-    apart, taken half a cell nearer (a peak between two cells).  Strong echoes' sidelobes are point-like
-    peaks over the threshold too: a noiseless cube of eleven points, whose CPI floor is its sidelobes, read
-    +72 Hz and a 0.76 deg pointing error from them (fifty-ninth round)."""
+    apart, taken half a cell nearer (a peak between two cells).  Strong echoes' far sidelobes are
+    point-like peaks over the threshold too wherever the CPI's floor lies far under them (a noiseless
+    cube, a target 40 dB and more over the noise): ``test_a_strong_points_sidelobes_are_not_read_as_echoes``
+    (fifty-ninth round)."""
     w = np.asarray(window, dtype=np.float64)
     n = np.arange(len(w))
     fine = np.linspace(0.0, float(n_doppler + 1), 16 * (n_doppler + 1) + 1)
@@ -201,7 +202,8 @@ def range_peak_offsets(around):
     Hamming taper; at steep depression the predicted Doppler moves with range (14 Hz per metre at 3000 m
     of height, 1.7 km out), so that bias had read as a 7 Hz offset and a false 3 ms lag on a clean cube
     (a review).  Interpolated from +-3 samples, 0.018 samples (unweighted) and 0.005 (Hamming) at worst
-    (``tests/test_echo_navigation.py``)."""
+    (``tests/test_echo_navigation.py``); the check reads +-:func:`interp_cells`, 4 at least: 0.005 samples
+    unweighted at fs / B = 1.2."""
     k_max = (around.shape[1] - 1) // 2
     taps = np.arange(-k_max, k_max + 1)
     fine = np.arange(-1.0, 1.0 + 0.5 * RANGE_FINE_STEP, RANGE_FINE_STEP)
