@@ -385,13 +385,12 @@ def test_a_strong_points_sidelobes_are_not_read_as_echoes():
     rng = np.random.default_rng(0)
     z = (doppler[:, None] * pulse[None, :]
          + 1e-6 * (rng.standard_normal((n_doppler, n_range)) + 1j * rng.standard_normal((n_doppler, n_range))))[None]
-    range_m = 1500.0 + spacing_m * np.arange(n_range)
     range_cells = int(np.ceil(2 * resolution_m / spacing_m))
     doppler_cells = int(np.ceil(2.0 * (prf_hz / cpi) / step_hz))
     eligible = (np.arange(n_range) >= range_cells) & (np.arange(n_range) < n_range - range_cells)
     kw = dict(range_cells=range_cells, doppler_cells=doppler_cells, eligible=eligible,
               min_curvature=0.8 * single_scatterer_curvature(np.ones(cpi), step_hz, prf_hz))
-    envelopes = sidelobe_envelopes(np.ones(cpi), step_hz, prf_hz, n_doppler, range_m, resolution_m)
+    envelopes = sidelobe_envelopes(np.ones(cpi), step_hz, prf_hz, n_doppler, n_range, spacing_m, resolution_m)
     found = _peaks(z.astype(np.complex64), 20.0, envelopes=envelopes, **kw)
     assert (found[1].tolist(), found[2].tolist()) == ([23], [32])           # the point's own cell only
     assert len(_peaks(z.astype(np.complex64), 20.0, **kw)[0]) > 1          # its sidelobes, without them

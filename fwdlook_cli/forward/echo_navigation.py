@@ -76,8 +76,8 @@ def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_
     range cells ``eligible`` (their +-``range_cells`` neighbours contiguous samples), and, with
     ``envelopes`` (:func:`sidelobe_envelopes`), over the sidelobes of every stronger peak of its CPI by
     :data:`SIDELOBE_MARGIN_DB` (:func:`_clear_of_far_sidelobes`).  Returns (CPI in
-    the block, Doppler cell, range cell, the sum sample, the powers of the Doppler cells below, at and
-    above, and the sum samples within +-:func:`interp_cells` in range, [n, 2 interp_cells + 1])."""
+    the block, Doppler cell, range cell, the powers of the Doppler cells below, at and above, and the sum
+    samples within +-:func:`interp_cells` in range, [n, 2 interp_cells + 1], the peak's own in the middle)."""
     power = np.abs(z) ** 2
     n_c, n_z, n_r = power.shape
     # the CPI's noise floor: the median of a strided sample (the image's stride, sharing no factor with
@@ -112,7 +112,7 @@ def _peaks(z, threshold_db: float, *, range_cells: int, doppler_cells: int, min_
         flat, p_0, p_lo, p_hi, jc, iz, ir = (a[clear] for a in (flat, p_0, p_lo, p_hi, jc, iz, ir))
     k_interp = interp_cells(range_cells)
     around = z.reshape(-1).take(flat[:, None] + np.arange(-k_interp, k_interp + 1))   # its range row
-    return (jc, iz, ir, z.reshape(-1).take(flat), p_lo, p_0, p_hi, around)
+    return jc, iz, ir, p_lo, p_0, p_hi, around
 
 
 SIDELOBE_MARGIN_DB = 6.0         # a peak counts where it stands this far over a stronger peak's far sidelobes
@@ -159,7 +159,8 @@ def _clear_of_far_sidelobes(jc, iz, ir, p_0, doppler_envelope, range_envelope, d
     return clear
 
 
-def sidelobe_envelopes(window, step_hz: float, prf_hz: float, n_doppler: int, range_m, range_resolution_m: float):
+def sidelobe_envelopes(window, step_hz: float, prf_hz: float, n_doppler: int, n_range: int, spacing_m: float,
+                       range_resolution_m: float):
     """The sidelobes :func:`_clear_of_far_sidelobes` compares with: the power response of one scatterer
     in the CPI's zoom (slow-time weights ``window`` at ``prf_hz``, cells ``step_hz`` apart) and, in range,
     of an unweighted compressed pulse (sinc^2 of the offset over the resolution: the highest sidelobes
@@ -174,8 +175,7 @@ def sidelobe_envelopes(window, step_hz: float, prf_hz: float, n_doppler: int, ra
     resp = np.abs(np.exp(2j * np.pi * fine[:, None] * step_hz * n[None, :] / prf_hz) @ w) ** 2 / np.sum(w) ** 2
     tail = np.maximum.accumulate(resp[::-1])[::-1]                          # the largest response at or beyond
     doppler = np.interp(np.arange(n_doppler + 1) - 0.5, fine, tail, left=1.0)
-    spacing_m = float(np.min(np.diff(np.asarray(range_m, float)))) if len(range_m) > 1 else 1.0
-    apart = (np.arange(len(range_m) + 1) - 0.5) * spacing_m / max(float(range_resolution_m), 1e-12)
+    apart = (np.arange(n_range + 1) - 0.5) * spacing_m / max(float(range_resolution_m), 1e-12)
     pulse = np.minimum(1.0, 1.0 / np.maximum(np.pi * apart, 1e-12) ** 2)    # sinc^2's envelope
     return doppler, pulse
 
@@ -285,19 +285,19 @@ def cell_residuals_hz(sum_z, diff_z, doppler_hz, beam_deg, velocity_mps, positio
         return sum_z[picked[0]:picked[-1] + 1] if consecutive else sum_z[picked]
 
     envelopes = sidelobe_envelopes(np.ones(cpi) if window is None else window, step_hz, prf_hz, sum_z.shape[1],
-                                   range_m, range_resolution_m or spacing_m)
+                                   len(range_m), spacing_m, range_resolution_m or spacing_m)
     parts = [_peaks(block(i), threshold_db, range_cells=range_cells, doppler_cells=doppler_cells,
                     min_curvature=min_curvature, eligible=eligible, envelopes=envelopes) for i in starts]
     jc = np.concatenate([part[0] + i for part, i in zip(parts, starts)])
-    iz, ir, z_0, p_lo, p_0, p_hi, around = (np.concatenate([part[k] for part in parts]) for k in range(1, 8))
+    iz, ir, p_lo, p_0, p_hi, around = (np.concatenate([part[k] for part in parts]) for k in range(1, 7))
     # through the main beam only: within MAIN_BEAM_DB of the strongest peak at its range over the scan
     # (a target's far-sidelobe echoes carry no monopulse angle; a noiseless cube's had read +47 to +79 Hz),
     # and over the float32 processing's own floor, NUMERIC_FLOOR_DB under the strongest peak of all
     main = main_beam_peaks(ir, p_0, len(range_m), range_cells)
     main &= p_0 >= float(p_0.max(initial=0.0)) * 10.0 ** (-NUMERIC_FLOOR_DB / 10.0)
-    jc, iz, ir, z_0, p_lo, p_0, p_hi, around = (a[main] for a in (jc, iz, ir, z_0, p_lo, p_0, p_hi, around))
+    jc, iz, ir, p_lo, p_0, p_hi, around = (a[main] for a in (jc, iz, ir, p_lo, p_0, p_hi, around))
     ic = usable[jc]
-    ratio = diff_z[ic, iz, ir] / z_0
+    ratio = diff_z[ic, iz, ir] / around[:, around.shape[1] // 2]         # over the peak's own sum sample
     if diff_gain_db or diff_phase_deg:     # the calibration's channel imbalance divided out (as the image)
         ratio = ratio / (10.0 ** (diff_gain_db / 20.0) * np.exp(1j * np.radians(diff_phase_deg)))
     offset_deg = offset_of_ratio(np.real(ratio))
